@@ -1,0 +1,1 @@
+"""ff_planner: robust feedforward current planning (pure numpy/scipy; no ROS)."""
