@@ -1,0 +1,158 @@
+"""Conversions between ff_msgs messages and numpy arrays / the planner's dataclasses.
+
+Pure functions; they import the generated ``ff_msgs`` types lazily so that the planner library
+itself never needs ROS. Times: ``builtin_interfaces/Time`` <-> float seconds or integer ns.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+from typing import Any, Sequence
+
+import numpy as np
+
+from ff_planner.profile import CurrentProfile, PlanRequest, PlanResult
+
+DEFAULT_JOINT_NAMES = {"arm1dof": ["joint1"], "scara2": ["joint1", "joint2"]}
+
+
+# --- time -------------------------------------------------------------------------------------
+def time_to_ns(stamp: Any) -> int:
+    """builtin_interfaces/Time -> integer nanoseconds."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def ns_to_time(ns: int):
+    """Integer nanoseconds (>= 0) -> builtin_interfaces/Time."""
+    from builtin_interfaces.msg import Time
+
+    ns = int(ns)
+    if ns < 0:
+        raise ValueError(f"time must be >= 0 ns, got {ns}")
+    return Time(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+# --- profile ----------------------------------------------------------------------------------
+def profile_id(profile: CurrentProfile, model: str, q0: Sequence[float], qf: Sequence[float]) -> str:
+    """A short content hash naming a profile (same motion -> same id)."""
+    blob = json.dumps({"m": model, "q0": list(map(float, q0)), "qf": list(map(float, qf)),
+                       "t": profile.step_times.tolist(), "i": profile.currents.tolist(),
+                       "tf": profile.tf, "c": profile.coast}, sort_keys=True)
+    return hashlib.sha1(blob.encode()).hexdigest()[:16]
+
+
+def profile_to_msg(profile: CurrentProfile, model: str, q0: Sequence[float], qf: Sequence[float],
+                   joint_names: Sequence[str] | None = None, pid: str | None = None):
+    """CurrentProfile dataclass -> ff_msgs/msg/CurrentProfile (currents flattened row-major)."""
+    from ff_msgs.msg import CurrentProfile as CurrentProfileMsg
+
+    names = list(joint_names) if joint_names is not None else DEFAULT_JOINT_NAMES.get(
+        model, [f"joint{j + 1}" for j in range(profile.n_joints)])
+    if len(names) != profile.n_joints:
+        raise ValueError(f"{len(names)} joint names for a {profile.n_joints}-joint profile")
+    return CurrentProfileMsg(
+        profile_id=pid or profile_id(profile, model, q0, qf), model=model, joint_names=names,
+        q0=[float(x) for x in q0], qf=[float(x) for x in qf],
+        step_times=profile.step_times.tolist(), currents=profile.currents.ravel().tolist(),
+        n_steps=profile.n_steps, coast=float(profile.coast), move_time=float(profile.tf))
+
+
+def msg_to_profile(msg: Any) -> CurrentProfile:
+    """ff_msgs/msg/CurrentProfile -> CurrentProfile dataclass; ValueError if inconsistent."""
+    nj = len(msg.joint_names)
+    n = int(msg.n_steps)
+    cur = np.asarray(msg.currents, dtype=float)
+    if nj < 1:
+        raise ValueError("profile has no joint names")
+    if cur.size != n * nj:
+        raise ValueError(f"profile has {cur.size} currents, expected n_steps x joints = {n} x {nj}")
+    if len(msg.step_times) != n + 1:
+        raise ValueError(f"profile has {len(msg.step_times)} step times, expected n_steps + 1 = {n + 1}")
+    return CurrentProfile(np.asarray(msg.step_times, dtype=float), cur.reshape(n, nj),
+                          float(msg.move_time), float(msg.coast))
+
+
+# --- setpoints --------------------------------------------------------------------------------
+def setpoint_msg(stamp_ns: int, currents: Sequence[float], seq: int, pid: str = "", last: bool = False):
+    """Build ff_msgs/msg/CurrentSetpoint taking effect at ``stamp_ns`` (ROS clock, ns)."""
+    from ff_msgs.msg import CurrentSetpoint
+
+    return CurrentSetpoint(stamp=ns_to_time(stamp_ns), currents=[float(c) for c in currents],
+                           seq=int(seq), profile_id=pid, last=bool(last))
+
+
+def setpoint_to_tuple(msg: Any) -> tuple[int, np.ndarray, int, str, bool]:
+    """CurrentSetpoint -> (stamp ns, currents A, seq, profile id, last)."""
+    return (time_to_ns(msg.stamp), np.asarray(msg.currents, dtype=float), int(msg.seq),
+            str(msg.profile_id), bool(msg.last))
+
+
+# --- plan service -----------------------------------------------------------------------------
+def request_from_msg(req: Any, defaults: PlanRequest | None = None, params=None) -> PlanRequest:
+    """PlanTrajectory.Request -> PlanRequest. Zero/empty fields take values from ``defaults``.
+
+    Parameter overrides are applied to ``params`` (or the model's preset); a ParameterError names
+    an unknown key. Nothing here plans: call ``request.validate()`` next.
+    """
+    from ff_planner.params import ParameterError, default_params
+
+    d = defaults or PlanRequest()
+    if len(req.override_names) != len(req.override_values):
+        raise ParameterError(f"{len(req.override_names)} override names but "
+                             f"{len(req.override_values)} values")
+    model = req.model or d.model
+    base = params if params is not None and params.model == model else default_params(model)
+    if req.override_names:
+        base = base.replace(**dict(zip(req.override_names, req.override_values)))
+    return PlanRequest(
+        model=model, q0=list(req.q0), qf=list(req.qf), tf=float(req.move_time),
+        uncertain=list(req.uncertain), objective=req.objective or "robust-derivative",
+        steps=int(req.steps) or None, starts=int(req.starts) or d.starts, seed=int(req.seed),
+        time_budget=float(req.time_budget) or d.time_budget, coast=d.coast, params=base, tol=d.tol)
+
+
+def request_to_msg(request: PlanRequest):
+    """PlanRequest -> PlanTrajectory.Request (overrides = every parameter that differs from preset)."""
+    from ff_msgs.srv import PlanTrajectory
+    from ff_planner.params import default_params
+
+    p = request.resolved_params()
+    ref = default_params(request.model).to_dict()
+    over = {k: v for k, v in p.to_dict().items() if v != ref[k]}
+    return PlanTrajectory.Request(
+        model=request.model, q0=[float(x) for x in request.q0], qf=[float(x) for x in request.qf],
+        move_time=float(request.tf), uncertain=list(request.uncertain), objective=request.objective,
+        steps=int(request.steps or 0), starts=int(request.starts), seed=int(request.seed),
+        time_budget=float(request.time_budget), override_names=list(over),
+        override_values=list(over.values()))
+
+
+ERROR_CODES = {"OK": 0, "INVALID_REQUEST": 1, "UNKNOWN_MODEL": 2, "UNKNOWN_PARAMETER": 3,
+               "UNREACHABLE": 4, "NO_ROBUST_PLAN": 5, "TIME_BUDGET_EXHAUSTED": 6, "INTERNAL_ERROR": 7}
+
+
+def result_to_response(result: PlanResult, response: Any, joint_names: Sequence[str] | None = None):
+    """Fill a PlanTrajectory.Response from a PlanResult; returns the response."""
+    response.success = bool(result.success)
+    response.error_code = ERROR_CODES.get(result.error_code, ERROR_CODES["INTERNAL_ERROR"])
+    response.message = str(result.message)
+    if result.profile is not None:
+        response.profile = profile_to_msg(result.profile, result.model, result.q0, result.qf, joint_names)
+    response.q_final = [float(x) for x in np.ravel(result.q_final)]
+    response.qd_final = [float(x) for x in np.ravel(result.qd_final)]
+    response.sensitivity_names = list(result.sensitivities)
+    response.sensitivity_values = [float(v) for v in result.sensitivities.values()]
+    response.robust = bool(result.robust)
+    response.warm_start = bool(result.warm_start)
+    response.starts_tried = int(result.starts_tried)
+    response.iterations = int(result.iterations)
+    response.solve_time = float(result.solve_time)
+    return response
+
+
+def error_response(response: Any, code: str, message: str):
+    """Fill a PlanTrajectory.Response for a refused request (success = false)."""
+    response.success = False
+    response.error_code = ERROR_CODES.get(code, ERROR_CODES["INTERNAL_ERROR"])
+    response.message = message
+    return response

@@ -1,0 +1,105 @@
+"""Start and stop suite processes with safe ROS 2 network settings (no ROS launch on PyPI).
+
+Every process the suite starts gets ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``, a per-run
+``ROS_DOMAIN_ID`` and a per-run ``ROS_LOG_DIR``, so nothing leaves loopback and parallel runs do
+not see each other.
+"""
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Mapping, Optional, Sequence
+
+
+def ros_environment(domain_id: Optional[int] = None, log_dir: Optional[str] = None,
+                    base: Optional[Mapping[str, str]] = None) -> dict[str, str]:
+    """A copy of ``base`` (default os.environ) with loopback-only ROS settings.
+
+    ``domain_id`` None picks a random id in 1..100 (Linux-safe range); ``log_dir`` None makes a
+    fresh temporary folder.
+    """
+    env = dict(os.environ if base is None else base)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env["ROS_DOMAIN_ID"] = str(domain_id if domain_id is not None else random.randint(1, 100))
+    env["ROS_LOG_DIR"] = log_dir or tempfile.mkdtemp(prefix="ff-roslog-")
+    env.pop("ROS_STATIC_PEERS", None)
+    env.setdefault("PYTHONUNBUFFERED", "1")
+    return env
+
+
+def apply_ros_environment(env: Mapping[str, str]) -> None:
+    """Put the ROS settings of ``env`` into this process (call before rclpy.init())."""
+    for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_DOMAIN_ID", "ROS_LOG_DIR"):
+        os.environ[k] = env[k]
+
+
+@dataclass
+class NodeProcess:
+    """A child process running one node; output goes to ``log_path``."""
+
+    name: str
+    popen: subprocess.Popen
+    log_path: Path
+    _log: Optional[IO] = field(default=None, repr=False)
+
+    @property
+    def pid(self) -> int:
+        return self.popen.pid
+
+    def alive(self) -> bool:
+        return self.popen.poll() is None
+
+    def output(self) -> str:
+        try:
+            return self.log_path.read_text(errors="replace")
+        except OSError:
+            return ""
+
+    def stop(self, timeout: float = 5.0) -> int:
+        """SIGINT, then SIGTERM, then SIGKILL, by PID; returns the exit code."""
+        if self.popen.poll() is None:
+            for sig, wait in ((signal.SIGINT, timeout), (signal.SIGTERM, 2.0), (signal.SIGKILL, 2.0)):
+                try:
+                    self.popen.send_signal(sig)
+                except ProcessLookupError:
+                    break
+                try:
+                    self.popen.wait(wait)
+                    break
+                except subprocess.TimeoutExpired:
+                    continue
+        if self._log is not None:
+            self._log.close()
+            self._log = None
+        return self.popen.returncode if self.popen.returncode is not None else -9
+
+
+def start_module(name: str, module: str, args: Sequence[str], env: Mapping[str, str],
+                 log_dir: Optional[str] = None) -> NodeProcess:
+    """Run ``python -m module args`` as a child with ``env``; stdout+stderr to a log file."""
+    folder = Path(log_dir or env.get("ROS_LOG_DIR") or tempfile.mkdtemp(prefix="ff-log-"))
+    folder.mkdir(parents=True, exist_ok=True)
+    log_path = folder / f"{name}.out"
+    log = open(log_path, "w", buffering=1)
+    popen = subprocess.Popen([sys.executable, "-u", "-m", module, *args], env=dict(env),
+                             stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+    return NodeProcess(name, popen, log_path, log)
+
+
+def wait_for_line(proc: NodeProcess, text: str, timeout: float = 20.0) -> bool:
+    """Wait until ``text`` appears in the process output (True) or it dies / times out (False)."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if text in proc.output():
+            return True
+        if not proc.alive():
+            return text in proc.output()
+        time.sleep(0.05)
+    return False
