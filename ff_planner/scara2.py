@@ -20,9 +20,9 @@ H = T and this is exactly Eq. 9.
 Simulation: classical RK4 on a grid that contains every current switch (default substep 1 ms),
 restarted exactly at every event: a sliding joint's velocity reaching zero (it then sticks or
 reverses, decided by a consistent mode selection over both joints) and a stuck joint's holding
-torque reaching its limit (breakaway). Events are located by bracketed secant iteration on the RK4 step
-length, then polished by a chord-Newton step in complex arithmetic, so the event time is a smooth function of the inputs. Everything runs in complex
-arithmetic (decisions on real parts), which gives complex-step derivatives — exact to rounding —
+torque reaching its limit (breakaway). Events are located by bracketed secant iteration on
+the RK4 step length, then polished by chord-Newton steps in complex arithmetic, so the event time
+is a smooth function of the inputs. Everything runs in complex arithmetic (decisions on real parts), which gives complex-step derivatives — exact to rounding —
 of the final state with respect to friction parameters and currents. Accuracy: 4th order in the
 substep; at 1 ms the final state of the section 4.2 task agrees with 0.125 ms to ~1e-10 rad
 (tests/test_scara2.py); while a joint is stuck it stays exactly at rest and the other joint's
@@ -402,7 +402,12 @@ def _segment(y, t, t_end, T1, T2, st, sd, P, h, rec, rec_t, rec_y, rec_i, nrec, 
                     rec_t[k] = t.real
                     for m in range(4):
                         rec_y[k, m] = y[m].real
-                    rec_i[k] = 1 + bkind
+                    if bkind == 1:
+                        rec_i[k] = 30 + bj
+                    elif st[bj]:
+                        rec_i[k] = 10 + bj
+                    else:
+                        rec_i[k] = 20 + bj
                     counters[1] += 1
     return y, t
 
@@ -480,7 +485,7 @@ class Scara2Sim:
     q: Optional[np.ndarray] = None
     qd: Optional[np.ndarray] = None
     current: Optional[np.ndarray] = None
-    event_kind: Optional[np.ndarray] = None   # per record: 0 grid, 1 velocity zero, 2 breakaway
+    event_kind: Optional[np.ndarray] = None   # per record: 0 grid; 10+j stick, 20+j reverse, 30+j breakaway of joint j (0-based)
 
 
 def _check_inputs(params, profile: CurrentProfile, q0, qd0):
@@ -562,9 +567,10 @@ def _to_simresult(sim: Scara2Sim, profile: CurrentProfile):
     for k in ("q_f", "qd_f", "t", "q", "qd", "current"):
         if k in names:
             kw[k] = getattr(sim, k)
-    if "events" in names:
-        kw["events"] = (None if sim.t is None else
-                        [(float(tt), int(kk)) for tt, kk in zip(sim.t, sim.event_kind) if kk])
+    if "events" in names and sim.t is not None:
+        kinds = {1: "stick", 2: "reverse", 3: "breakaway"}
+        kw["events"] = [(float(tt), f"{kinds[int(kk) // 10]}{int(kk) % 10 + 1}")
+                        for tt, kk in zip(sim.t, sim.event_kind) if kk]
     res = SimResult(**kw)
     for k in ("q_rest", "t_rest", "stuck_tf", "n_events"):
         try:
@@ -576,11 +582,12 @@ def _to_simresult(sim: Scara2Sim, profile: CurrentProfile):
 
 def rest_position_scara2(params: Scara2Params, profile: CurrentProfile, q0: Sequence[float],
                          qd0: Optional[Sequence[float]] = None, *, h: float = DEFAULT_H) -> np.ndarray:
-    """Where the arm comes to rest (rad) when the current stays zero after tf."""
+    """Where the arm comes to rest (rad) when the current stays zero after tf; nan for a joint
+    still moving 5 s after tf."""
     q0, qd0 = _check_inputs(params, profile, q0, qd0)
     sim = _simulate_raw(params, profile, q0, qd0, settle=True, h=h)
     if not math.isfinite(sim.t_rest):
-        raise PlanningError("arm still moving 5 s after tf with zero current", "INTERNAL")
+        return np.full(2, np.nan)
     return sim.q_rest
 
 
