@@ -39,7 +39,6 @@ from .params import MODELS, Params, default_params
 from .profile import CurrentProfile, PlanRequest, PlanResult
 
 SCHEMA_VERSION = 1
-MOTION_FORMAT = "ff-motion/1"
 
 #: Row statuses. "failed" is transient (time budget, internal error): a later solve may replace it.
 STATUSES = ("solved", "infeasible", "failed")
@@ -174,33 +173,14 @@ class MotionRecord:
 
 
 def motion_dict(result: PlanResult, request: PlanRequest) -> Optional[dict]:
-    """The ff-motion/1 dict of a result (None without a profile).
-
-    Uses ff_planner.motion_file when it offers a converter, so there is one writer of the format.
-    """
+    """The ff-motion/1 dict of a result via ff_planner.motion_file (None without a profile)."""
     if result.profile is None:
         return None
-    try:  # the suite's own writer, when present
-        from . import motion_file  # type: ignore
+    from .motion_file import motion_to_dict
 
-        conv = getattr(motion_file, "result_to_dict", None) or getattr(motion_file, "to_dict", None)
-        if conv is not None:
-            return conv(result)
-    except ImportError:
-        pass
-    except Exception:  # a converter that cannot take this result: fall back to the plain layout
-        pass
-    p = result.params if result.params is not None else request.resolved_params()
-    prof = result.profile
-    return {"format": MOTION_FORMAT, "model": result.model or request.model, "params": p.to_dict(),
-            "q0": [float(x) for x in np.ravel(result.q0)], "qf": [float(x) for x in np.ravel(result.qf)],
-            "tf": float(prof.tf), "coast": float(prof.coast),
-            "step_times": [float(t) for t in prof.step_times],
-            "currents": [[float(c) for c in row] for row in prof.currents],
-            "uncertain": list(result.uncertain), "objective": result.objective,
-            "predicted": {"q_final": [float(x) for x in np.ravel(result.q_final)],
-                          "qd_final": [float(x) for x in np.ravel(result.qd_final)],
-                          "sensitivities": {k: float(v) for k, v in result.sensitivities.items()}}}
+    if result.params is None:
+        result.params = request.resolved_params()
+    return motion_to_dict(result)
 
 
 def record_from_result(request: PlanRequest, result: PlanResult, *, solved_how: Optional[str] = None,
