@@ -14,7 +14,8 @@ Exact derivatives (forward mode through the event times) live in ``_deriv1d``.
 from __future__ import annotations
 
 import math
-from typing import Optional
+from dataclasses import dataclass
+from typing import Optional, Sequence
 
 import numpy as np
 from numba import njit
@@ -267,3 +268,56 @@ def advance(params: Arm1DofParams, q: float, qd: float, current: float,
     J, c, pv, pc, pt = _args(params)
     q1, v1 = advance_core(J, c, pv, pc, pt, float(q), float(qd), float(current), float(dt))
     return float(q1), float(v1)
+
+
+FRICTION = ("pv", "pc", "pt")
+
+
+@dataclass
+class Derivatives1D:
+    """Exact derivatives of the final state (rad, rad/s) of a 1-DOF move.
+
+    dq_dp / dqd_dp: {"pv", "pc", "pt"} → ∂q_f/∂p, ∂q̇_f/∂p (rad or rad/s per unit of p).
+    dq_dI, dqd_dI: (N,) per A of each step current; d2q_dpdI: (3, N) rows pv, pc, pt.
+    t_stop: time (s) the arm came to rest for good (inf while moving).
+    kink_radius: first-order relative change of the uncertain parameters that reaches a
+    non-smooth point (zero crossing at a switch time, breakaway edge); the derivatives are
+    one-sided beyond it. ``smooth`` = kink_radius ≥ the radius asked for.
+    """
+
+    q: float
+    qd: float
+    dq_dp: dict
+    dqd_dp: dict
+    dq_dI: np.ndarray
+    dqd_dI: np.ndarray
+    d2q_dpdI: np.ndarray
+    t_stop: float
+    kink_radius: float
+    smooth: bool
+
+
+def derivatives(params: Arm1DofParams, profile: CurrentProfile, q0: float, *,
+                uncertain: Sequence[str] = FRICTION, to_rest: bool = False,
+                min_radius: float = 1e-3) -> Derivatives1D:
+    """Exact (forward-mode) derivatives of q(tf), q̇(tf) — or of the rest position with
+    ``to_rest`` — w.r.t. the friction parameters and the step currents."""
+    from ._deriv1d import NP, Q_, TSTOP_, V_, hd_sim, workspace
+
+    bad = [u for u in uncertain if u not in FRICTION]
+    if bad:
+        raise ValueError(f"unknown friction parameter(s) {bad}; choose from {FRICTION}")
+    times, cur = _profile_arrays(profile)
+    n = cur.shape[0]
+    W = workspace(n)
+    J, c, pv, pc, pt = _args(params)
+    pw = np.array([getattr(params, k) if k in uncertain else 0.0 for k in FRICTION])
+    kink = hd_sim(J, c, pv, pc, pt, times, cur, profile.tf, float(q0), bool(to_rest), pw, W)
+    base = 4 + n
+    return Derivatives1D(
+        q=float(W[Q_, 0]), qd=float(W[V_, 0]),
+        dq_dp={k: float(W[Q_, 1 + i]) for i, k in enumerate(FRICTION)},
+        dqd_dp={k: float(W[V_, 1 + i]) for i, k in enumerate(FRICTION)},
+        dq_dI=W[Q_, 4:4 + n].copy(), dqd_dI=W[V_, 4:4 + n].copy(),
+        d2q_dpdI=W[Q_, base:base + NP * n].reshape(NP, n).copy(),
+        t_stop=float(W[TSTOP_, 0]), kink_radius=float(kink), smooth=bool(kink >= min_radius))
