@@ -108,7 +108,8 @@ def test_api_methods_agree_and_forward_is_the_paper_quotient():
     fw = sensitivities(T2, prof, [0.0], method="forward")
     for k in ("pv", "pc", "pt", "qd/pc", "qrest/pt"):
         assert ex[k] == pytest.approx(ce[k], rel=1e-5, abs=1e-8)
-    assert abs(fw["pc"] - ex["pc"]) < 1e-3 and abs(fw["pt"] - ex["pt"]) < 1e-3
+    for k in ("pv", "pc", "pt"):   # the 0.1 % secant differs from the tangent by curvature only
+        assert abs(fw[k] - ex[k]) <= 1e-3 + 1e-2 * abs(ex[k])
     with pytest.raises(ParameterError, match="unknown friction"):
         sensitivities(T2, prof, [0.0], names=["mu"])
     with pytest.raises(ParameterError, match="method"):
