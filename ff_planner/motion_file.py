@@ -311,6 +311,10 @@ def verify_motion(source: Union[PathLike, Motion], scale: Optional[Mapping[str, 
 
     m = source if isinstance(source, Motion) else read_motion(source)
     scale = {str(k): float(v) for k, v in (scale or {}).items()}
+    unknown = [k for k in scale if k not in m.params.keys()]
+    if unknown:
+        raise MotionFileError(f"scale: unknown parameter(s) {unknown} for model '{m.model}'; "
+                              f"valid keys: {', '.join(m.params.keys())}")
     try:
         pert = friction_scaled(m.params, scale) if scale else m.params
     except ParameterError as e:

@@ -1,0 +1,93 @@
+"""ff-plan: exit codes, one-line errors (never a traceback), outputs."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from ff_planner.cli import main
+from ff_planner.motion_file import read_motion
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--tf", "nan"], "--tf must be a finite"),
+    (["--q0", "nan"], "finite"),
+    (["--qf", "inf"], "finite"),
+    (["--qf", "abc"], "not a number"),
+    (["--tf", "0.05"], "must exceed the coast"),
+    (["--tf", "0.03"], "must exceed the coast"),
+    (["--qf", "40"], "UNREACHABLE"),
+    (["--uncertain", "pq"], "unknown uncertain parameter"),
+    (["--uncertain", "pc", "px"], "px"),
+    (["--set", "foo=1"], "unknown parameter"),
+    (["--set", "pc=-1"], "must be >= 0"),
+    (["--set", "pc"], "KEY=VALUE"),
+    (["--steps", "0"], "--steps must be >= 1"),
+    (["--steps", "-3"], "--steps must be >= 1"),
+    (["--model", "scara2", "--qf", "1"], "needs 2 value"),
+    (["--model", "robot"], "invalid choice"),
+    (["--objective", "fast"], "invalid choice"),
+    (["--params", "/nonexistent.yaml"], "no such file"),
+    (["--preset", "table3", "--model", "arm1dof"], "for model 'scara2'"),
+    (["-o", "/nonexistent-dir/x.json"], "does not exist"),
+    (["--bogus"], "unrecognized arguments"),
+])
+def test_bad_input_one_line_exit_2(argv, needle, capsys):
+    assert main(argv) == 2
+    out, err = capsys.readouterr()
+    assert out == ""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("ff-plan: error")
+    assert needle in lines[0]
+    assert "Traceback" not in err
+
+
+def test_bad_params_yaml(tmp_path, capsys):
+    f = tmp_path / "p.yaml"
+    f.write_text("model: arm1dof\nparams: {pc: [1, 2}\n")
+    assert main(["--params", str(f)]) == 2
+    assert "cannot read" in capsys.readouterr().err
+    f.write_text("model: arm1dof\nparams: {pz: 1}\n")
+    assert main(["--params", str(f)]) == 2
+    assert "pz" in capsys.readouterr().err
+
+
+def test_time_optimal_writes_motion_and_plot(tmp_path, capsys):
+    out, png = tmp_path / "m.json", tmp_path / "m.png"
+    rc = main(["--objective", "time-optimal", "--qf", "0.8", "-o", str(out), "--plot", str(png)])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "time-optimal" in text and "wrote" in text
+    m = read_motion(out)
+    assert m.qf[0] == 0.8 and m.extra["objective"] == "time-optimal"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_json_summary_and_params_file(tmp_path, capsys):
+    f = tmp_path / "p.yaml"
+    f.write_text("preset: table2\nparams: {pc: 0.2}\n")
+    rc = main(["--params", str(f), "--objective", "energy-optimal", "--steps", "20", "--json",
+               "-o", str(tmp_path / "e.json")])
+    assert rc == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["objective"] == "energy-optimal" and d["success"] and not d["robust"]
+    assert read_motion(tmp_path / "e.json").params.pc == 0.2
+    assert abs(d["q_final"][0] - 1.0) < 1e-8
+
+
+def test_help_via_subprocess():
+    r = subprocess.run([sys.executable, "-m", "ff_planner.cli", "--help"], capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 0
+    for flag in ("--q0", "--qf", "--tf", "--uncertain", "--objective", "--steps", "--starts",
+                 "--seed", "--time-budget", "--output", "--plot"):
+        assert flag in r.stdout
+
+
+def test_unreachable_via_subprocess_no_traceback():
+    r = subprocess.run([sys.executable, "-m", "ff_planner.cli", "--qf", "1e3"],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert r.stderr.count("\n") == 1 and "UNREACHABLE" in r.stderr
