@@ -18,6 +18,7 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from ff_msgs.srv import PlanTrajectory
 from ff_msgs_py.convert import error_response, result_to_response
@@ -25,6 +26,7 @@ from ff_msgs_py.convert import error_response, result_to_response
 from .node_service import PlannerService, RequestFields, ServiceConfigError, config_from_mapping
 
 NODE_ONLY = ("diagnostics_period", "executor_threads")
+ROS_BUILTIN = ("use_sim_time", "start_type_description_service")  # declared by every rclpy node
 
 
 class PlannerNode(Node):
@@ -33,7 +35,7 @@ class PlannerNode(Node):
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("ff_planner", automatically_declare_parameters_from_overrides=True, **kwargs)
         values = {name: p.value for name, p in self._parameters.items()
-                  if name != "use_sim_time" and not name.startswith("qos_overrides")}
+                  if name not in ROS_BUILTIN and not name.startswith("qos_overrides")}
         self.diagnostics_period = float(values.pop("diagnostics_period", 1.0))
         self.executor_threads = int(values.pop("executor_threads", 0))
         config = config_from_mapping(values)
@@ -44,7 +46,10 @@ class PlannerNode(Node):
             f"starting {config.workers} planner workers (library: {config.library_path or 'off'}, "
             f"planner: {config.plan_entry})")
         self.service.start()
-        self._srv = self.create_service(PlanTrajectory, "~/plan", self._on_plan,
+        # a deep request queue: a burst of requests waits in DDS instead of being dropped (the
+        # default depth of 10 loses requests); admission control then answers or refuses each one
+        qos = QoSProfile(depth=max(256, 8 * config.max_pending), reliability=ReliabilityPolicy.RELIABLE)
+        self._srv = self.create_service(PlanTrajectory, "~/plan", self._on_plan, qos_profile=qos,
                                         callback_group=ReentrantCallbackGroup())
         self._diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         if self.diagnostics_period > 0:

@@ -15,8 +15,10 @@ Order of work for a valid request:
 
 Concurrency: a pool of ``workers`` processes (pebble: a task running past its time budget has its
 worker killed and replaced). At most ``workers − 1`` scara2 (long) plans run or wait in the pool at
-once, so a worker is always left for 1-DOF requests. More than ``max_pending`` requests in the pool
-are refused at once (TIME_BUDGET_EXHAUSTED, "planner overloaded"). Time budgets are counted from the
+once, so a worker is always left for 1-DOF requests. More than ``max_pending`` requests waiting or
+running, or more than ``max_pending_long`` scara2 ones, are refused at once (TIME_BUDGET_EXHAUSTED,
+"planner overloaded"): a caller's thread never waits behind an unbounded queue, and 2-DOF requests
+can never take every place. Time budgets are counted from the
 moment a request arrives, queueing included.
 """
 from __future__ import annotations
@@ -71,6 +73,7 @@ class ServiceConfig:
     time_weight: float = 1.0             # rad per s in the neighbour distance
     workers: int = 2
     max_pending: int = 16
+    max_pending_long: int = 0            # scara2 requests waiting or running; 0 = max_pending // 2
     grace: float = 0.5                   # s beyond the time budget before a worker is killed
     motion_dir: str = ""                 # "" = no motion files
     plan_entry: str = DEFAULT_PLAN_ENTRY
@@ -246,6 +249,8 @@ class PlannerService:
         self._pool = None
         self._lock = threading.Lock()
         self._pending = 0
+        self._pending_long = 0
+        self.long_limit = max(1, min(config.max_pending - 1, config.max_pending_long or config.max_pending // 2))
         self._long_slots = threading.BoundedSemaphore(max(1, config.workers - 1))
         self._stats: Counter = Counter()
         self._times: dict[str, deque] = {}
@@ -365,13 +370,17 @@ class PlannerService:
                 dist, rec = near[0]
                 if dist < SHIFT_EPS and self._usable(rec, request):
                     return rec.to_result(request, message=self._hit_message(rec, dist), shift=True), "shift"
-                warm_from = (dist, rec)
+                cur = rec.currents()
+                if (request.objective.startswith("robust") and cur is not None
+                        and cur.shape == (request.n_steps(), len(request.q0))):
+                    warm_from = (dist, rec)   # baselines are closed-form: nothing to warm start
         if warm_from is not None and self._warm_supported:
             dist, rec = warm_from
             result = self._run(request, deadline, rec.currents())
             if result.error_code == "WARM_UNAVAILABLE":
-                self._warm_supported = False
-                self.log(f"warm starts disabled: {result.message}")
+                if "initial_currents" in result.message:   # the planner itself cannot warm start
+                    self._warm_supported = False
+                    self.log(f"warm starts disabled: {result.message}")
                 result = None
             elif result.success:
                 result.warm_start = True
@@ -412,13 +421,19 @@ class PlannerService:
             return failure(request, "INTERNAL_ERROR", "planner workers are not running")
         long = request.model in LONG_MODELS
         with self._lock:
-            if self._pending >= self.config.max_pending:
+            full = self._pending >= self.config.max_pending
+            full_long = long and self._pending_long >= self.long_limit
+            if full or full_long:
+                what = (f"{self._pending_long} long (scara2) plans" if full_long and not full
+                        else f"{self._pending} requests")
+                lim = self.long_limit if full_long and not full else self.config.max_pending
                 r = failure(request, "TIME_BUDGET_EXHAUSTED",
-                            f"planner overloaded: {self._pending} requests already waiting or running "
-                            f"(limit {self.config.max_pending}); retry later")
+                            f"planner overloaded: {what} already waiting or running (limit {lim}); "
+                            f"retry later")
                 r.extra = {"refused": True}
                 return r
             self._pending += 1
+            self._pending_long += int(long)
         try:
             if long:
                 left = deadline - time.monotonic()
@@ -448,6 +463,7 @@ class PlannerService:
         finally:
             with self._lock:
                 self._pending -= 1
+                self._pending_long -= int(long)
 
     def _store(self, request: PlanRequest, result: PlanResult, how: str, warm_from: Optional[str]) -> None:
         """Put solved and infeasible results in the library (failed ones are transient: not stored)."""
@@ -485,6 +501,7 @@ class PlannerService:
         with self._lock:
             out: dict[str, Any] = dict(self._stats)
             out["pending"] = self._pending
+            out["pending_long"] = self._pending_long
             for src, d in self._times.items():
                 if d:
                     a = np.fromiter(d, float)
