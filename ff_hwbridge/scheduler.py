@@ -1,0 +1,160 @@
+"""Apply stamped setpoints at their stamp time, from a dedicated thread, and record the timing.
+
+The thread sleeps until ``spin_margin`` s before the earliest due stamp, then spins on the clock
+until the stamp and calls ``apply(stamp_ns, payload)`` (which sends the RPDO). After it returns,
+``(stamp_ns, sent_ns)`` is recorded for switch-time statistics. Stamps are integer ns on
+``clock_ns`` (default ``time.time_ns``, the ROS system clock).
+
+A setpoint whose stamp already passed is applied at once (counted ``late``); one whose stamp is
+older than the last applied stamp is dropped (``stale``: it would undo a newer command).
+"""
+from __future__ import annotations
+
+import heapq
+import itertools
+import logging
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, Callable, Optional
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(order=True)
+class _Item:
+    stamp_ns: int
+    order: int
+    payload: Any = field(compare=False)
+
+
+@dataclass(frozen=True)
+class SwitchStats:
+    """Switch-time error = sent − stamp (µs) over the recorded setpoints."""
+
+    count: int
+    late: int
+    stale: int
+    p50_us: float
+    p99_us: float
+    max_us: float
+    min_us: float
+
+    def as_dict(self) -> dict[str, float]:
+        return {k: getattr(self, k) for k in ("count", "late", "stale", "p50_us", "p99_us",
+                                              "max_us", "min_us")}
+
+
+class StampScheduler:
+    """A thread that applies payloads at their stamps (ns)."""
+
+    def __init__(self, apply: Callable[[int, Any], None], clock_ns: Callable[[], int] = time.time_ns,
+                 spin_margin: float = 0.0008, max_records: int = 200_000,
+                 late_threshold: float = 0.0005, name: str = "ff-stamp-scheduler") -> None:
+        if not 0.0 <= spin_margin < 0.05:
+            raise ValueError(f"spin_margin must be in [0, 0.05) s, got {spin_margin!r}")
+        self._apply = apply
+        self._clock_ns = clock_ns
+        self._margin_ns = int(spin_margin * 1e9)
+        self._late_ns = int(late_threshold * 1e9)
+        self._heap: list[_Item] = []
+        self._counter = itertools.count()
+        self._cond = threading.Condition()
+        self._stop = False
+        self._thread: Optional[threading.Thread] = None
+        self._name = name
+        self._last_applied: Optional[int] = None
+        self.records: deque[tuple[int, int]] = deque(maxlen=max_records)
+        self.late = 0
+        self.stale = 0
+        self.errors = 0
+
+    # --- control ------------------------------------------------------------------------------
+    def start(self) -> "StampScheduler":
+        """Start the thread (idempotent)."""
+        if self._thread is None or not self._thread.is_alive():
+            self._stop = False
+            self._thread = threading.Thread(target=self._run, name=self._name, daemon=True)
+            self._thread.start()
+        return self
+
+    def stop(self, timeout: float = 2.0) -> None:
+        """Stop the thread; pending setpoints are dropped."""
+        with self._cond:
+            self._stop = True
+            self._heap.clear()
+            self._cond.notify_all()
+        if self._thread is not None:
+            self._thread.join(timeout)
+            self._thread = None
+
+    def submit(self, stamp_ns: int, payload: Any) -> None:
+        """Queue ``payload`` to be applied at ``stamp_ns``."""
+        with self._cond:
+            heapq.heappush(self._heap, _Item(int(stamp_ns), next(self._counter), payload))
+            self._cond.notify_all()
+
+    def clear(self) -> int:
+        """Drop every pending setpoint (safe state); returns how many were dropped."""
+        with self._cond:
+            n = len(self._heap)
+            self._heap.clear()
+            self._cond.notify_all()
+            return n
+
+    @property
+    def pending(self) -> int:
+        return len(self._heap)
+
+    def next_stamp(self) -> Optional[int]:
+        with self._cond:
+            return self._heap[0].stamp_ns if self._heap else None
+
+    def reset_stats(self) -> None:
+        self.records.clear()
+        self.late = self.stale = 0
+
+    def stats(self) -> SwitchStats:
+        """p50 / p99 / max of sent − stamp (µs) over the recorded setpoints."""
+        if not self.records:
+            return SwitchStats(0, self.late, self.stale, float("nan"), float("nan"),
+                               float("nan"), float("nan"))
+        err = np.array([s - t for t, s in self.records], dtype=float) / 1000.0
+        return SwitchStats(int(err.size), self.late, self.stale, float(np.percentile(err, 50)),
+                           float(np.percentile(err, 99)), float(err.max()), float(err.min()))
+
+    # --- the thread ---------------------------------------------------------------------------
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._stop:
+                    if not self._heap:
+                        self._cond.wait(0.1)
+                        continue
+                    wait_ns = self._heap[0].stamp_ns - self._clock_ns() - self._margin_ns
+                    if wait_ns <= 0:
+                        break
+                    self._cond.wait(min(wait_ns / 1e9, 0.1))
+                if self._stop:
+                    return
+                item = heapq.heappop(self._heap)
+            if self._last_applied is not None and item.stamp_ns < self._last_applied:
+                self.stale += 1
+                continue
+            while self._clock_ns() < item.stamp_ns:
+                pass
+            start = self._clock_ns()
+            if start - item.stamp_ns > self._late_ns:
+                self.late += 1
+            try:
+                self._apply(item.stamp_ns, item.payload)
+            except Exception:  # noqa: BLE001 - the thread must survive a failing send
+                self.errors += 1
+                log.exception("applying a setpoint failed")
+                continue
+            sent = self._clock_ns()
+            self._last_applied = item.stamp_ns
+            self.records.append((item.stamp_ns, sent))
