@@ -158,6 +158,7 @@ def open_network(config: Mapping[str, Any]):
     import canopen
 
     net = canopen.Network(open_bus(config))
+    net.NOTIFIER_CYCLE = 0.1            # recv timeout: bounds how long disconnect() waits
     net.connect()
     return net
 

@@ -8,7 +8,10 @@ What it does, per the suite's CANopen contract (CiA 301/402):
   standard way (COB-ID bit 31 set, count 0, entries, count, COB-ID re-enabled) are validated and
   the PDO maps RELOADED at once.
 - RPDOs applied the moment they arrive (transmission type 254/255; types 0-240 wait for the next
-  SYNC); the controlword drives the CiA 402 state machine (``sim_cia402``), the setpoint becomes
+  SYNC); the controlword drives the CiA 402 state machine (the tables of ``cia402``, plus the
+  EPOS's "switch on & enable operation" 0x000F from READY TO SWITCH ON = transitions 3+4, and
+  the quick stop option code 0x605A: 0 = disable at once, 1-4 = current 0 then SWITCH ON
+  DISABLED once the motor stands still, 5-8 = stay in QUICK STOP ACTIVE), the setpoint becomes
   motor current, clamped to the drive's own output current limit like a real drive. Current is
   only driven in OPERATION ENABLED and in the drive's current mode (EPOS4 CST 10, EPOS2 -3).
 - TPDOs with transmission type 1-240 sent on every n-th SYNC in OPERATIONAL, sampled at the SYNC's
@@ -51,8 +54,8 @@ from canopen import objectdictionary as od
 from canopen.objectdictionary import ObjectDictionary, ODArray, ODRecord, ODVariable
 from canopen.sdo import SdoAbortedError
 
-from ff_hwbridge import sim_cia402 as cia
-from ff_hwbridge.sim_cia402 import DriveState
+from ff_hwbridge import cia402
+from ff_hwbridge.cia402 import Command, State
 
 FAMILIES = ("epos4", "epos2")
 CURRENT_MODE = {"epos4": 10, "epos2": -3}
@@ -135,6 +138,26 @@ class LinkStats:
     rx_dropped: int = 0
     tx_frames: int = 0
     tx_dropped: int = 0
+
+
+_POWERED = frozenset({State.OPERATION_ENABLED})
+SW_FOLLOWS_COMMAND = 1 << 12   # cyclic synchronous / current mode: drive follows the setpoint
+
+
+def drive_step(state: State, controlword: int, previous: int,
+               quick_stop_option: int) -> tuple[State, list[int]]:
+    """What the drive does with one controlword: (new state, transition numbers fired)."""
+    cmd = cia402.decode_controlword(controlword, previous)
+    if cmd is None:
+        return state, []
+    if cmd is Command.FAULT_RESET:
+        return (State.SWITCH_ON_DISABLED, [15]) if state is State.FAULT else (state, [])
+    if state is State.READY_TO_SWITCH_ON and cmd is Command.ENABLE_OPERATION:
+        return State.OPERATION_ENABLED, [3, 4]
+    if state is State.OPERATION_ENABLED and cmd is Command.QUICK_STOP and quick_stop_option == 0:
+        return State.SWITCH_ON_DISABLED, [9]
+    t = cia402.apply_command(state, cmd, allow_quick_stop_recovery=5 <= quick_stop_option <= 8)
+    return (t.target, [t.number]) if t is not None else (state, [])
 
 
 class NullPlant:
@@ -469,7 +492,7 @@ class SimEpos:
     def _reset_application(self) -> None:
         with self._lock:
             self.node.data_store.clear()
-            self.state = DriveState.SWITCH_ON_DISABLED    # transitions 0 and 1 happen at power-on
+            self.state = State.SWITCH_ON_DISABLED    # transitions 0 and 1 happen at power-on
             self._controlword = 0
             self._setpoint_raw = 0
             self._commanded = 0.0
@@ -504,7 +527,8 @@ class SimEpos:
         return self._fault_code
 
     def statusword(self) -> int:
-        return cia.statusword(self.state, follows_command=self._in_current_mode())
+        follows = self.state is State.OPERATION_ENABLED and self._in_current_mode()
+        return cia402.encode_statusword(self.state, extra=SW_FOLLOWS_COMMAND if follows else 0)
 
     def _raw(self, index: int, sub: int = 0) -> Any:
         obj = self._dict[index] if sub == 0 and isinstance(self._dict[index], ODVariable) \
@@ -588,9 +612,9 @@ class SimEpos:
         rpm = int(round(qd * cfg.gear_ratio * 60.0 / (2 * math.pi)))
         stopped = qd == 0.0
         with self._lock:
-            new, tr = cia.quick_stop_done(self.state, int(self._raw(0x605A)), stopped)
-            if tr is not None:
-                self._set_state(new, tr, t_ns)
+            if (self.state is State.QUICK_STOP_ACTIVE and stopped
+                    and 1 <= int(self._raw(0x605A)) <= 4):
+                self._set_state(State.SWITCH_ON_DISABLED, 12, t_ns)   # quick stop done
         ma = int(round(amps * 1000.0))
         vals: dict[tuple[int, int], Any] = {
             (0x6041, 0): self.statusword(),
@@ -693,16 +717,16 @@ class SimEpos:
     def _set_state(self, new: DriveState, transition: int, t_ns: int) -> None:
         self.state = new
         self.transitions.append(transition)
-        if new not in cia.POWERED:
+        if new not in _POWERED:
             self._apply(t_ns)
 
     def _apply_controlword(self, cw: int, t_ns: int) -> None:
         with self._lock:
             prev, self._controlword = self._controlword, cw
-            new, tr = cia.next_state(self.state, cw, prev, int(self._raw(0x605A)))
-            if tr is not None:
-                if tr == 15:
-                    self._clear_fault()
+            new, fired = drive_step(self.state, cw, prev, int(self._raw(0x605A)))
+            if 15 in fired:
+                self._clear_fault()
+            for tr in fired:
                 self._set_state(new, tr, t_ns)
 
     def _setpoint(self, raw: int, t_ns: int, wall_ns: int, source: str) -> None:
@@ -717,7 +741,7 @@ class SimEpos:
             self._commanded = self.setpoint_to_current(self._setpoint_raw)
             lim = self.current_limit()
             amps = max(-lim, min(lim, self._commanded))
-            if self.state not in cia.POWERED or not self._in_current_mode():
+            if self.state not in _POWERED or not self._in_current_mode():
                 amps = 0.0
             if amps != self._applied or self._applied == 0.0:
                 self.plant.set_current(amps, t_ns)
@@ -825,9 +849,9 @@ class SimEpos:
         t = time.monotonic_ns()
         reg = self.error_register_for(code) if register is None else int(register) & 0xFF
         with self._lock:
-            if self.state is not DriveState.FAULT:
-                self._set_state(DriveState.FAULT_REACTION_ACTIVE, 13, t)
-                self._set_state(DriveState.FAULT, 14, t)
+            if self.state is not State.FAULT:
+                self._set_state(State.FAULT_REACTION_ACTIVE, 13, t)
+                self._set_state(State.FAULT, 14, t)
             self._fault_code, self._error_register = code, reg
             hist = self.node.data_store.setdefault(0x1003, {})
             old = [struct.unpack("<L", hist[s])[0] for s in range(1, 9) if s in hist]
