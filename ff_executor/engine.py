@@ -262,6 +262,7 @@ class Stream:
         self._next = 0
         self.cancelled = False
         self.extra: list[Setpoint] = []      # setpoints sent on cancel
+        self.override_ns = 1000              # a cancel zero follows each pending stamp by 1 µs
 
     @property
     def done(self) -> bool:
@@ -309,10 +310,12 @@ class Stream:
         return cur
 
     def cancel(self, now_ns: int) -> list[Setpoint]:
-        """Stop: setpoints to publish at once (zero current now, marked last).
+        """Stop: setpoints to publish at once, all zero current and marked ``last``.
 
-        Setpoints already handed to the bridge with stamps after ``now_ns`` would still take
-        effect there, so a second zero is stamped just after the latest of them.
+        The first is stamped ``now_ns``. Setpoints already handed to the bridge with later stamps
+        would still take effect there (a bridge need not drop its queue), so each of them gets a
+        zero stamped ``override`` (1 µs) after it: whatever the bridge does with its queue, any
+        current it still applies lasts only until the next frame.
         """
         if self.cancelled:
             return []
@@ -322,9 +325,10 @@ class Stream:
         seq = len(self.setpoints)
         pid = self.setpoints[0].profile_id
         out = [Setpoint(now_ns, zero, seq, pid, last=True)]
-        pending = [p.setpoint.stamp_ns for p in self.published if p.setpoint.stamp_ns >= now_ns]
-        if pending:
-            out.append(Setpoint(max(pending) + 1000, zero, seq + 1, pid, last=True))
+        pending = sorted({p.setpoint.stamp_ns for p in self.published
+                          if p.setpoint.stamp_ns >= now_ns and any(p.setpoint.currents)})
+        for k, stamp in enumerate(pending, start=1):
+            out.append(Setpoint(stamp + self.override_ns, zero, seq + k, pid, last=True))
         for sp in out:
             self.published.append(Published(sp, now_ns))
         self.extra = out

@@ -177,21 +177,29 @@ def test_stream_commanded_follows_the_plan():
 def test_cancel_sends_zero_now_and_after_every_pending_stamp():
     m = motion()
     clock = FakeClock()
-    stream = Stream(build_setpoints(m, clock.t + int(0.25 * NS)), lead_time=0.1)
+    stream = Stream(build_setpoints(m, clock.t + int(0.25 * NS)), lead_time=0.3)
     sent: list[Setpoint] = []
     cancel_at = stream.start_ns + int(0.3 * NS)
     runner = StreamRunner(stream, sent.append, clock, clock.sleep,
                           should_cancel=lambda: clock.t >= cancel_at)
     assert runner.run() is True
-    zeros = [s for s in sent if s.last]
-    assert zeros[0].currents == (0.0,) and abs(zeros[0].stamp_ns - clock.t) < NS // 1000
-    # every non-zero setpoint already handed over is followed (in stamp order) by a zero
-    latest = max(s.stamp_ns for s in sent if not s.last)
-    assert max(s.stamp_ns for s in zeros) > latest
+    first = next(i for i, s in enumerate(sent) if s.last)
+    zeros = sent[first:]
+    assert all(s.currents == (0.0,) and s.last for s in zeros)   # nothing after but zeros
+    assert abs(zeros[0].stamp_ns - clock.t) < NS // 1000          # stamped now
+    # every non-zero setpoint already handed over with a later stamp is overridden 1 us after it
+    pending = [s for s in sent[:first] if s.stamp_ns >= zeros[0].stamp_ns and any(s.currents)]
+    assert pending, "the lead time should leave setpoints pending at the bridge"
+    for s in pending:
+        assert any(z.stamp_ns - s.stamp_ns == 1000 for z in zeros)
+    # simulate a bridge that applies everything in stamp order: current is zero after cancel
+    # except for 1 us after each overridden stamp
+    timeline = sorted(sent, key=lambda s: (s.stamp_ns, s.seq))
+    on = [(a.stamp_ns, b.stamp_ns) for a, b in zip(timeline, timeline[1:])
+          if any(a.currents) and a.stamp_ns >= zeros[0].stamp_ns]
+    assert sum(b - a for a, b in on) <= 1000 * len(pending)
     assert stream.commanded(clock.t) == (0.0,)
     assert stream.done and stream.cancel(clock.t) == []
-    # nothing after the cancel point but zeros
-    assert all(s.currents == (0.0,) for s in sent[sent.index(zeros[0]):])
 
 
 def test_runner_ticks_at_the_feedback_rate():
