@@ -295,7 +295,8 @@ class EposMaster:
             raise EposError(f"node {nid} ({d.cfg.name}): PDO mapping failed: {exc}") from exc
         # our own fast decoders instead of canopen's per-variable ones
         for cob in (0x180 + nid, 0x280 + nid, 0x200 + nid):
-            self.network.unsubscribe(cob)
+            if cob in self.network.subscribers:
+                self.network.unsubscribe(cob)
         self.network.subscribe(0x180 + nid, self._make_tpdo1_cb(d))
         self.network.subscribe(0x280 + nid, self._make_tpdo2_cb(d))
         d.target = State.SWITCH_ON_DISABLED

@@ -1,0 +1,294 @@
+"""EposMaster against a minimal canopen LocalNode drive on a python-can virtual bus, in-process.
+
+The stand-in drive (``MiniEpos``) is test-only: SDO server (canopen), boot-up on NMT reset,
+PDO maps reloaded from its object dictionary when written, RPDO controlword through the CiA 402
+tables, TPDOs on SYNC, heartbeat, EMCY + Fault on request. Its "physics" is a trivial integrator
+(the product's simulated drive uses the planner's model; this only checks the protocol).
+"""
+from __future__ import annotations
+
+import struct
+import threading
+import time
+import uuid
+
+import can
+import canopen
+import pytest
+
+from ff_hwbridge import cia402
+from ff_hwbridge.cia402 import Command, State
+from ff_hwbridge.config import load_config
+from ff_hwbridge.epos import EposError, EposMaster
+from ff_hwbridge.epos_od import build_object_dictionary
+from ff_hwbridge.units import DriveUnits
+
+FMT = {0x6040: "H", 0x6041: "H", 0x6071: "h", 0x2030: "h", 0x6064: "i", 0x606C: "i",
+       0x30D1: "i", 0x6078: "h"}
+
+
+class MiniEpos:
+    """A minimal CiA 402 drive on a canopen LocalNode (test stand-in)."""
+
+    def __init__(self, channel: str, node_id: int, units: DriveUnits) -> None:
+        self.units = units
+        self.family = units.family
+        self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
+        self.net = canopen.Network(self.bus)
+        self.net.connect()
+        self.node = canopen.LocalNode(node_id, build_object_dictionary(units.family, node_id, units))
+        self.net.add_node(self.node)
+        self.id = node_id
+        self.state = State.SWITCH_ON_DISABLED
+        self.cw = 0
+        self.setpoint_raw = 0
+        self.position = 0
+        self.rpm = 0
+        self.answer_sync = True
+        self.rx_log: list[tuple[int, int]] = []
+        self.transitions: list[int] = []
+        self.lock = threading.Lock()
+        self.dirty = False
+        self.node.add_write_callback(self._on_write)
+        self.net.subscribe(0x000, self._on_nmt)
+        self.net.subscribe(0x080, self._on_sync)
+        self._reload()
+        self.node.nmt.send_command(0x82)    # boot: INITIALISING -> boot-up frame
+        self.node.nmt.send_command(0x80)    # -> PRE-OPERATIONAL
+
+    def _mapping(self, map_index: int) -> list[tuple[int, int]]:
+        n = int(self.node.sdo[map_index][0].raw)
+        out = []
+        for i in range(1, n + 1):
+            e = int(self.node.sdo[map_index][i].raw)
+            out.append((e >> 16, (e >> 8) & 0xFF))
+        return out
+
+    def _reload(self) -> None:
+        with self.lock:
+            self.rpdo_map = self._mapping(0x1600)
+            self.tpdo1_map = self._mapping(0x1A00)
+            self.tpdo2_map = self._mapping(0x1A01)
+            self.rpdo_cob = int(self.node.sdo[0x1400][1].raw)
+            self.tpdo_cobs = [int(self.node.sdo[0x1800][1].raw), int(self.node.sdo[0x1801][1].raw)]
+        if 0x200 + self.id in self.net.subscribers:
+            self.net.unsubscribe(0x200 + self.id)
+        self.net.subscribe(0x200 + self.id, self._on_rpdo)
+
+    def _on_write(self, index: int, subindex: int, od, data: bytes) -> None:
+        if index in (0x1400, 0x1600, 0x1800, 0x1801, 0x1A00, 0x1A01):
+            self.dirty = True        # reloaded lazily: the value is stored after this callback
+        if index == 0x6060:
+            self.node.data_store.setdefault(0x6061, {})[0] = bytes(data)
+
+    def _on_nmt(self, can_id: int, data: bytes, ts: float) -> None:
+        cmd, nid = data[0], data[1]
+        if nid in (0, self.id) and cmd in (0x81, 0x82):
+            self.node.nmt.send_command(0x82)
+            self.node.nmt.send_command(0x80)
+
+    def maps(self) -> None:
+        """Reload the PDO maps if the master wrote PDO objects (the drive's duty)."""
+        if self.dirty:
+            self.dirty = False
+            self._reload()
+
+    def _on_rpdo(self, can_id: int, data: bytes, ts: float) -> None:
+        self.maps()
+        if self.node.nmt.state != "OPERATIONAL" or self.rpdo_cob & 0x80000000:
+            return
+        fmt = "<" + "".join(FMT[i] for i, _ in self.rpdo_map)
+        vals = struct.unpack_from(fmt, data)
+        rec = dict(zip([i for i, _ in self.rpdo_map], vals))
+        cw = rec.get(0x6040, self.cw)
+        cmd = cia402.decode_controlword(cw, self.cw)
+        self.cw = cw
+        if cmd is not None:
+            t = cia402.apply_command(self.state, cmd)
+            if t is not None:
+                self.state = t.target
+                self.transitions.append(t.number)
+        sp = rec.get(0x6071, rec.get(0x2030, 0))
+        self.setpoint_raw = sp if self.state is State.OPERATION_ENABLED else 0
+        self.rx_log.append((cw, sp))
+
+    def _on_sync(self, can_id: int, data: bytes, ts: float) -> None:
+        if self.node.nmt.state != "OPERATIONAL" or not self.answer_sync:
+            return
+        self.maps()
+        self.rpm = int(self.setpoint_raw)                    # trivial "physics"
+        self.position += self.rpm
+        cur_ma = int(round(self.units.setpoint_to_amps(self.setpoint_raw) * 1000))
+        values = {0x6041: cia402.encode_statusword(self.state), 0x6064: self.position,
+                  0x606C: self.rpm, 0x30D1: cur_ma, 0x6078: cur_ma}
+        for cob, mapping in zip(self.tpdo_cobs, (self.tpdo1_map, self.tpdo2_map)):
+            if cob & 0x80000000 or not mapping:
+                continue
+            fmt = "<" + "".join(FMT[i] for i, _ in mapping)
+            self.net.send_message(cob & 0x7FF, struct.pack(fmt, *[values[i] for i, _ in mapping]))
+
+    # fault injection
+    def raise_fault(self, code: int = 0x2310) -> None:
+        self.node.emcy.send(code, 0x01)
+        self.state = State.FAULT
+        self.setpoint_raw = 0
+
+    def stop_heartbeat(self) -> None:
+        self.node.nmt.stop_heartbeat()
+
+    def close(self) -> None:
+        self.node.nmt.stop_heartbeat()
+        self.net.disconnect()
+
+
+def _config(channel: str, family: str = "epos4", n: int = 1, **over):
+    joints = [{"name": f"joint{i + 1}", "node_id": i + 1, "family": family, "current_limit": 10.0,
+               "units": {"nominal_current": 3.0, "torque_constant": 0.0267, "counts_per_rev": 2048,
+                         "gear_ratio": 54}} for i in range(n)]
+    data = {"bus": {"interface": "virtual", "channel": channel}, "joints": joints,
+            "sync_period": 0.005, "heartbeat_producer_ms": 10, "heartbeat_timeout": 0.06,
+            "setpoint_timeout": 0.1, "boot_timeout": 1.0}
+    data.update(over)
+    return load_config(data)
+
+
+@pytest.fixture
+def rig(request):
+    family, n = getattr(request, "param", ("epos4", 1))
+    channel = f"ff-test-{uuid.uuid4().hex[:8]}"
+    cfg = _config(channel, family, n)
+    drives = [MiniEpos(channel, j.node_id, j.units) for j in cfg.joints]
+    master = EposMaster(cfg)
+    master.connect()
+    yield master, drives
+    master.disconnect()
+    for d in drives:
+        d.close()
+
+
+def _wait(pred, timeout=2.0):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(0.002)
+    return pred()
+
+
+@pytest.mark.parametrize("rig", [("epos4", 1), ("epos2", 2)], indirect=True)
+def test_configure_sets_mode_heartbeat_and_pdo_maps(rig):
+    master, drives = rig
+    master.configure()
+    for d in drives:
+        d.maps()
+        fam = d.family
+        assert int(d.node.sdo[0x6060].raw) == (10 if fam == "epos4" else -3)
+        assert int(d.node.sdo[0x1017].raw) == 10
+        assert d.node.nmt.state == "OPERATIONAL"
+        sp = 0x6071 if fam == "epos4" else 0x2030
+        assert d.rpdo_map == [(0x6040, 0), (sp, 0)]
+        assert d.tpdo1_map == [(0x6041, 0), (0x6064, 0)]
+        cur = (0x30D1, 2) if fam == "epos4" else (0x6078, 0)
+        assert d.tpdo2_map == [(0x606C, 0), cur]
+        assert int(d.node.sdo[0x1400][2].raw) == 255
+        assert int(d.node.sdo[0x1800][2].raw) == 1 and int(d.node.sdo[0x1801][2].raw) == 1
+        assert d.rpdo_cob == 0x200 + d.id and d.tpdo_cobs == [0x180 + d.id, 0x280 + d.id]
+        limit = int(d.node.sdo[0x3001][2].raw if fam == "epos4" else d.node.sdo[0x6410][2].raw)
+        assert limit == 10000
+    assert _wait(lambda: all(s is State.SWITCH_ON_DISABLED for s in master.states()))
+
+
+def test_enable_sequence_goes_through_transitions_2_3_4(rig):
+    master, drives = rig
+    master.configure()
+    master.enable()
+    assert master.wait_for_state(State.OPERATION_ENABLED, 2.0)
+    assert drives[0].transitions[-3:] == [2, 3, 4]
+    sent = master.command_currents([1.5])
+    assert sent.currents[0] == pytest.approx(1.5)
+    assert _wait(lambda: drives[0].setpoint_raw == 500)       # 1.5 A / 3 A nominal = 500 ‰
+    assert _wait(lambda: abs(master.feedback()[0].current - 1.5) < 1e-9)
+    assert master.feedback()[0].velocity > 0
+    master.disable()
+    assert master.wait_for_state(State.SWITCHED_ON, 2.0)
+    assert drives[0].transitions[-1] == 5
+    assert drives[0].setpoint_raw == 0
+
+
+def test_command_is_clamped_to_limit(rig):
+    master, drives = rig
+    master.configure()
+    master.enable()
+    assert master.wait_for_state(State.OPERATION_ENABLED, 2.0)
+    sent = master.command_currents([1e9])
+    assert sent.currents[0] == pytest.approx(10.0) and sent.reason
+    assert _wait(lambda: drives[0].setpoint_raw == 3333)      # floor(10 A / 3 A * 1000)
+    master.command_currents([float("nan")])
+    assert _wait(lambda: drives[0].setpoint_raw == 0)
+    assert max(abs(sp) for _, sp in drives[0].rx_log) <= 3333
+
+
+def test_emcy_latches_safe_state_and_fault_reset_recovers(rig):
+    master, drives = rig
+    master.configure()
+    master.enable()
+    assert master.wait_for_state(State.OPERATION_ENABLED, 2.0)
+    master.command_currents([2.0])
+    t0 = time.monotonic()
+    drives[0].raise_fault(0x2310)
+    assert _wait(lambda: master.latched, 1.0)
+    assert time.monotonic() - t0 < 0.05
+    assert "EMCY" in master.fault_reason and "0x2310" in master.fault_reason
+    n = len(drives[0].rx_log)
+    master.command_currents([5.0])                           # refused while latched
+    assert _wait(lambda: len(drives[0].rx_log) > n)
+    assert all(sp == 0 for _, sp in drives[0].rx_log[n - 1:])
+    with pytest.raises(EposError):
+        master.enable()
+    master.fault_reset()
+    assert not master.latched
+    assert master.wait_for_state(State.OPERATION_ENABLED, 2.0)
+    assert 15 in drives[0].transitions
+
+
+def test_heartbeat_loss_latches_safe_state(rig):
+    master, drives = rig
+    master.configure()
+    master.enable()
+    assert master.wait_for_state(State.OPERATION_ENABLED, 2.0)
+    master.command_currents([1.0])
+    drives[0].stop_heartbeat()
+    t0 = time.monotonic()
+    assert _wait(lambda: master.latched, 1.0)
+    assert time.monotonic() - t0 < 0.06 + 0.05
+    assert "heartbeat lost" in master.fault_reason
+    assert _wait(lambda: drives[0].state is State.QUICK_STOP_ACTIVE)
+    assert drives[0].transitions[-1] == 11
+    assert drives[0].setpoint_raw == 0
+
+
+def test_setpoint_watchdog_and_feedback_loss(rig):
+    master, drives = rig
+    master.configure()
+    master.enable()
+    assert master.wait_for_state(State.OPERATION_ENABLED, 2.0)
+    master.note_setpoint(motion_running=True)
+    master.command_currents([1.0])
+    assert _wait(lambda: master.latched, 1.0)
+    assert "setpoint watchdog" in master.fault_reason
+    master.fault_reset()
+    assert master.wait_for_state(State.OPERATION_ENABLED, 2.0)
+    drives[0].answer_sync = False                            # drive stops sending TPDOs
+    assert _wait(lambda: master.latched, 1.0)
+    assert "feedback lost" in master.fault_reason
+
+
+def test_missing_node_gives_clear_error():
+    channel = f"ff-test-{uuid.uuid4().hex[:8]}"
+    master = EposMaster(_config(channel, boot_timeout=0.2))
+    master.connect()
+    try:
+        with pytest.raises(EposError, match="no boot-up"):
+            master.configure()
+    finally:
+        master.disconnect()
