@@ -43,7 +43,8 @@ from .library import (LibraryError, MotionLibrary, MotionRecord, WarmStartUnavai
 from .params import MODELS, ParameterError, Params, default_params, preset
 from .profile import OBJECTIVES, PlanningError, PlanRequest, PlanResult
 
-DEFAULT_PLAN_ENTRY = "ff_planner.planner:plan"
+#: The facade with a warm start (``initial_currents``); one adapter shared with ``ff-library build``.
+DEFAULT_PLAN_ENTRY = "ff_planner.library_build:plan_for_library"
 SHIFT_EPS = 1e-9          # rad / s: canonical distance below which a stored task is the same motion
 LONG_MODELS = ("scara2",)  # models whose plans take long (seconds to minutes)
 
@@ -336,8 +337,11 @@ class PlannerService:
             req = self.make_request(f)
         except Exception as exc:  # noqa: BLE001 - every bad request becomes an answer
             code = error_code_of(exc)
-            self._count("invalid", code, time.monotonic() - t0)
-            return failure(None if code == "INTERNAL_ERROR" else _partial(f), code, str(exc))
+            elapsed = time.monotonic() - t0
+            self._count("invalid", code, elapsed)
+            res = failure(None if code == "INTERNAL_ERROR" else _partial(f), code, str(exc))
+            res.extra = {"source": "invalid", "latency": elapsed}
+            return res
         return self.handle(req, received=t0)
 
     def handle(self, request: PlanRequest, received: Optional[float] = None) -> PlanResult:

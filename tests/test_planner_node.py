@@ -281,3 +281,47 @@ def test_configured_parameters_reach_the_plan(tmp_path):
     res = svc.handle(req)
     assert not res.success and res.error_code == "INTERNAL_ERROR"
     svc.close()
+
+
+def stub_plan(request: PlanRequest, progress=None, initial_currents=None) -> PlanResult:
+    """A planner stand-in for the warm/cold logic: echoes the warm-start currents it was given."""
+    cur = (np.asarray(initial_currents, float) if initial_currents is not None
+           else np.full((request.n_steps(), len(request.q0)), 0.5))
+    prof = CurrentProfile.uniform(cur, request.tf, request.coast)
+    return PlanResult(success=True, message="stub", profile=prof, model=request.model,
+                      params=request.resolved_params(), q0=np.asarray(request.q0, float),
+                      qf=np.asarray(request.qf, float), uncertain=list(request.uncertain),
+                      objective=request.objective, q_final=np.asarray(request.qf, float),
+                      qd_final=np.zeros(len(request.q0)), sensitivities={u: 0.0 for u in request.uncertain},
+                      robust=True, starts_tried=0 if initial_currents is not None else request.starts,
+                      extra={"got_initial": initial_currents is not None})
+
+
+def test_service_warm_starts_from_the_nearest_stored_plan(tmp_path):
+    from ff_planner.library import MotionLibrary, record_from_result
+    from ff_planner.node_service import PlannerService, RequestFields, ServiceConfig
+
+    cfg = ServiceConfig(library_path=str(tmp_path / "lib.sqlite"), plan_entry="tests.test_planner_node:stub_plan",
+                        workers=2, warmup=False, warm_max_distance=0.2)
+    svc = PlannerService(cfg)
+    svc.start()
+    try:
+        base = dict(model="arm1dof", q0=[0.0], move_time=1.0, uncertain=["pc"])
+        # a stored neighbour with recognisable currents (as ff-library build would leave it)
+        seed_req = svc.make_request(RequestFields(qf=[1.0], **base))
+        stored = stub_plan(seed_req, initial_currents=np.array([[3.0], [-1.0], [2.0]]))
+        with MotionLibrary(cfg.library_path) as lib:
+            assert lib.put(record_from_result(seed_req, stored), seed_req.resolved_params())
+        near = svc.handle_fields(RequestFields(qf=[1.1], **base))
+        assert near.success and near.warm_start and near.extra["source"] == "warm"
+        assert near.extra.get("got_initial") is True
+        np.testing.assert_array_equal(near.profile.currents, [[3.0], [-1.0], [2.0]])
+        far = svc.handle_fields(RequestFields(qf=[1.5], **base))
+        assert far.success and not far.warm_start and far.extra["source"] == "cold"
+        again = svc.handle_fields(RequestFields(qf=[1.1], **base))      # now stored: a hit
+        assert again.warm_start and again.extra["source"] == "hit"
+        stats = svc.stats()
+        assert stats["source_warm"] == 1 and stats["source_cold"] == 1 and stats["source_hit"] == 1
+        assert stats["library_solved"] == 3
+    finally:
+        svc.close()
