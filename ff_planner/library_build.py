@@ -308,9 +308,12 @@ def start_local_cluster(workers: Optional[int] = None, *, dashboard: bool = Fals
     n = int(workers) if workers else (os.cpu_count() or 1)
     if n < 1:
         raise BuildError(f"--workers must be >= 1, got {workers}")
+    # With the dashboard off the scheduler still serves its small HTTP API (health, metrics): on
+    # 127.0.0.1 and a free port, so that parallel builds do not fight over 8787.
     cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
                            scheduler_port=0, dashboard_address="127.0.0.1:0" if dashboard else None,
-                           worker_dashboard_address=None, silence_logs=silence_logs)
+                           worker_dashboard_address=None, silence_logs=silence_logs,
+                           scheduler_kwargs={"dashboard_address": "127.0.0.1:0"})
     return cluster, Client(cluster)
 
 
