@@ -73,6 +73,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="paper parameter set: table1 (Coulomb only), table2 (1-DOF), table3 (SCARA)")
     m.add_argument("--params", metavar="YAML", default=None,
                    help="parameter file {model:, preset:, params: {key: value}} (SI units)")
+    m.add_argument("--config", metavar="YAML", default=None,
+                   help="plan file: model/preset/params plus task: {q0, qf, tf, coast} and "
+                        "plan: {uncertain, objective, steps, starts, seed, time_budget, tol}; "
+                        "command-line flags override it (examples in config/plan_*.yaml)")
     m.add_argument("--set", metavar="KEY=VALUE", action="append", default=[],
                    help="override one model parameter, e.g. --set pc=0.22 (repeatable)")
     t = p.add_argument_group("task")
@@ -80,21 +84,21 @@ def build_parser() -> argparse.ArgumentParser:
                    help="start position per joint (default 0, or -0.5 0 for scara2)")
     t.add_argument("--qf", nargs="+", default=None, metavar="RAD",
                    help="goal position per joint (default 1, or 0.5 0 for scara2)")
-    t.add_argument("--tf", type=float, default=1.0, metavar="S", help="move time (default 1 s)")
-    t.add_argument("--coast", type=float, default=DEFAULT_COAST, metavar="S",
+    t.add_argument("--tf", type=float, default=None, metavar="S", help="move time (default 1 s)")
+    t.add_argument("--coast", type=float, default=None, metavar="S",
                    help=f"zero-current coast at the end (default {DEFAULT_COAST} s)")
     o = p.add_argument_group("optimisation")
     o.add_argument("--uncertain", nargs="+", default=None, metavar="NAME",
                    help="friction parameters to be robust to (default: all of the model's)")
-    o.add_argument("--objective", choices=OBJECTIVES, default="robust-derivative",
+    o.add_argument("--objective", choices=OBJECTIVES, default=None,
                    help="robust-derivative (paper), robust-sampled, time-optimal, energy-optimal")
     o.add_argument("--steps", type=int, default=None, metavar="N",
                    help="current steps per joint (default 2 + number of uncertain parameters)")
-    o.add_argument("--starts", type=int, default=50, help="multistart count (default 50)")
-    o.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    o.add_argument("--time-budget", type=float, default=30.0, metavar="S",
+    o.add_argument("--starts", type=int, default=None, help="multistart count (default 50)")
+    o.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
+    o.add_argument("--time-budget", type=float, default=None, metavar="S",
                    help="wall-clock budget (default 30 s); the best plan so far is returned")
-    o.add_argument("--tol", type=float, default=1e-6,
+    o.add_argument("--tol", type=float, default=None,
                    help="robustness tolerance on |dq(tf)/dp| and |q(tf)-qf| (default 1e-6)")
     out = p.add_argument_group("output")
     out.add_argument("-o", "--output", metavar="JSON", default=None, help="write the motion file")
@@ -106,7 +110,40 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _resolve_params(args: argparse.Namespace):
+DEFAULTS = {"tf": 1.0, "coast": DEFAULT_COAST, "objective": "robust-derivative", "starts": 50,
+            "seed": 0, "time_budget": 30.0, "tol": 1e-6}
+_TASK_KEYS = ("q0", "qf", "tf", "coast")
+_PLAN_KEYS = ("uncertain", "objective", "steps", "starts", "seed", "time_budget", "tol")
+
+
+def load_config(path: str) -> dict:
+    """Read a plan file (YAML); UsageError naming the problem if it is malformed."""
+    import yaml
+
+    if not Path(path).is_file():
+        raise UsageError(f"--config: no such file {path!r}")
+    try:
+        with open(path, "r", encoding="utf-8") as fh:
+            cfg = yaml.safe_load(fh) or {}
+    except Exception as e:
+        raise UsageError(f"--config: cannot read {path!r}: {e}".splitlines()[0]) from None
+    if not isinstance(cfg, dict):
+        raise UsageError(f"--config: {path!r} must hold a mapping")
+    extra = set(cfg) - {"model", "preset", "params", "task", "plan"}
+    if extra:
+        raise UsageError(f"--config: unexpected key(s) {sorted(extra)}; expected model, preset, "
+                         f"params, task, plan")
+    for sect, keys in (("task", _TASK_KEYS), ("plan", _PLAN_KEYS)):
+        sub = cfg.get(sect) or {}
+        if not isinstance(sub, dict):
+            raise UsageError(f"--config: '{sect}' must be a mapping")
+        bad = set(sub) - set(keys)
+        if bad:
+            raise UsageError(f"--config: unknown {sect} key(s) {sorted(bad)}; expected {list(keys)}")
+    return cfg
+
+
+def _resolve_params(args: argparse.Namespace, cfg: dict):
     if args.params and args.preset:
         raise UsageError("give --params or --preset, not both (a params file can name a preset)")
     if args.params:
@@ -120,6 +157,8 @@ def _resolve_params(args: argparse.Namespace):
             raise UsageError(f"--params: cannot read {args.params!r}: {e}".splitlines()[0]) from None
     elif args.preset:
         base = preset(args.preset)
+    elif cfg and ({"model", "preset", "params"} & set(cfg)):
+        base = load_params({k: cfg[k] for k in ("model", "preset", "params") if k in cfg})
     else:
         base = PRESETS[DEFAULT_PRESET[args.model or "arm1dof"]]
     if args.model and base.model != args.model:
@@ -133,34 +172,75 @@ def _resolve_params(args: argparse.Namespace):
     return base.replace(**overrides) if overrides else base
 
 
+def _pick(args: argparse.Namespace, cfg: dict, key: str):
+    """Flag value, else the plan file's, else the built-in default."""
+    v = getattr(args, key)
+    if v is not None:
+        return v
+    for sect in ("task", "plan"):
+        sub = cfg.get(sect) or {}
+        if key in sub:
+            return sub[key]
+    return DEFAULTS.get(key)
+
+
+def _number(v, name: str, kind=float):
+    if isinstance(v, bool) or not isinstance(v, (int, float)):
+        try:
+            v = kind(str(v))
+        except ValueError:
+            raise UsageError(f"{name} must be a number, got {v!r}") from None
+    if kind is int and float(v) != int(v):
+        raise UsageError(f"{name} must be a whole number, got {v!r}")
+    return kind(v)
+
+
 def make_request(args: argparse.Namespace) -> PlanRequest:
     """The PlanRequest for parsed arguments (UsageError / ParameterError on bad input)."""
-    params = _resolve_params(args)
+    cfg = load_config(args.config) if args.config else {}
+    params = _resolve_params(args, cfg)
     model = params.model
     nj = 1 if model == "arm1dof" else 2
-    q0 = _floats(args.q0, "--q0") if args.q0 else ([0.0] if nj == 1 else [-0.5, 0.0])
-    qf = _floats(args.qf, "--qf") if args.qf else ([1.0] if nj == 1 else [0.5, 0.0])
+
+    def vec(key: str, default: list[float]) -> list[float]:
+        v = _pick(args, cfg, key)
+        if v is None:
+            return default
+        return _floats([str(x) for x in (v if isinstance(v, (list, tuple)) else [v])], f"--{key}")
+
+    q0 = vec("q0", [0.0] if nj == 1 else [-0.5, 0.0])
+    qf = vec("qf", [1.0] if nj == 1 else [0.5, 0.0])
     for name, v in (("--q0", q0), ("--qf", qf)):
         if len(v) != nj:
             raise UsageError(f"{name} needs {nj} value(s) for model '{model}', got {len(v)}")
-    for name, v in (("--tf", args.tf), ("--coast", args.coast), ("--time-budget", args.time_budget),
-                    ("--tol", args.tol)):
+    tf = _number(_pick(args, cfg, "tf"), "--tf")
+    coast = _number(_pick(args, cfg, "coast"), "--coast")
+    time_budget = _number(_pick(args, cfg, "time_budget"), "--time-budget")
+    tol = _number(_pick(args, cfg, "tol"), "--tol")
+    for name, v in (("--tf", tf), ("--coast", coast), ("--time-budget", time_budget),
+                    ("--tol", tol)):
         if not math.isfinite(v):
             raise UsageError(f"{name} must be a finite number, got {v}")
-    if args.tf <= args.coast:
-        raise UsageError(f"--tf {args.tf:g} s must exceed the coast of {args.coast:g} s")
-    if args.steps is not None and args.steps < 1:
-        raise UsageError(f"--steps must be >= 1, got {args.steps}")
-    if args.tol <= 0:
-        raise UsageError(f"--tol must be > 0, got {args.tol}")
-    uncertain = _names(args.uncertain)
-    if uncertain is None:
-        uncertain = list(params.friction_keys)
-    return PlanRequest(model=model, q0=tuple(q0), qf=tuple(qf), tf=float(args.tf),
-                       uncertain=tuple(uncertain), objective=args.objective, steps=args.steps,
-                       starts=int(args.starts), seed=int(args.seed),
-                       time_budget=float(args.time_budget), coast=float(args.coast),
-                       params=params, tol=float(args.tol))
+    if tf <= coast:
+        raise UsageError(f"--tf {tf:g} s must exceed the coast of {coast:g} s")
+    steps = _pick(args, cfg, "steps")
+    if steps is not None:
+        steps = _number(steps, "--steps", int)
+        if steps < 1:
+            raise UsageError(f"--steps must be >= 1, got {steps}")
+    if tol <= 0:
+        raise UsageError(f"--tol must be > 0, got {tol}")
+    objective = str(_pick(args, cfg, "objective"))
+    if objective not in OBJECTIVES:
+        raise UsageError(f"unknown objective {objective!r}; use one of {', '.join(OBJECTIVES)}")
+    unc = _pick(args, cfg, "uncertain")
+    uncertain = _names(unc if isinstance(unc, (list, tuple)) else [unc]) if unc is not None \
+        else list(params.friction_keys)
+    return PlanRequest(model=model, q0=tuple(q0), qf=tuple(qf), tf=tf,
+                       uncertain=tuple(uncertain), objective=objective, steps=steps,
+                       starts=_number(_pick(args, cfg, "starts"), "--starts", int),
+                       seed=_number(_pick(args, cfg, "seed"), "--seed", int),
+                       time_budget=time_budget, coast=coast, params=params, tol=tol)
 
 
 def summary(result, output: Optional[str] = None, plot: Optional[str] = None) -> dict:

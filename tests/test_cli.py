@@ -91,3 +91,30 @@ def test_unreachable_via_subprocess_no_traceback():
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert r.stderr.count("\n") == 1 and "UNREACHABLE" in r.stderr
+
+
+def test_config_files_load_and_flags_override(tmp_path, capsys):
+    from pathlib import Path
+
+    from ff_planner.cli import build_parser, make_request
+
+    cfgdir = Path(__file__).resolve().parent.parent / "config"
+    files = sorted(cfgdir.glob("plan_*.yaml"))
+    assert len(files) >= 3
+    for f in files:   # every shipped example parses into a valid request
+        req = make_request(build_parser().parse_args(["--config", str(f)]))
+        req.validate()
+    req = make_request(build_parser().parse_args(
+        ["--config", str(cfgdir / "plan_arm1dof_k3.yaml"), "--qf", "0.5", "--steps", "7"]))
+    assert req.qf == (0.5,) and req.steps == 7 and req.starts == 100
+    assert req.uncertain == ("pv", "pc", "pt") and req.params.pc == 0.19
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("task: {qf: [1.0], speed: 3}\n")
+    assert main(["--config", str(bad)]) == 2
+    assert "speed" in capsys.readouterr().err
+    bad.write_text("plan: {steps: 0}\n")
+    assert main(["--config", str(bad)]) == 2
+    assert "--steps must be >= 1" in capsys.readouterr().err
+    bad.write_text("task: {tf: .nan}\n")
+    assert main(["--config", str(bad)]) == 2
+    assert "finite" in capsys.readouterr().err
