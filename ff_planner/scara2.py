@@ -50,7 +50,7 @@ __all__ = [
 
 FRICTION_NAMES = ("pv1", "pc1", "pt1", "pv2", "pc2", "pt2")
 DEFAULT_H = 1e-3          # s, RK4 substep
-_MAX_EVENTS = 20000       # per simulation; more means chattering (reported as an error)
+_MAX_EVENTS = 2000        # per simulation; more means chattering (reported as an error)
 _CS_STEP = 1e-30          # complex-step size (relative to the parameter value)
 
 # layout of the packed parameter vector P (complex128)
