@@ -155,6 +155,8 @@ class DriveUnits:
         raw = int(math.floor(lim * scale))
         while raw > 0 and abs(self.setpoint_to_amps(raw)) > lim:   # guard float rounding
             raw -= 1
+        while raw < INT16_MAX and abs(self.setpoint_to_amps(raw + 1)) <= lim:
+            raw += 1
         return min(raw, INT16_MAX)
 
     def setpoint_to_amps(self, raw: float) -> float:
