@@ -27,6 +27,7 @@ import importlib
 import math
 import multiprocessing
 import os
+import sqlite3
 import threading
 import time
 import traceback
@@ -243,10 +244,14 @@ class PlannerService:
         self.log = log or (lambda msg: None)
         self.params = {m: config.model_params(m) for m in MODELS}
         self.library: Optional[MotionLibrary] = None
-        if config.use_library and config.library_path:
-            self.library = MotionLibrary(config.library_path)
-        if config.motion_dir:
-            Path(config.motion_dir).expanduser().mkdir(parents=True, exist_ok=True)
+        try:
+            if config.use_library and config.library_path:
+                self.library = MotionLibrary(config.library_path)
+            if config.motion_dir:
+                Path(config.motion_dir).expanduser().mkdir(parents=True, exist_ok=True)
+        except (LibraryError, sqlite3.Error, OSError) as exc:
+            raise ServiceConfigError(f"cannot open library_path {config.library_path!r} / motion_dir "
+                                     f"{config.motion_dir!r}: {exc}; fix the path or set it to \"\"") from None
         self._pool = None
         self._lock = threading.Lock()
         self._pending = 0

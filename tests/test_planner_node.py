@@ -161,6 +161,7 @@ BAD = [
     (dict(ONE_DOF, starts=10 ** 9), "INVALID_REQUEST", "starts"),
     (dict(ONE_DOF, time_budget=-1.0), "INVALID_REQUEST", "time_budget"),
     (dict(ONE_DOF, time_budget=1e9), "INVALID_REQUEST", "time_budget"),
+    (dict(ONE_DOF, qf=[1.234], time_budget=1e-4), "TIME_BUDGET_EXHAUSTED", "time budget"),
 ]
 
 
@@ -168,7 +169,8 @@ def test_bad_requests_are_answered_and_the_node_keeps_serving(client, planner_no
     from ff_msgs.srv import PlanTrajectory
 
     codes = {n: getattr(PlanTrajectory.Response, n) for n in
-             ("INVALID_REQUEST", "UNKNOWN_MODEL", "UNKNOWN_PARAMETER", "UNREACHABLE")}
+             ("INVALID_REQUEST", "UNKNOWN_MODEL", "UNKNOWN_PARAMETER", "UNREACHABLE",
+              "TIME_BUDGET_EXHAUSTED")}
     for fields, code, text in BAD:
         res = _call(client, **fields)
         assert not res.success, fields
@@ -267,7 +269,7 @@ def test_service_config_refuses_unknown_names():
 
 
 def test_configured_parameters_reach_the_plan(tmp_path):
-    from ff_planner.node_service import PlannerService, RequestFields, config_from_mapping
+    from ff_planner.node_service import PlannerService, RequestFields, ServiceConfigError, config_from_mapping
 
     cfg = config_from_mapping({"arm1dof.params.pc": 0.25, "library_path": str(tmp_path / "l.sqlite")})
     svc = PlannerService(cfg)
@@ -281,6 +283,9 @@ def test_configured_parameters_reach_the_plan(tmp_path):
     res = svc.handle(req)
     assert not res.success and res.error_code == "INTERNAL_ERROR"
     svc.close()
+    (tmp_path / "file").write_text("")
+    with pytest.raises(ServiceConfigError, match="library_path"):
+        PlannerService(config_from_mapping({"library_path": str(tmp_path / "file" / "lib.sqlite")}))
 
 
 def stub_plan(request: PlanRequest, progress=None, initial_currents=None) -> PlanResult:
