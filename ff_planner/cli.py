@@ -276,9 +276,13 @@ def _print_summary(d: dict, result) -> None:
           f"qd(tf) = {np.round(d['qd_final'], 9).tolist()} rad/s"
           + (f", rest at {np.round(d['rest_position'], 9).tolist()} rad"
              if "rest_position" in d else ""))
-    if d["sensitivities"]:
-        s = ", ".join(f"{k} {v:+.2e}" for k, v in d["sensitivities"].items())
-        print(f"  dq(tf)/dp: {s}")
+    sens = {k: v for k, v in d["sensitivities"].items() if not k.startswith("qd")}
+    if len(sens) > 6:
+        k_max = max(sens, key=lambda k: abs(sens[k]))
+        print(f"  dq(tf)/dp: max |{k_max}| = {abs(sens[k_max]):.2e} over {len(sens)} values "
+              f"(all in the motion file)")
+    elif sens:
+        print("  dq(tf)/dp: " + ", ".join(f"{k} {v:+.2e}" for k, v in sens.items()))
     print(f"  starts: {d['starts_tried']}, time: {d['solve_time_s'] * 1e3:.1f} ms")
     for k in ("output", "plot"):
         if k in d:
