@@ -150,10 +150,11 @@ def _radius_of(W, r, pw, margin):
 
 
 @njit(cache=True, nogil=True)
-def _phase(W, n, j, c, J, torque, t_start, t_end, pw, kink, rest_phase):
+def _phase(W, n, j, c, J, torque, t_start, t_end, pw, kink, rest_phase, track_end):
     """Advance the Taylor state (TIME, Q, V) under constant torque from t_start until t_end.
 
-    j: index of the step current (−1: zero current). Returns the updated kink radius.
+    j: index of the step current (−1: zero current). track_end: count a zero crossing near
+    t_end (or motion at t_end) as a kink. Returns the updated kink radius.
     """
     _const(W, T_, torque)
     if j >= 0:
@@ -183,7 +184,7 @@ def _phase(W, n, j, c, J, torque, t_start, t_end, pw, kink, rest_phase):
         tau = _cross_tau(W, n)
         if t_now + tau < t_end:
             # velocity zero crossing inside the phase: how far from the switch times?
-            if not math.isinf(t_end):
+            if track_end and not math.isinf(t_end):
                 _lin(W, TMP1_, TIME_, TAU_, 1.0, 1.0, 0.0)
                 kink = min(kink, _radius_of(W, TMP1_, pw, t_end - (t_now + tau)))
             if at_switch:
@@ -211,19 +212,25 @@ def _phase(W, n, j, c, J, torque, t_start, t_end, pw, kink, rest_phase):
         _lin(W, TAU_, TIME_, TIME_, -1.0, 0.0, t_end)
         _free(W, n)
         _const(W, TIME_, t_end)
-        # moving at the switch: a nearby zero crossing would sit on the switch time
-        kink = min(kink, _radius_of(W, V_, pw, W[V_, 0]))
+        if track_end:
+            # moving at the switch: a nearby zero crossing would sit on the switch time
+            kink = min(kink, _radius_of(W, V_, pw, W[V_, 0]))
     return kink
 
 
 @njit(cache=True, nogil=True)
 def hd_sim(J, c, pv, pc, pt, times, cur, tf, q0, to_rest, pw, W):
-    """Forward-mode simulation. Results in W rows Q_ (position), V_ (velocity), TSTOP_.
+    """Forward-mode simulation. Results in W rows Q_ (position), V_ (velocity), TSTOP_, VC_.
 
     to_rest: the final zero-current phase runs past tf until the arm stops (Q_ = rest position,
     smooth in the parameters); otherwise Q_, V_ are the state at tf. TSTOP_: time the arm came to
-    rest for good (value inf while moving). pw: weights (p_i if p_i is uncertain, else 0) for the
-    kink radius. Returns the kink radius (inf: no non-smooth point nearby).
+    rest for good (value inf while moving). VC_: velocity entering the coast. pw: weights (p_i if
+    p_i is uncertain, else 0) for the radii.
+
+    Returns (kink, tf_radius): kink = relative parameter change (first order) that reaches a
+    non-smooth point of q (a zero crossing at a switch time, a breakaway edge); tf_radius = the
+    change after which the arm is no longer at rest at tf (q(tf) stays C¹ there, q̇(tf) does not;
+    the rest position is smooth through it). inf: none nearby.
     """
     n = cur.shape[0]
     _const(W, A_, -pv / J)
@@ -238,9 +245,21 @@ def hd_sim(J, c, pv, pc, pt, times, cur, tf, q0, to_rest, pw, W):
     _const(W, TSTOP_, times[0])
     kink = math.inf
     for j in range(n):
-        kink = _phase(W, n, j, c, J, c * cur[j], times[j], times[j + 1], pw, kink, False)
+        kink = _phase(W, n, j, c, J, c * cur[j], times[j], times[j + 1], pw, kink, False, True)
+    _copy(W, VC_, V_)
+    tf_radius = math.inf
     if to_rest:
-        kink = _phase(W, n, -1, c, J, 0.0, times[n], math.inf, pw, kink, True)
-    elif tf > times[n]:
-        kink = _phase(W, n, -1, c, J, 0.0, times[n], tf, pw, kink, False)
-    return kink
+        kink = _phase(W, n, -1, c, J, 0.0, times[n], math.inf, pw, kink, True, True)
+        ts = W[TSTOP_, 0]
+        if ts >= tf:
+            tf_radius = 0.0
+        elif ts > times[n]:
+            tf_radius = _radius_of(W, TSTOP_, pw, tf - ts)
+    else:
+        if tf > times[n]:
+            kink = _phase(W, n, -1, c, J, 0.0, times[n], tf, pw, kink, False, False)
+        if W[V_, 0] != 0.0:
+            tf_radius = 0.0
+        elif W[TSTOP_, 0] > times[n]:
+            tf_radius = _radius_of(W, TSTOP_, pw, tf - W[TSTOP_, 0])
+    return kink, tf_radius

@@ -280,6 +280,8 @@ class Derivatives1D:
     dq_dp / dqd_dp: {"pv", "pc", "pt"} → ∂q_f/∂p, ∂q̇_f/∂p (rad or rad/s per unit of p).
     dq_dI, dqd_dI: (N,) per A of each step current; d2q_dpdI: (3, N) rows pv, pc, pt.
     t_stop: time (s) the arm came to rest for good (inf while moving).
+    tf_radius: relative parameter change after which the arm is no longer at rest at tf (0 when
+    it is moving at tf); q(tf) stays C¹ there, q̇(tf) does not, the rest position is smooth.
     kink_radius: first-order relative change of the uncertain parameters that reaches a
     non-smooth point (zero crossing at a switch time, breakaway edge); the derivatives are
     one-sided beyond it. ``smooth`` = kink_radius ≥ the radius asked for.
@@ -295,6 +297,7 @@ class Derivatives1D:
     t_stop: float
     kink_radius: float
     smooth: bool
+    tf_radius: float = math.inf
 
 
 def derivatives(params: Arm1DofParams, profile: CurrentProfile, q0: float, *,
@@ -312,7 +315,8 @@ def derivatives(params: Arm1DofParams, profile: CurrentProfile, q0: float, *,
     W = workspace(n)
     J, c, pv, pc, pt = _args(params)
     pw = np.array([getattr(params, k) if k in uncertain else 0.0 for k in FRICTION])
-    kink = hd_sim(J, c, pv, pc, pt, times, cur, profile.tf, float(q0), bool(to_rest), pw, W)
+    kink, tf_radius = hd_sim(J, c, pv, pc, pt, times, cur, profile.tf, float(q0), bool(to_rest),
+                             pw, W)
     base = 4 + n
     return Derivatives1D(
         q=float(W[Q_, 0]), qd=float(W[V_, 0]),
@@ -320,4 +324,5 @@ def derivatives(params: Arm1DofParams, profile: CurrentProfile, q0: float, *,
         dqd_dp={k: float(W[V_, 1 + i]) for i, k in enumerate(FRICTION)},
         dq_dI=W[Q_, 4:4 + n].copy(), dqd_dI=W[V_, 4:4 + n].copy(),
         d2q_dpdI=W[Q_, base:base + NP * n].reshape(NP, n).copy(),
-        t_stop=float(W[TSTOP_, 0]), kink_radius=float(kink), smooth=bool(kink >= min_radius))
+        t_stop=float(W[TSTOP_, 0]), kink_radius=float(kink), smooth=bool(kink >= min_radius),
+        tf_radius=float(tf_radius))
