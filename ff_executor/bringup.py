@@ -1,0 +1,341 @@
+"""``ff-bringup``: start the simulated stack — sim driver, bridge, planner, executor — as processes.
+
+    ff-bringup                              # table 2 arm, true friction = the planner's model
+    ff-bringup --true-scale pc=1.2          # the simulated arm's Coulomb friction 20 % higher
+    ff-bringup --true-param pc=0.25 --no-planner --hub-port 54701
+
+Safe defaults, always: ROS traffic on loopback only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``),
+a per-run ``ROS_DOMAIN_ID`` and log folder (``ff_msgs_py.launch.ros_environment``), and the CAN
+hub on 127.0.0.1, hosted by the simulated driver. Start order and readiness (each waits for the
+previous one, checked in the ROS graph, not by sleeping):
+
+1. ``ff_sim_driver`` (ff_hwbridge.sim_driver_node) hosting the CAN hub → service ``~/reset``;
+2. ``ff_hwbridge`` (ff_hwbridge.bridge_node --autostart) on the hub → lifecycle state *active*;
+3. ``ff_planner`` (ff_planner.node) → service ``~/plan`` (its motion library in the run folder);
+4. ``ff_executor`` (ff_executor.node) → action ``~/execute``.
+
+Stopping (Ctrl-C, SIGTERM, or any child dying): every child gets SIGINT, then SIGTERM, then
+SIGKILL, by PID, in reverse start order — the executor first, so a running move ends with a zero
+current. The :class:`Stack` class does the same for the demo, tests and benchmarks.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import socket
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Mapping, Optional, Sequence
+
+import yaml
+
+from ff_msgs_py.launch import NodeProcess, ros_environment, start_module
+from ff_planner.params import ParameterError, default_params, n_joints
+
+REPO = Path(__file__).resolve().parent.parent
+CONFIG_DIR = REPO / "config"
+
+
+class BringupError(RuntimeError):
+    """The stack could not be started; the message names the process and shows its last output."""
+
+
+@dataclass
+class StackOptions:
+    """How to start the simulated stack. Friction: SI units; ``true_scale`` multiplies the model's."""
+
+    model: str = "arm1dof"
+    true_scale: Mapping[str, float] = field(default_factory=dict)   # e.g. {"pc": 1.2}
+    true_params: Mapping[str, float] = field(default_factory=dict)  # absolute, e.g. {"pc": 0.25}
+    planner: bool = True
+    executor: bool = True
+    hub_port: int = 0                          # 0 = a free port on 127.0.0.1
+    domain_id: Optional[int] = None            # None = random per run
+    run_dir: Optional[str] = None              # logs, generated parameter files, motion library
+    executor_params: Optional[str] = None      # default config/executor.yaml (or _scara2)
+    planner_params: Optional[str] = None       # default config/planner.yaml
+    executor_overrides: Mapping[str, object] = field(default_factory=dict)
+    planner_overrides: Mapping[str, object] = field(default_factory=dict)
+    sim_overrides: Mapping[str, object] = field(default_factory=dict)
+    bridge_overrides: Mapping[str, object] = field(default_factory=dict)
+    start_timeout: float = 90.0                # s per process (first start may JIT-compile)
+    q0: Sequence[float] = ()                   # rad, initial arm position (default zeros)
+
+    def true_friction(self) -> dict[str, float]:
+        """The simulated arm's true parameters that differ from the planner's model."""
+        base = default_params(self.model)
+        out: dict[str, float] = {}
+        for k, s in self.true_scale.items():
+            out[k] = float(getattr(base, k)) * float(s)
+        out.update({k: float(v) for k, v in self.true_params.items()})
+        base.replace(**out)     # ParameterError on unknown keys or bad values
+        return out
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _params_file(path: Path, node: str, params: Mapping[str, object]) -> Path:
+    path.write_text(yaml.safe_dump({node: {"ros__parameters": dict(params)}}, sort_keys=False))
+    return path
+
+
+def bridge_config(model: str, hub_url: str) -> dict:
+    """The bridge's config (ff_hwbridge.config) for the simulated drives on the hub."""
+    p = default_params(model)
+    joints = []
+    for j in range(n_joints(model)):
+        sfx = "" if model == "arm1dof" else str(j + 1)
+        joints.append({"name": f"joint{j + 1}", "node_id": j + 1, "family": "epos4",
+                       "current_limit": float(getattr(p, "i_max" + sfx)),
+                       "units": {"nominal_current": 3.0,
+                                 "torque_constant": float(getattr(p, "kt" + sfx)),
+                                 "counts_per_rev": 4096, "gear_ratio": float(getattr(p, "n" + sfx))}})
+    return {"bus": {"interface": "remote", "channel": hub_url, "bitrate": 1_000_000},
+            "sync_period": 0.001, "heartbeat_producer_ms": 20, "heartbeat_timeout": 0.2,
+            "setpoint_timeout": 0.5, "joints": joints}
+
+
+class Stack:
+    """The four processes of the simulated stack; a context manager (stops everything on exit).
+
+    ``with Stack(StackOptions(true_scale={"pc": 1.2})) as stack: ...`` — ``stack.env`` is the
+    ROS environment to use in this process too (apply it before ``rclpy.init``).
+    """
+
+    def __init__(self, options: StackOptions | None = None,
+                 log: Callable[[str], None] = lambda s: print(s, flush=True)) -> None:
+        self.options = options or StackOptions()
+        self.log = log
+        self.run_dir = Path(self.options.run_dir or tempfile.mkdtemp(prefix="ff-bringup-"))
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self.env = ros_environment(self.options.domain_id, str(self.run_dir / "ros-log"))
+        self.env["PYTHONPATH"] = os.pathsep.join(
+            p for p in (str(REPO), self.env.get("PYTHONPATH", "")) if p)
+        self.hub_port = self.options.hub_port or free_port()
+        self.procs: list[NodeProcess] = []
+        self._ctx = None
+        self._node = None
+
+    @property
+    def hub_url(self) -> str:
+        return f"ws://127.0.0.1:{self.hub_port}/"
+
+    # --- the graph probe (this process's own rclpy context) ----------------------------------
+    def _probe(self):
+        if self._node is None:
+            import rclpy
+            from rclpy.node import Node
+
+            from ff_msgs_py.launch import apply_ros_environment
+
+            apply_ros_environment(self.env)
+            self._ctx = rclpy.Context()
+            rclpy.init(context=self._ctx)
+            self._node = Node(f"ff_bringup_{os.getpid()}", context=self._ctx)
+        return self._node
+
+    def _has_service(self, name: str) -> bool:
+        return any(n == name for n, _ in self._probe().get_service_names_and_types())
+
+    def _lifecycle_state(self, node_name: str) -> Optional[str]:
+        from lifecycle_msgs.srv import GetState
+        from rclpy.executors import SingleThreadedExecutor
+
+        node = self._probe()
+        cli = node.create_client(GetState, f"/{node_name}/get_state")
+        try:
+            if not cli.wait_for_service(timeout_sec=0.5):
+                return None
+            fut = cli.call_async(GetState.Request())
+            ex = SingleThreadedExecutor(context=self._ctx)
+            ex.add_node(node)
+            ex.spin_until_future_complete(fut, timeout_sec=2.0)
+            ex.remove_node(node)
+            return fut.result().current_state.label if fut.done() and fut.result() else None
+        finally:
+            node.destroy_client(cli)
+
+    def _wait(self, proc: NodeProcess, ready: Callable[[], bool], what: str) -> None:
+        end = time.monotonic() + self.options.start_timeout
+        while time.monotonic() < end:
+            if not proc.alive():
+                raise BringupError(f"{proc.name} exited (code {proc.popen.returncode}) before "
+                                   f"{what}; its output:\n{proc.output()[-3000:]}")
+            if ready():
+                self.log(f"  {proc.name} up ({what}), pid {proc.pid}")
+                return
+            time.sleep(0.2)
+        raise BringupError(f"{proc.name} did not get to '{what}' within "
+                           f"{self.options.start_timeout:.0f} s; its output:\n{proc.output()[-3000:]}")
+
+    # --- start / stop -------------------------------------------------------------------------
+    def _start(self, name: str, module: str, args: Sequence[str]) -> NodeProcess:
+        proc = start_module(name, module, list(args), self.env, str(self.run_dir))
+        self.procs.append(proc)
+        return proc
+
+    def start(self) -> "Stack":
+        o = self.options
+        model = o.model
+        true = o.true_friction()
+        nj = n_joints(model)
+        q0 = [float(x) for x in (o.q0 or [0.0] * nj)]
+        self.log(f"ff-bringup: run folder {self.run_dir}, ROS_DOMAIN_ID={self.env['ROS_DOMAIN_ID']} "
+                 f"(loopback only), CAN hub {self.hub_url}")
+        self.log(f"  simulated arm: {model}, true friction differs from the model by {true or 'nothing'}")
+        try:
+            sim = {"model": model, "host_hub": True, "hub_port": self.hub_port,
+                   "node_ids": list(range(1, nj + 1)), "q0": q0}
+            sim.update({f"true_params.{k}": v for k, v in true.items()})
+            sim.update(o.sim_overrides)
+            pf = _params_file(self.run_dir / "sim_driver.yaml", "ff_sim_driver", sim)
+            p = self._start("ff_sim_driver", "ff_hwbridge.sim_driver_node",
+                            ["--ros-args", "--params-file", str(pf)])
+            self._wait(p, lambda: self._has_service("/ff_sim_driver/reset"), "service ~/reset")
+
+            bcfg = self.run_dir / "bridge.yaml"
+            bcfg.write_text(yaml.safe_dump(bridge_config(model, self.hub_url), sort_keys=False))
+            bp = {"config_file": str(bcfg)}
+            bp.update(o.bridge_overrides)
+            pf = _params_file(self.run_dir / "bridge_params.yaml", "ff_hwbridge", bp)
+            p = self._start("ff_hwbridge", "ff_hwbridge.bridge_node",
+                            ["--autostart", "--ros-args", "--params-file", str(pf)])
+            self._wait(p, lambda: self._lifecycle_state("ff_hwbridge") == "active",
+                       "lifecycle state active")
+
+            if o.planner:
+                pp = {"library_path": str(self.run_dir / "motions.sqlite")}
+                pp.update(o.planner_overrides)
+                base = o.planner_params or str(CONFIG_DIR / "planner.yaml")
+                over = _params_file(self.run_dir / "planner_overrides.yaml", "ff_planner", pp)
+                p = self._start("ff_planner", "ff_planner.node",
+                                ["--ros-args", "--params-file", base, "--params-file", str(over)])
+                self._wait(p, lambda: self._has_service("/ff_planner/plan"), "service ~/plan")
+
+            if o.executor:
+                default = "executor.yaml" if model == "arm1dof" else "executor_scara2.yaml"
+                base = o.executor_params or str(CONFIG_DIR / default)
+                args = ["--ros-args", "--params-file", base]
+                if o.executor_overrides:
+                    over = _params_file(self.run_dir / "executor_overrides.yaml", "ff_executor",
+                                        dict(o.executor_overrides))
+                    args += ["--params-file", str(over)]
+                p = self._start("ff_executor", "ff_executor.node", args)
+                self._wait(p, lambda: self._has_service("/ff_executor/execute/_action/send_goal"),
+                           "action ~/execute")
+        except BaseException:
+            self.stop()
+            raise
+        self.log("ff-bringup: all up")
+        return self
+
+    def dead(self) -> list[NodeProcess]:
+        """Children that have exited."""
+        return [p for p in self.procs if not p.alive()]
+
+    def stop(self) -> dict[str, int]:
+        """Stop every child by PID in reverse start order; returns their exit codes."""
+        codes = {}
+        for p in reversed(self.procs):
+            codes[p.name] = p.stop()
+        self.procs = []
+        if self._node is not None:
+            import rclpy
+
+            self._node.destroy_node()
+            self._node = None
+            if self._ctx is not None and self._ctx.ok():
+                rclpy.shutdown(context=self._ctx)
+            self._ctx = None
+        return codes
+
+    def __enter__(self) -> "Stack":
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+def _kv(items: Sequence[str], what: str) -> dict[str, float]:
+    out = {}
+    for item in items:
+        if "=" not in item:
+            raise ParameterError(f"{what} needs KEY=VALUE, got {item!r}")
+        k, v = item.split("=", 1)
+        try:
+            out[k.strip()] = float(v)
+        except ValueError:
+            raise ParameterError(f"{what} {k}: {v!r} is not a number") from None
+    return out
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="ff-bringup", description=__doc__.splitlines()[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog="\n".join(__doc__.splitlines()[2:6]))
+    ap.add_argument("--model", default="arm1dof", choices=("arm1dof", "scara2"))
+    ap.add_argument("--true-scale", action="append", default=[], metavar="KEY=FACTOR",
+                    help="scale a true friction parameter of the simulated arm, e.g. pc=1.2")
+    ap.add_argument("--true-param", action="append", default=[], metavar="KEY=VALUE",
+                    help="set a true parameter of the simulated arm (SI units), e.g. pc=0.25")
+    ap.add_argument("--no-planner", action="store_true", help="do not start the planner node")
+    ap.add_argument("--hub-port", type=int, default=0, help="CAN hub port on 127.0.0.1 (0 = free)")
+    ap.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default random 1..100)")
+    ap.add_argument("--run-dir", default=None, help="logs + generated files (default: a temp folder)")
+    ap.add_argument("--start-timeout", type=float, default=90.0, help="s per process")
+    return ap
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Console script ``ff-bringup``: start the stack, wait for Ctrl-C or a dying child, stop all."""
+    a = build_parser().parse_args(argv)
+    try:
+        opts = StackOptions(model=a.model, true_scale=_kv(a.true_scale, "--true-scale"),
+                            true_params=_kv(a.true_param, "--true-param"), planner=not a.no_planner,
+                            hub_port=a.hub_port, domain_id=a.domain_id, run_dir=a.run_dir,
+                            start_timeout=a.start_timeout)
+        opts.true_friction()
+    except (ParameterError, ValueError) as exc:
+        print(f"ff-bringup: {exc}", file=sys.stderr)
+        return 2
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stack = Stack(opts)
+    code = 0
+    try:
+        stack.start()
+        print(f"ff-bringup: running; export ROS_DOMAIN_ID={stack.env['ROS_DOMAIN_ID']} "
+              "ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST to talk to it; Ctrl-C stops everything",
+              flush=True)
+        while not stop.wait(0.5):
+            dead = stack.dead()
+            if dead:
+                for p in dead:
+                    print(f"ff-bringup: {p.name} died (code {p.popen.returncode}); stopping all. "
+                          f"Last output:\n{p.output()[-2000:]}", file=sys.stderr, flush=True)
+                code = 1
+                break
+    except KeyboardInterrupt:
+        pass
+    except BringupError as exc:
+        print(f"ff-bringup: {exc}", file=sys.stderr)
+        code = 1
+    finally:
+        codes = stack.stop()
+        if codes:
+            print("ff-bringup: stopped " + ", ".join(f"{k} ({v})" for k, v in codes.items()),
+                  flush=True)
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

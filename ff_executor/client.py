@@ -1,0 +1,197 @@
+"""A client of the running stack (rclpy in this process): plan, reset the simulated arm, execute.
+
+Used by ``ff-demo``, the end-to-end test and the benchmarks. It calls the planner SERVICE
+(``/ff_planner/plan``), the simulated driver's ``/ff_sim_driver/reset``, and the executor ACTION
+(``/ff_executor/execute``), and records the simulated arm's ground truth
+(``/ff_sim_driver/ground_truth``) and the bridge's joint states during each move.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass, field
+from typing import Mapping, Optional, Sequence
+
+import numpy as np
+
+NS = 1_000_000_000
+
+
+class StackCallError(RuntimeError):
+    """A service or action of the stack did not answer as expected."""
+
+
+@dataclass
+class Recording:
+    """Samples (t in s on the ROS clock, positions rad, velocities rad/s, effort A) of one topic."""
+
+    t: list = field(default_factory=list)
+    q: list = field(default_factory=list)
+    qd: list = field(default_factory=list)
+    effort: list = field(default_factory=list)
+
+    def arrays(self, t0: float = 0.0):
+        return (np.asarray(self.t) - t0, np.asarray(self.q), np.asarray(self.qd),
+                np.asarray(self.effort))
+
+
+@dataclass
+class MoveOutcome:
+    """What one execution gave: the action result, feedback count, and the recordings."""
+
+    status: int
+    result: object                 # ExecuteProfile.Result
+    feedback: int
+    feedback_period_max: float     # s, longest gap between feedback messages
+    start_time: float              # s, ROS clock, when the first setpoint took effect (planned)
+    truth: Recording
+    joints: Recording
+    rest_truth: Optional[np.ndarray]   # rad, ground-truth position once settled
+
+    @property
+    def succeeded(self) -> bool:
+        from action_msgs.msg import GoalStatus
+
+        return self.status == GoalStatus.STATUS_SUCCEEDED and bool(self.result.success)
+
+
+class StackClient:
+    """rclpy node + executor thread in this process; apply the stack's env before creating it."""
+
+    def __init__(self, env: Mapping[str, str], name: str = "ff_client") -> None:
+        import rclpy
+        from rclpy.action import ActionClient
+        from rclpy.executors import MultiThreadedExecutor
+        from rclpy.node import Node
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+        from sensor_msgs.msg import JointState
+        from std_srvs.srv import Trigger
+
+        from ff_msgs.action import ExecuteProfile
+        from ff_msgs.srv import PlanTrajectory
+        from ff_msgs_py.launch import apply_ros_environment
+
+        apply_ros_environment(env)
+        self.ctx = rclpy.Context()
+        rclpy.init(context=self.ctx)
+        self.node = Node(name, context=self.ctx)
+        self.plan_client = self.node.create_client(PlanTrajectory, "/ff_planner/plan")
+        self.reset_client = self.node.create_client(Trigger, "/ff_sim_driver/reset")
+        self.action = ActionClient(self.node, ExecuteProfile, "/ff_executor/execute")
+        qos = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
+        self._lock = threading.Lock()
+        self._truth: Optional[Recording] = None
+        self._joints: Optional[Recording] = None
+        self.last_truth: Optional[tuple] = None     # (t, q, qd)
+        self.node.create_subscription(JointState, "/ff_sim_driver/ground_truth",
+                                      lambda m: self._on_js(m, "truth"), qos)
+        self.node.create_subscription(JointState, "/ff_hwbridge/joint_states",
+                                      lambda m: self._on_js(m, "joints"), qos)
+        self.executor = MultiThreadedExecutor(num_threads=2, context=self.ctx)
+        self.executor.add_node(self.node)
+        self._spin = threading.Thread(target=self.executor.spin, daemon=True)
+        self._spin.start()
+
+    def close(self) -> None:
+        import rclpy
+
+        self.executor.shutdown()
+        self.node.destroy_node()
+        if self.ctx.ok():
+            rclpy.shutdown(context=self.ctx)
+
+    def __enter__(self) -> "StackClient":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def now(self) -> float:
+        return self.node.get_clock().now().nanoseconds / NS
+
+    def _on_js(self, msg, which: str) -> None:
+        t = self.now()
+        q = list(msg.position)
+        qd = list(msg.velocity) if len(msg.velocity) == len(q) else [0.0] * len(q)
+        eff = list(msg.effort) if len(msg.effort) == len(q) else [float("nan")] * len(q)
+        with self._lock:
+            if which == "truth":
+                self.last_truth = (t, np.array(q), np.array(qd))
+            rec = self._truth if which == "truth" else self._joints
+            if rec is not None:
+                rec.t.append(t)
+                rec.q.append(q)
+                rec.qd.append(qd)
+                rec.effort.append(eff)
+
+    @staticmethod
+    def _wait(future, timeout: float, what: str):
+        end = time.monotonic() + timeout
+        while not future.done() and time.monotonic() < end:
+            time.sleep(0.005)
+        if not future.done():
+            raise StackCallError(f"{what}: no answer within {timeout:.0f} s")
+        return future.result()
+
+    # --- calls --------------------------------------------------------------------------------
+    def plan(self, request, timeout: float = 120.0):
+        """Call /ff_planner/plan with a PlanTrajectory.Request; returns the response."""
+        if not self.plan_client.wait_for_service(timeout_sec=15.0):
+            raise StackCallError("the planner service /ff_planner/plan is not available")
+        return self._wait(self.plan_client.call_async(request), timeout, "plan")
+
+    def reset_arm(self, q0: Sequence[float] = (0.0,), timeout: float = 10.0,
+                  rest_velocity: float = 1e-6) -> None:
+        """Put the simulated arm back (sim driver's ~/reset) and wait until it reads q0 at rest."""
+        from std_srvs.srv import Trigger
+
+        if not self.reset_client.wait_for_service(timeout_sec=10.0):
+            raise StackCallError("the simulated driver's /ff_sim_driver/reset is not available")
+        res = self._wait(self.reset_client.call_async(Trigger.Request()), timeout, "reset")
+        if not res.success:
+            raise StackCallError(f"reset refused: {res.message}")
+        end = time.monotonic() + timeout
+        q0 = np.asarray(q0, dtype=float)
+        while time.monotonic() < end:
+            with self._lock:
+                lt = self.last_truth
+            if lt is not None and lt[0] > self.now() - 0.5 and np.allclose(lt[1], q0, atol=1e-6) \
+                    and np.all(np.abs(lt[2]) <= rest_velocity):
+                time.sleep(0.2)   # let the bridge's joint states catch up too
+                return
+            time.sleep(0.02)
+        raise StackCallError(f"the simulated arm did not come back to {q0.tolist()} at rest")
+
+    def execute(self, profile_msg, timeout: float = 30.0, start_time_ns: int = 0,
+                cancel_after: Optional[float] = None) -> MoveOutcome:
+        """Send an ExecuteProfile goal and record ground truth and joint states until the result."""
+        from ff_msgs.action import ExecuteProfile
+        from ff_msgs_py.convert import ns_to_time
+
+        if not self.action.wait_for_server(timeout_sec=15.0):
+            raise StackCallError("the executor action /ff_executor/execute is not available")
+        fb_times: list[float] = []
+        with self._lock:
+            self._truth, self._joints = Recording(), Recording()
+        t_goal = self.now()
+        goal = ExecuteProfile.Goal(profile=profile_msg)
+        if start_time_ns:
+            goal.start_time = ns_to_time(start_time_ns)
+        handle = self._wait(self.action.send_goal_async(
+            goal, feedback_callback=lambda _m: fb_times.append(time.monotonic())), 15.0, "send goal")
+        if not handle.accepted:
+            raise StackCallError("the executor rejected the goal (see its log)")
+        res_future = handle.get_result_async()
+        if cancel_after is not None:
+            time.sleep(cancel_after)
+            self._wait(handle.cancel_goal_async(), 10.0, "cancel")
+        res = self._wait(res_future, timeout, "execute")
+        time.sleep(0.1)
+        with self._lock:
+            truth, joints = self._truth, self._joints
+            self._truth = self._joints = None
+            lt = self.last_truth
+        gaps = np.diff(fb_times) if len(fb_times) > 1 else np.array([np.inf])
+        rest = lt[1] if lt is not None else None
+        return MoveOutcome(res.status, res.result, len(fb_times), float(gaps.max()),
+                           t_goal, truth, joints, rest)
