@@ -224,6 +224,8 @@ CREATE TABLE IF NOT EXISTS motions (
     model TEXT NOT NULL, params_hash TEXT NOT NULL, objective TEXT NOT NULL,
     uncertain TEXT NOT NULL, steps INTEGER NOT NULL, coast REAL NOT NULL,
     q0 TEXT NOT NULL, qf TEXT NOT NULL, tf REAL NOT NULL, coords TEXT NOT NULL,
+    c0 REAL NOT NULL DEFAULT 0, c1 REAL NOT NULL DEFAULT 0, c2 REAL NOT NULL DEFAULT 0,
+    c3 REAL NOT NULL DEFAULT 0,
     status TEXT NOT NULL CHECK (status IN ('solved', 'infeasible', 'failed')),
     reason TEXT NOT NULL DEFAULT '', error_code TEXT NOT NULL DEFAULT 'OK',
     robust INTEGER NOT NULL DEFAULT 0, rank INTEGER NOT NULL DEFAULT 0,
@@ -231,14 +233,22 @@ CREATE TABLE IF NOT EXISTS motions (
     motion TEXT, solved_how TEXT NOT NULL DEFAULT 'cold', warm_from TEXT,
     starts_tried INTEGER NOT NULL DEFAULT 0, iterations INTEGER NOT NULL DEFAULT 0,
     solve_time REAL NOT NULL DEFAULT 0, created REAL NOT NULL, writer TEXT NOT NULL DEFAULT '');
-CREATE INDEX IF NOT EXISTS motions_group
-    ON motions (model, params_hash, objective, uncertain, steps, coast, status);
+CREATE INDEX IF NOT EXISTS motions_near
+    ON motions (model, params_hash, objective, uncertain, steps, coast, status, c0);
 """
 
 _COLUMNS = ("task_key", "model", "params_hash", "objective", "uncertain", "steps", "coast", "q0", "qf",
             "tf", "coords", "status", "reason", "error_code", "robust", "rank", "max_abs_sensitivity",
             "final_error", "final_speed", "motion", "solved_how", "warm_from", "starts_tried",
-            "iterations", "solve_time", "created", "writer")
+            "iterations", "solve_time", "created", "writer", "c0", "c1", "c2", "c3")
+_N_COORDS = 4   # canonical coordinates kept as REAL columns c0..c3 (scara2 has 4, arm1dof 2)
+
+
+def _padded(coords: np.ndarray) -> list[float]:
+    c = [float(x) for x in coords]
+    if len(c) > _N_COORDS:
+        raise LibraryError(f"{len(c)} task coordinates, the store keeps {_N_COORDS}")
+    return c + [0.0] * (_N_COORDS - len(c))
 
 
 class MotionLibrary:
@@ -349,7 +359,8 @@ class MotionLibrary:
                 json.dumps([float(c) for c in coords]), r.status, r.reason, r.error_code, int(r.robust),
                 r.rank(), r.max_abs_sensitivity, r.final_error, r.final_speed,
                 json.dumps(r.motion) if r.motion is not None else None, r.solved_how, r.warm_from,
-                int(r.starts_tried), int(r.iterations), float(r.solve_time), float(r.created), r.writer)
+                int(r.starts_tried), int(r.iterations), float(r.solve_time), float(r.created), r.writer,
+                *_padded(coords))
 
     @staticmethod
     def _record(row: sqlite3.Row | tuple) -> MotionRecord:
@@ -387,28 +398,29 @@ class MotionLibrary:
         nearest in canonical coordinates; distance = Euclidean, tf weighted by ``time_weight`` rad/s.
         """
         p = request.resolved_params()
-        con = self._con()
+        here = _padded(canonical_coords(request.model, request.q0, request.qf, request.tf))
+        w = [1.0] * _N_COORDS
+        w[len(request.q0) * 2 - 1] = float(time_weight)   # the tf coordinate
+        dist2 = " + ".join(f"(c{i} - ?) * (c{i} - ?) * {w[i] * w[i]!r}" for i in range(_N_COORDS))
         marks = ", ".join("?" * len(statuses))
-        rows = con.execute(
-            f"SELECT task_key, coords FROM motions WHERE model = ? AND params_hash = ? AND objective = ? "
-            f"AND uncertain = ? AND steps = ? AND coast = ? AND status IN ({marks})",
-            (request.model, params_hash(p), request.objective, uncertain_key(request.uncertain),
-             request.n_steps(), _canon(request.coast), *statuses)).fetchall()
-        if not rows:
-            return []
-        here = canonical_coords(request.model, request.q0, request.qf, request.tf)
-        pts = np.array([json.loads(c) for _, c in rows], dtype=float)
-        w = np.ones(here.size)
-        w[-1] = time_weight
-        dist = np.sqrt((((pts - here) * w) ** 2).sum(axis=1))
-        order = np.argsort(dist, kind="stable")[:max(1, int(k))]
+        args: list = []
+        for x in here:
+            args += [x, x]
+        rows = self._con().execute(
+            f"SELECT task_key, {dist2} AS d2 FROM motions WHERE model = ? AND params_hash = ? "
+            f"AND objective = ? AND uncertain = ? AND steps = ? AND coast = ? AND status IN ({marks}) "
+            f"AND c0 BETWEEN ? AND ? ORDER BY d2, task_key LIMIT ?",
+            (*args, request.model, params_hash(p), request.objective, uncertain_key(request.uncertain),
+             request.n_steps(), _canon(request.coast), *statuses, here[0] - max_distance / w[0],
+             here[0] + max_distance / w[0], max(1, int(k)))).fetchall()
         out = []
-        for i in order:
-            if dist[i] > max_distance:
+        for key, d2 in rows:
+            d = math.sqrt(max(0.0, d2))
+            if d > max_distance:
                 break
-            rec = self.get(rows[i][0])
+            rec = self.get(key)
             if rec is not None:
-                out.append((float(dist[i]), rec))
+                out.append((d, rec))
         return out
 
     def records(self, *, model: Optional[str] = None, params: Optional[Params] = None,
