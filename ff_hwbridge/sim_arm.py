@@ -131,6 +131,14 @@ class SimArm:
             self._i[:] = 0.0
             self._t_ns = self._clock()
 
+    def set_params(self, params: Params) -> None:
+        """Change the true parameters from now on (state kept; same model type only)."""
+        if type(params) is not type(self.params):
+            raise ParameterError("cannot change the arm model of a running SimArm")
+        with self._lock:
+            self._advance_to(self._clock())
+            self.params = params
+
     def port(self, joint: int) -> "JointPort":
         """The connection one drive uses to push current into motor ``joint``."""
         return JointPort(self, joint)

@@ -86,7 +86,7 @@ class DriveConfig:
     nominal_current: float = 3.0        # A, 0x3001:01 / 0x6410:01
     current_limit: float = 10.0         # A, output current limit 0x3001:02 / 0x6410:02
     torque_constant: float = 0.0267     # Nm/A, 0x3001:05
-    counts_per_rev: int = 4096          # encoder increments per motor revolution (quadcounts)
+    counts_per_rev: int = 2048          # encoder increments per motor revolution (quadcounts)
     gear_ratio: float = 54.0            # joint angle = motor angle / gear_ratio
     quick_stop_option: int = 2          # 0x605A default (maxon default 2: stop, then SOD)
 

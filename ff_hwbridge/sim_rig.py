@@ -40,7 +40,7 @@ class RigConfig:
     true_params: Optional[Params] = None          # default: the model's paper table
     q0: tuple[float, ...] = (0.0,)
     step: float = 1e-4                            # s, physics sub-step
-    counts_per_rev: int = 4096
+    counts_per_rev: int = 2048
     nominal_current: float = 3.0                  # A (sets the ‰ scale on EPOS4)
 
     def params(self) -> Params:

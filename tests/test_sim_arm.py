@@ -144,8 +144,8 @@ def test_rig_drives_move_the_arm_and_report_it():
             assert q_before > 0.3 + 0.01                  # it moved, and still coasts
             assert truth.qd[0] > 0 and rig.drives[0].applied_current == 0.0
             sw, pos = struct.unpack("<Hi", tpdo[-1])
-            q_reported = pos / 4096 * 2 * math.pi / 54.0  # sampled at the SYNC's arrival
-            tol = 2 * math.pi / 4096 / 54
+            q_reported = pos / 2048 * 2 * math.pi / 54.0  # sampled at the SYNC's arrival
+            tol = 2 * math.pi / 2048 / 54
             assert q_before - tol <= q_reported <= truth.q[0] + tol
         finally:
             master.disconnect()
