@@ -150,7 +150,7 @@ def plan_least_worst(request: PlanRequest, p: Scara2Params, progress: Optional[C
     profile = CurrentProfile(prob.times, x.reshape(prob.N, 2), request.tf, request.coast)
     sim = scara2._simulate_raw(p, profile, prob.q0, np.zeros(2))
     sens = scara2.sensitivities_scara2(p, profile, prob.q0, request.uncertain)
-    sens = {k: v for k, v in sens.items() if k.startswith("q")}
+    sens = {k: v for k, v in sens.items() if k.startswith("q") and not k.startswith("qd")}
     smax = max(abs(v) for v in sens.values()) if sens else 0.0
     err = float(np.max(np.abs(sim.q_f - prob.qf)))
     robust = smax <= request.tol and err <= request.tol and all(sim.stuck_tf)

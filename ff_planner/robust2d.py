@@ -42,6 +42,11 @@ HOLD_FALLBACK = 0.1      # accepted when HOLD_MIN cannot be reached from a start
 _FD_REL = 1e-5           # relative step of the inner central differences (1-DOF, smooth region)
 
 
+def _is_pos(key: str) -> bool:
+    """'q1/pc2' (position sensitivity), not 'qd1/pc2'."""
+    return key.startswith("q") and not key.startswith("qd")
+
+
 # ----------------------------------------------------------------------------------------------
 # joint 1 as an exact 1-DOF problem
 
@@ -226,8 +231,8 @@ def verify_plan(p: Scara2Params, profile: CurrentProfile, q0, qf, names=scara2.F
         "q_final": sim.q_f, "qd_final": sim.qd_f, "q_rest": sim.q_rest,
         "error": float(np.max(np.abs(sim.q_f - qf))),
         "at_rest": bool(sim.stuck_tf[0] and sim.stuck_tf[1]),
-        "sensitivities": {k: v for k, v in sens.items() if k.startswith("q")},
-        "max_sensitivity": max(abs(v) for k, v in sens.items() if k.startswith("q")),
+        "sensitivities": {k: v for k, v in sens.items() if _is_pos(k)},
+        "max_sensitivity": max(abs(v) for k, v in sens.items() if _is_pos(k)),
         "worst_rest_error_one_at_a_time": worst,
     }
 
@@ -307,7 +312,7 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
             continue
         sim = scara2._simulate_raw(p, profile, q0, np.zeros(2))
         sens = scara2.sensitivities_scara2(p, profile, q0, names, method="complex")
-        smax = max(abs(v) for k, v in sens.items() if k.startswith("q"))
+        smax = max(abs(v) for k, v in sens.items() if _is_pos(k))
         err = float(np.max(np.abs(sim.q_f - qf)))
         ok = err <= tol and smax <= tol and sim.stuck_tf[0] and sim.stuck_tf[1]
         score = (0 if ok else 1, -frac if ok else smax + err)
@@ -330,14 +335,14 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
     robust = ok_flag == 0
     msg = (f"robust plan: joint 2 held by stiction (holds down to {100 * (1 - frac):.0f} % "
            f"of nominal joint-2 friction), max |dq/dp| = "
-           f"{max(abs(v) for k, v in sens.items() if k.startswith('q')):.2g}")
+           f"{max(abs(v) for k, v in sens.items() if _is_pos(k)):.2g}")
     if not robust:
         msg = "best plan found is NOT robust to the tolerance: " + msg.split(": ", 1)[1]
     return _result(
         request, p, success=robust, robust=robust, best_effort=not robust,
         error_code="OK" if robust else "NO_ROBUST_PLAN", message=msg, profile=profile,
         q_final=sim.q_f, qd_final=sim.qd_f,
-        sensitivities={k: v for k, v in sens.items() if k.startswith("q")},
+        sensitivities={k: v for k, v in sens.items() if _is_pos(k)},
         starts_tried=starts, iterations=iters, solve_time=elapsed,
         extra={"method": "hold-link2", "hold_fraction": frac, "candidates": candidates,
                "joint1_inertia": p1.J})

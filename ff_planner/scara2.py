@@ -380,13 +380,12 @@ def _segment(y, t, t_end, T1, T2, st, sd, P, h, rec, rec_t, rec_y, rec_i, nrec, 
             t = t + bth * dt
             if bkind == 0:
                 y[2 + bj] = 0.0 * y[2 + bj]
-            z1 = st[0] or (bkind == 0 and bj == 0)
-            z2 = st[1] or (bkind == 0 and bj == 1)
-            if bkind == 0:
-                if bj == 0:
-                    st[0] = True
-                else:
-                    st[1] = True
+                st[bj] = True
+            else:   # breakaway: the joint slides off in the direction of its holding torque
+                st[bj] = False
+                sd[bj] = bsgn
+            z1 = st[0]
+            z2 = st[1]
             a, b, c1, c2 = _select_mode(y, T1, T2, z1, z2, st[0], st[1], sd[0], sd[1], P)
             st[0] = a
             st[1] = b
