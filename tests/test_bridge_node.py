@@ -1,0 +1,131 @@
+"""The ff_hwbridge lifecycle node in-process against the test stand-in drive on a virtual bus:
+configure / activate / stamped setpoints / joint states / applied reports / EMCY -> diagnostics /
+fault reset / deactivate / cleanup."""
+from __future__ import annotations
+
+import threading
+import time
+import uuid
+
+import pytest
+
+from ff_hwbridge.units import DriveUnits
+
+
+@pytest.fixture
+def bridge(ros_env):
+    import rclpy
+    from rclpy.executors import MultiThreadedExecutor
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+
+    from ff_hwbridge.bridge_node import BridgeNode
+    from test_epos_master import MiniEpos
+
+    channel = f"ff-bridge-{uuid.uuid4().hex[:8]}"
+    drive = MiniEpos(channel, 1, DriveUnits(nominal_current=3.0))
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    params = [Parameter("bus_interface", value="virtual"), Parameter("bus_channel", value=channel),
+              Parameter("sync_period", value=0.005), Parameter("heartbeat_timeout", value=0.06),
+              Parameter("setpoint_timeout", value=0.3), Parameter("joint_state_rate", value=50.0)]
+    node = BridgeNode(context=ctx, parameter_overrides=params)
+    client = Node("ff_bridge_test_client", context=ctx)
+    ex = MultiThreadedExecutor(num_threads=3, context=ctx)
+    ex.add_node(node)
+    ex.add_node(client)
+    th = threading.Thread(target=ex.spin, daemon=True)
+    th.start()
+    try:
+        yield node, client, drive
+    finally:
+        node._teardown()
+        ex.shutdown()
+        node.destroy_node()
+        client.destroy_node()
+        rclpy.shutdown(context=ctx)
+        drive.close()
+
+
+def _wait(pred, timeout=3.0):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(0.005)
+    return pred()
+
+
+def test_lifecycle_setpoints_faults_and_reset(bridge):
+    from diagnostic_msgs.msg import DiagnosticArray
+    from ff_msgs.msg import CurrentSetpoint
+    from lifecycle_msgs.msg import State as LcState
+    from sensor_msgs.msg import JointState
+    from std_srvs.srv import Trigger
+
+    from ff_msgs_py.convert import setpoint_msg
+
+    node, client, drive = bridge
+
+    node.trigger_configure()
+    assert node.master is not None and drive.node.nmt.state == "OPERATIONAL"
+    node.trigger_activate()
+    assert node._active
+    assert node._state_machine.current_state[0] == LcState.PRIMARY_STATE_ACTIVE
+
+    js, diags, applied = [], [], []
+    client.create_subscription(JointState, "/ff_hwbridge/joint_states", js.append, 10)
+    client.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
+    client.create_subscription(CurrentSetpoint, "/ff_hwbridge/applied", applied.append, 10)
+    pub = client.create_publisher(CurrentSetpoint, "/ff_hwbridge/setpoints", 10)
+    assert _wait(lambda: js and pub.get_subscription_count() > 0)
+    assert list(js[-1].name) == ["joint1"]
+
+    t0 = time.time_ns() + 200_000_000
+    pub.publish(setpoint_msg(t0, [1.5], 0, "p"))
+    pub.publish(setpoint_msg(t0 + 50_000_000, [30.0], 1, "p"))   # clamped to 10 A
+    pub.publish(setpoint_msg(t0 + 100_000_000, [0.0], 2, "p", last=True))
+    assert _wait(lambda: len(applied) == 3)
+    stamps = [a.stamp.sec * 10**9 + a.stamp.nanosec for a in applied]
+    for k, s in enumerate(stamps):                  # applied at (not before) the stamp
+        assert s >= t0 + k * 50_000_000
+    assert applied[1].currents[0] == pytest.approx(9.999, abs=1e-3)
+    assert max(abs(sp) for _, sp in drive.rx_log) <= 3333
+    assert drive.setpoint_raw == 0
+
+    drive.raise_fault(0x3210)
+    assert _wait(lambda: node.master.latched)
+    assert _wait(lambda: any("safe state" in d.status[0].message and "0x3210" in d.status[0].message
+                             for d in diags))
+
+    cli = client.create_client(Trigger, "/ff_hwbridge/fault_reset")
+    assert cli.wait_for_service(timeout_sec=5.0)
+    fut = cli.call_async(Trigger.Request())
+    assert _wait(fut.done, 5.0)
+    assert fut.result().success, fut.result().message
+    assert not node.master.latched
+
+    node.trigger_deactivate()
+    assert not node._active and _wait(lambda: drive.transitions[-1] == 5)
+    node.trigger_cleanup()
+    assert node.master is None
+
+
+def test_configure_error_goes_to_error_processing(ros_env):
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    from ff_hwbridge.bridge_node import BridgeNode
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    try:
+        node = BridgeNode(context=ctx, parameter_overrides=[
+            Parameter("bus_interface", value="virtual"),
+            Parameter("bus_channel", value=f"ff-empty-{uuid.uuid4().hex[:8]}"),
+            Parameter("node_ids", value=[1, 2])])           # 2 ids for 1 joint name
+        node.trigger_configure()
+        assert node.master is None
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
