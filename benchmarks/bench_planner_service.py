@@ -83,6 +83,7 @@ def main() -> None:
     ap.add_argument("--starts", type=int, default=50)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--budget", type=float, default=20.0, help="s, time budget per request")
+    ap.add_argument("--objective", default="robust-derivative")
     args = ap.parse_args()
 
     env = ros_environment()
@@ -97,14 +98,14 @@ def main() -> None:
 
     def req(qf, q0=0.0, tf=1.0, seed=0):
         return PlanTrajectory.Request(model="arm1dof", q0=[q0], qf=[qf], move_time=tf,
-                                      uncertain=["pv", "pc", "pt"], objective="robust-derivative",
+                                      uncertain=["pv", "pc", "pt"], objective=args.objective,
                                       starts=args.starts, seed=seed, time_budget=args.budget)
 
     rng = np.random.default_rng(1)
     goals = np.round(rng.uniform(0.6, 1.4, args.n), 4)
     out: dict = {"benchmark": "planner_service", "machine": platform.machine(), "cpus": os.cpu_count(),
                  "python": platform.python_version(), "task": "arm1dof table2, k=3 (pv,pc,pt), N=5, tf=1 s",
-                 "starts": args.starts, "workers": args.workers}
+                 "starts": args.starts, "workers": args.workers, "objective": args.objective}
     rclpy.init()
     node = Node("bench_planner_client")
     cli = node.create_client(PlanTrajectory, "/ff_planner/plan", qos_profile=QoSProfile(depth=200))

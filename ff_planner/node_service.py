@@ -320,7 +320,7 @@ class PlannerService:
         starts = int(f.starts) or c.default_starts
         if starts > c.max_starts:
             raise PlanningError(f"starts = {starts} exceeds this planner's limit of {c.max_starts}; ask for fewer")
-        uncertain = list(f.uncertain) if len(f.uncertain) else list(params.friction_keys[:3])
+        uncertain = list(f.uncertain) if len(f.uncertain) else list(params.friction_keys)  # empty = all
         steps = int(f.steps) or None
         if steps is not None and steps > c.max_steps:
             raise PlanningError(f"steps = {steps} per joint exceeds this planner's limit of {c.max_steps}; "
@@ -372,13 +372,13 @@ class PlannerService:
         if lib is not None:
             rec = lib.lookup(request)
             if rec is not None and self._usable(rec, request):
-                return rec.to_result(request, message=self._hit_message(rec, 0.0)), "hit"
+                return rec.to_result(request, message=self._hit_message(rec, False)), "hit"
             near = lib.nearest(request, k=1, max_distance=self.config.warm_max_distance,
                                time_weight=self.config.time_weight)
             if near:
                 dist, rec = near[0]
                 if dist < SHIFT_EPS and self._usable(rec, request):
-                    return rec.to_result(request, message=self._hit_message(rec, dist), shift=True), "shift"
+                    return rec.to_result(request, message=self._hit_message(rec, True), shift=True), "shift"
                 cur = rec.currents()
                 if (request.objective.startswith("robust") and cur is not None
                         and cur.shape == (request.n_steps(), len(request.q0))):
@@ -418,8 +418,8 @@ class PlannerService:
         return False  # failed rows are transient
 
     @staticmethod
-    def _hit_message(rec: MotionRecord, dist: float) -> str:
-        what = "shifted copy of library entry" if dist > 0 or rec.solved_how == "shift" else "library entry"
+    def _hit_message(rec: MotionRecord, shifted: bool) -> str:
+        what = "shifted copy of library entry" if shifted else "library entry"
         if rec.status == "solved":
             return f"from the motion library ({what} {rec.task_key}, solved {rec.solved_how})"
         return f"known from the motion library: no plan here ({rec.error_code}): {rec.reason}"
