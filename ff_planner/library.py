@@ -96,6 +96,11 @@ def canonical_coords(model: str, q0: Sequence[float], qf: Sequence[float], tf: f
     return np.concatenate([q0a[1:] - ref, qfa - ref, [float(tf)]])
 
 
+def _floats_or_nan(values: Optional[Sequence]) -> np.ndarray:
+    """JSON numbers (None for a non-finite value) -> float array."""
+    return np.array([math.nan if v is None else float(v) for v in (values or [])], dtype=float)
+
+
 # --- records ----------------------------------------------------------------------------------
 @dataclass
 class MotionRecord:
@@ -156,7 +161,7 @@ class MotionRecord:
         qf = np.asarray(request.qf, float)
         prof = self.profile()
         pred = (self.motion or {}).get("predicted", {})
-        q_final = np.asarray(pred.get("q_final", []), float)
+        q_final = _floats_or_nan(pred.get("q_final"))
         if shift and q_final.size:
             q_final = q_final + (q0[0] - self.q0[0])
         ok = self.status == "solved"
@@ -164,8 +169,9 @@ class MotionRecord:
             success=ok, message=message or self.reason, profile=prof, model=self.model,
             params=request.resolved_params(), q0=q0, qf=qf, uncertain=list(request.uncertain),
             objective=self.objective, q_final=q_final,
-            qd_final=np.asarray(pred.get("qd_final", []), float),
-            sensitivities={k: float(v) for k, v in pred.get("sensitivities", {}).items()},
+            qd_final=_floats_or_nan(pred.get("qd_final")),
+            sensitivities={k: (math.nan if v is None else float(v))
+                           for k, v in (pred.get("sensitivities") or {}).items()},
             robust=bool(self.robust), error_code="OK" if ok else (self.error_code or "NO_ROBUST_PLAN"),
             best_effort=ok and not self.robust and self.objective.startswith("robust"),
             starts_tried=0, iterations=0, solve_time=0.0, warm_start=True,
