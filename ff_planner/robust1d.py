@@ -1,0 +1,392 @@
+"""Robust feedforward planning for the 1-DOF arm (paper Eq. 7, section 4.1) at compiled speed.
+
+``plan_robust_1dof(request, progress=None, initial_currents=None) -> PlanResult``
+
+- objective "robust-derivative": N piecewise-constant currents (equal steps on [0, tf − coast]),
+  |I| ≤ i_max, such that q(tf) = qf, the arm is at rest at tf, and every ∂q(tf)/∂p_i = 0 for the
+  uncertain friction parameters. Seeded multistart of a compiled Levenberg–Marquardt solver with
+  exact Jacobians (``_lm1d``); the first start that meets the tolerances with true derivatives is
+  verified and returned. A plan within 0.1 % (relative parameter change) of a non-smooth point
+  (zero crossing at a switch time, breakaway edge) is refused: its one-sided derivatives differ.
+- objective "robust-sampled" (section 6.2): among robust plans, the one — refined by SLSQP along
+  the robust set — with the least RMS error of the REST position over sampled parameter values
+  (each uncertain parameter at ±10 % and ±20 %, and the corners of the ±20 % box). When no
+  derivative-robust plan is found it minimises that RMS subject to reaching qf at rest only.
+
+When no plan meets the tolerances the best one is returned with success=False,
+best_effort=True and error_code NO_ROBUST_PLAN (or TIME_BUDGET_EXHAUSTED); the message says so.
+The result's ``extra`` carries the verification: central-difference derivatives (1e-6 relative),
+the 0.1 % forward quotients, the kink radius, the finite-change errors of the rest position and of
+q(tf) at ±10 % and ±40 % per parameter and all together ("finite_change"), and solver statistics.
+"""
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from typing import Callable, Optional, Sequence
+
+import numpy as np
+
+from . import _lm1d
+from ._deriv1d import NP, Q_, VC_, hd_sim, workspace
+from .arm1dof import FRICTION, derivatives, final_state
+from .params import Arm1DofParams
+from .profile import CurrentProfile, PlanRequest, PlanResult, PlanningError
+
+Progress = Optional[Callable[[dict], None]]
+
+STOP_MARGIN = 1e-3      # s: the arm must be at rest this long before tf (nominal parameters)
+MIN_KINK = 1e-3         # relative parameter change to the nearest non-smooth point (0.1 %)
+CHUNK = 16              # starts per compiled call (the time budget is checked between calls)
+LM_SETTINGS = dict(wpen=0.1, wq=10.0, lam0=1e-2, max_iter=25, abandon_iter=6,
+                   abandon_norm=1e-3, max_reject=5)
+
+
+def stop_speed_bound(params: Arm1DofParams, coast: float, margin: float = STOP_MARGIN) -> float:
+    """Largest coast-entry speed (rad/s) from which zero current stops the arm ``margin`` s
+    before tf: |v| = (pc/J)·τ·φ1(−aτ), τ = coast − margin, a = −pv/J."""
+    tau = coast - margin
+    if tau <= 0.0:
+        return 0.0
+    a = -params.pv / params.J
+    z = -a * tau
+    phi1 = math.expm1(z) / z if z != 0.0 else 1.0
+    return params.pc / params.J * tau * phi1
+
+
+def sample_scales(uncertain: Sequence[str], levels: Sequence[float] = (0.1, 0.2),
+                  corner: float = 0.2) -> np.ndarray:
+    """Parameter scale factors (S, 3) for pv, pc, pt: each uncertain one at ±levels alone, and
+    the corners of the ±corner box."""
+    idx = [FRICTION.index(u) for u in uncertain]
+    rows = []
+    for i in idx:
+        for lv in levels:
+            for sg in (-1.0, 1.0):
+                r = np.ones(NP)
+                r[i] = 1.0 + sg * lv
+                rows.append(r)
+    if len(idx) > 1:
+        for signs in itertools.product((-1.0, 1.0), repeat=len(idx)):
+            r = np.ones(NP)
+            for i, sg in zip(idx, signs):
+                r[i] = 1.0 + sg * corner
+            rows.append(r)
+    return np.array(rows) if rows else np.ones((1, NP))
+
+
+def finite_change(params: Arm1DofParams, profile: CurrentProfile, q0: float, qf: float,
+                  uncertain: Sequence[str], changes: Sequence[float] = (-0.4, -0.1, 0.1, 0.4)
+                  ) -> dict:
+    """Errors (rad) of the rest position and of q(tf), and q̇(tf), when friction parameters are
+    off by finite relative ``changes`` — one at a time and all uncertain ones together."""
+    out: dict = {}
+    groups = [(u, [u]) for u in uncertain] + ([("all", list(uncertain))] if len(uncertain) > 1
+                                               else [])
+    for name, keys in groups:
+        row = {}
+        for ch in changes:
+            p = params.replace(**{k: getattr(params, k) * (1.0 + ch) for k in keys})
+            q_tf, v_tf = final_state(p, profile, q0)
+            q_rest, _ = final_state(p, profile, q0, to_rest=True)
+            row[f"{ch * 100:+.0f}%"] = {"rest_error": q_rest - qf, "tf_error": q_tf - qf,
+                                        "qd_tf": v_tf}
+        out[name] = row
+    return out
+
+
+def verify(params: Arm1DofParams, profile: CurrentProfile, q0: float, qf: float,
+           uncertain: Sequence[str], tol: float = 1e-6) -> dict:
+    """Judge a plan by true derivatives: exact, central differences (1e-6 relative) and the
+    paper's 0.1 % forward quotient; the kink radius; goal and rest at tf; finite changes."""
+    d = derivatives(params, profile, q0, uncertain=uncertain)
+    q_tf, v_tf = final_state(params, profile, q0)
+    central, forward = {}, {}
+    for k in uncertain:
+        p0 = getattr(params, k)
+        h = 1e-6 * abs(p0) if p0 != 0.0 else 1e-9
+        qp = final_state(params.replace(**{k: p0 + h}), profile, q0)[0]
+        qm = final_state(params.replace(**{k: p0 - h}), profile, q0)[0]
+        central[k] = (qp - qm) / (2 * h)
+        hf = 1e-3 * abs(p0) if p0 != 0.0 else 1e-6
+        forward[k] = (final_state(params.replace(**{k: p0 + hf}), profile, q0)[0] - q_tf) / hf
+    exact = {k: d.dq_dp[k] for k in uncertain}
+    worst = max([abs(v) for v in exact.values()] + [abs(v) for v in central.values()] + [0.0])
+    at_goal = abs(q_tf - qf) <= tol
+    at_rest = v_tf == 0.0
+    within = bool(np.all(np.abs(profile.currents) <= params.i_max + 1e-12))
+    robust = bool(worst <= tol and d.smooth and at_goal and at_rest and within)
+    return {"robust": robust, "exact": exact, "central": central, "forward_0.1%": forward,
+            "qd_exact": {k: d.dqd_dp[k] for k in uncertain}, "max_abs_derivative": worst,
+            "kink_radius": d.kink_radius, "tf_radius": d.tf_radius, "t_stop": d.t_stop,
+            "q_tf": q_tf, "qd_tf": v_tf, "at_goal": at_goal, "at_rest": at_rest,
+            "within_limits": within,
+            "finite_change": finite_change(params, profile, q0, qf, uncertain)}
+
+
+class _Problem:
+    """The compiled solver's arguments for one request."""
+
+    def __init__(self, request: PlanRequest, params: Arm1DofParams, n: int):
+        self.params = params
+        self.n = n
+        self.tf = float(request.tf)
+        self.coast = float(request.coast)
+        self.times = np.linspace(0.0, self.tf - self.coast, n + 1)
+        self.q0 = float(request.q0[0])
+        self.goal = float(request.qf[0])
+        self.umask = np.array([k in request.uncertain for k in FRICTION])
+        self.pvals = np.array([params.pv, params.pc, params.pt], dtype=float)
+        self.i_max = float(params.i_max)
+        self.vb = stop_speed_bound(params, self.coast)
+        self.W = workspace(n)
+        self.tol_q = 0.1 * float(request.tol)
+        self.tol_d = 0.1 * float(request.tol)
+
+    def args(self):
+        p = self.params
+        return (p.J, p.n * p.kt, p.pv, p.pc, p.pt, self.times, self.tf, self.q0, self.goal,
+                self.umask, self.pvals, self.i_max)
+
+    def run(self, starts: np.ndarray, stop_first: bool):
+        s = LM_SETTINGS
+        m = starts.shape[0]
+        st = np.zeros(m, np.int64)
+        it = np.zeros(m, np.int64)
+        f = np.full(m, np.inf)
+        kk = np.zeros(m)
+        done = _lm1d.multistart(*self.args(), starts, self.W, self.vb, s["wpen"], s["wq"],
+                                s["lam0"], self.tol_q, self.tol_d, MIN_KINK, s["max_iter"],
+                                s["abandon_iter"], s["abandon_norm"], s["max_reject"],
+                                stop_first, st, it, f, kk)
+        return done, st, it, f, kk
+
+    def profile(self, currents: np.ndarray) -> CurrentProfile:
+        return CurrentProfile(self.times.copy(), np.asarray(currents, float).reshape(-1, 1),
+                              self.tf, self.coast)
+
+
+def _check_request(request: PlanRequest) -> Arm1DofParams:
+    request.validate()
+    if request.model != "arm1dof":
+        raise PlanningError(f"plan_robust_1dof plans the arm1dof model, not '{request.model}'")
+    if request.objective not in ("robust-derivative", "robust-sampled"):
+        raise PlanningError(f"plan_robust_1dof serves robust-derivative and robust-sampled, not "
+                            f"{request.objective!r}")
+    if not request.uncertain:
+        raise PlanningError("name at least one uncertain friction parameter (pv, pc, pt)")
+    if request.coast <= STOP_MARGIN:
+        raise PlanningError(f"coast must exceed {STOP_MARGIN} s so that the arm can stop in it")
+    return request.resolved_params()
+
+
+def plan_robust_1dof(request: PlanRequest, progress: Progress = None,
+                     initial_currents: Optional[np.ndarray] = None) -> PlanResult:
+    """Plan a robust rest-to-rest move of the 1-DOF arm; see the module docstring."""
+    t0 = time.perf_counter()
+    params = _check_request(request)
+    n = request.n_steps()
+    prob = _Problem(request, params, n)
+    rng = np.random.default_rng(request.seed)
+    starts = rng.uniform(-prob.i_max, prob.i_max, (int(request.starts), n))
+    warm = False
+    if initial_currents is not None:
+        init = np.asarray(initial_currents, dtype=float).reshape(-1)
+        if init.shape != (n,) or not np.all(np.isfinite(init)):
+            raise PlanningError(f"initial_currents needs {n} finite values, got {init.size}")
+        starts = np.vstack([np.clip(init, -prob.i_max, prob.i_max), starts])
+        warm = True
+    sampled = request.objective == "robust-sampled"
+    want = 4 if sampled else 1          # robust candidates to collect
+    found: list[np.ndarray] = []
+    best_f, best_I = math.inf, None
+    tried = iters = 0
+    counts = np.zeros(5, np.int64)
+    out_of_time = False
+    for c0 in range(0, starts.shape[0], CHUNK):
+        if time.perf_counter() - t0 > request.time_budget:
+            out_of_time = True
+            break
+        block = starts[c0:c0 + CHUNK].copy()
+        done, st, it, f, kk = prob.run(block, stop_first=not sampled)
+        tried += done
+        iters += int(it[:done].sum())
+        counts += np.bincount(st[:done], minlength=5)
+        for s in range(done):
+            if st[s] == _lm1d.OK:
+                found.append(block[s].copy())
+            elif f[s] < best_f:
+                best_f, best_I = f[s], block[s].copy()
+        if progress is not None:
+            progress({"starts_done": tried, "robust_found": len(found),
+                      "best": float(min(best_f, 0.0 if found else best_f))})
+        if len(found) >= want:
+            break
+    stats = {"starts_ok": int(counts[_lm1d.OK]), "starts_abandoned": int(counts[_lm1d.ABANDONED]),
+             "starts_unconverged": int(counts[_lm1d.NO_CONVERGENCE]),
+             "starts_at_kink": int(counts[_lm1d.KINK]), "n_steps": n,
+             "stop_speed_bound": prob.vb, "search_time_s": time.perf_counter() - t0}
+
+    if sampled:
+        return _finish_sampled(request, prob, found, best_I, tried, iters, warm, t0, stats,
+                               out_of_time)
+    if found:
+        return _result(request, prob, found[0], True, "", tried, iters, warm, t0, stats)
+    return _no_plan(request, prob, best_I, tried, iters, warm, t0, stats, out_of_time)
+
+
+def _no_plan(request, prob, best_I, tried, iters, warm, t0, stats, out_of_time) -> PlanResult:
+    code = "TIME_BUDGET_EXHAUSTED" if out_of_time else "NO_ROBUST_PLAN"
+    k = len(request.uncertain)
+    why = (f"no truly robust plan with N = {prob.n} steps for k = {k} uncertain parameter(s) "
+           f"in {tried} start(s)")
+    if out_of_time:
+        why += f" within the time budget of {request.time_budget} s"
+    elif prob.n < k + 2:
+        why += f" (N = 2 + k = {k + 2} steps are needed for the equations to be solvable)"
+    else:
+        why += "; try more steps (longer moves need more) or a longer move time"
+    if best_I is None:
+        res = PlanResult(False, why, None, "arm1dof", prob.params, np.array([prob.q0]),
+                         np.array([prob.goal]), list(request.uncertain), request.objective,
+                         error_code=code, starts_tried=tried, iterations=iters,
+                         solve_time=time.perf_counter() - t0, warm_start=warm, extra=stats)
+        return res
+    return _result(request, prob, best_I, False, why, tried, iters, warm, t0, stats, code=code)
+
+
+def _result(request, prob, currents, success, message, tried, iters, warm, t0, stats,
+            code="OK", extra=None) -> PlanResult:
+    prof = prob.profile(currents)
+    uncertain = list(request.uncertain)
+    check = verify(prob.params, prof, prob.q0, prob.goal, uncertain, request.tol)
+    robust = check["robust"]
+    if success and not robust:    # the compiled solver's claim did not survive verification
+        success, code = False, "NO_ROBUST_PLAN"
+        message = "best plan failed the true-derivative verification"
+    if success and not message:
+        message = (f"truly robust plan: max |dq(tf)/dp| = {check['max_abs_derivative']:.1e} "
+                   f"(exact and central differences), |q(tf) - qf| = "
+                   f"{abs(check['q_tf'] - prob.goal):.1e} rad, at rest at tf")
+    ex = dict(stats)
+    ex.update(verification={k: v for k, v in check.items() if k != "finite_change"},
+              finite_change=check["finite_change"])
+    if extra:
+        ex.update(extra)
+    q_tf, v_tf = check["q_tf"], check["qd_tf"]
+    res = PlanResult(
+        success=bool(success), message=message, profile=prof, model="arm1dof",
+        params=prob.params, q0=np.array([prob.q0]), qf=np.array([prob.goal]),
+        uncertain=uncertain, objective=request.objective, q_final=np.array([q_tf]),
+        qd_final=np.array([v_tf]), sensitivities=dict(check["exact"]), robust=bool(robust),
+        error_code=code, best_effort=not success, starts_tried=tried, iterations=iters,
+        solve_time=time.perf_counter() - t0, warm_start=warm, extra=ex)
+    return res
+
+
+# --- robust-sampled -----------------------------------------------------------------------------
+def _sampled_terms(prob: _Problem, I: np.ndarray, scales: np.ndarray):
+    """Rest-position errors at the sampled parameters and their Jacobian w.r.t. I."""
+    p = prob.params
+    m = scales.shape[0]
+    e = np.empty(m)
+    G = np.empty((m, prob.n))
+    pw = np.zeros(NP)
+    W = prob.W
+    for s in range(m):
+        pv, pc, pt = prob.pvals * scales[s]
+        hd_sim(p.J, p.n * p.kt, pv, pc, pt, prob.times, I, prob.tf, prob.q0, True, pw, W)
+        e[s] = W[Q_, 0] - prob.goal
+        G[s] = W[Q_, 4:4 + prob.n]
+    return e, G
+
+
+def _constraints(prob: _Problem, I: np.ndarray, with_derivs: bool):
+    """Equalities [q(tf) − qf, scaled ∂q/∂p_i] and inequality vb − |v_coast| with Jacobians."""
+    p = prob.params
+    W = prob.W
+    pw = np.where(prob.umask, prob.pvals, 0.0)
+    hd_sim(p.J, p.n * p.kt, p.pv, p.pc, p.pt, prob.times, I, prob.tf, prob.q0, False, pw, W)
+    n = prob.n
+    eq = [W[Q_, 0] - prob.goal]
+    jeq = [W[Q_, 4:4 + n].copy()]
+    if with_derivs:
+        base = 4 + n
+        for i in range(NP):
+            if prob.umask[i]:
+                eq.append(W[Q_, 1 + i] * prob.pvals[i])
+                jeq.append(W[Q_, base + i * n: base + (i + 1) * n] * prob.pvals[i])
+    vc = W[VC_, 0]
+    ineq = prob.vb * 0.98 - abs(vc)
+    jin = -np.sign(vc) * W[VC_, 4:4 + n]
+    return np.array(eq), np.array(jeq), ineq, jin
+
+
+def _refine_sampled(prob: _Problem, I0: np.ndarray, scales: np.ndarray, with_derivs: bool,
+                    budget: float) -> tuple[np.ndarray, float]:
+    """SLSQP on the sampled RMS from I0, keeping the equalities (exact Jacobians)."""
+    from scipy.optimize import minimize
+
+    m = scales.shape[0]
+
+    def fun(I):
+        e, G = _sampled_terms(prob, I, scales)
+        return float(e @ e / m), 2.0 * (G.T @ e) / m
+
+    cons = [{"type": "eq", "fun": lambda I: _constraints(prob, I, with_derivs)[0],
+             "jac": lambda I: _constraints(prob, I, with_derivs)[1]},
+            {"type": "ineq", "fun": lambda I: np.array([_constraints(prob, I, with_derivs)[2]]),
+             "jac": lambda I: _constraints(prob, I, with_derivs)[3].reshape(1, -1)}]
+    bounds = [(-prob.i_max, prob.i_max)] * prob.n
+    res = minimize(fun, I0, jac=True, method="SLSQP", bounds=bounds, constraints=cons,
+                   options={"maxiter": 200, "ftol": 1e-14})
+    return np.asarray(res.x, float), float(math.sqrt(max(res.fun, 0.0)))
+
+
+def _rms(prob: _Problem, I: np.ndarray, scales: np.ndarray) -> float:
+    e, _ = _sampled_terms(prob, I, scales)
+    return float(np.sqrt(np.mean(e * e))) if np.all(np.isfinite(e)) else math.inf
+
+
+def _finish_sampled(request, prob, found, best_I, tried, iters, warm, t0, stats, out_of_time):
+    scales = sample_scales(request.uncertain)
+    remaining = max(0.0, request.time_budget - (time.perf_counter() - t0))
+    with_derivs = bool(found)
+    cands = found if found else ([best_I] if best_I is not None else [])
+    best, best_rms = None, math.inf
+    for I0 in cands:
+        rms0 = _rms(prob, I0, scales)
+        if rms0 < best_rms:
+            best, best_rms = I0, rms0
+    if best is None:
+        return _no_plan(request, prob, None, tried, iters, warm, t0, stats, out_of_time)
+    rms_before = best_rms
+    try:
+        I1, _ = _refine_sampled(prob, best.copy(), scales, with_derivs, remaining)
+        ok = verify(prob.params, prob.profile(I1), prob.q0, prob.goal, request.uncertain,
+                    request.tol)
+        keep = ok["robust"] if with_derivs else (ok["at_goal"] and ok["at_rest"])
+        rms1 = _rms(prob, I1, scales)
+        if keep and rms1 <= best_rms:
+            best, best_rms = I1, rms1
+    except (ValueError, ArithmeticError):
+        pass
+    extra = {"sampled_rms": best_rms, "sampled_rms_before_refine": rms_before,
+             "sampled_points": scales.tolist(), "sampled_worst": float(
+                 np.max(np.abs(_sampled_terms(prob, best, scales)[0])))}
+    if with_derivs:
+        return _result(request, prob, best, True,
+                       f"robust plan with least sampled rest-position RMS {best_rms:.2e} rad "
+                       f"over {len(scales)} parameter samples", tried, iters, warm, t0, stats,
+                       extra=extra)
+    check = verify(prob.params, prob.profile(best), prob.q0, prob.goal, request.uncertain,
+                   request.tol)
+    if check["at_goal"] and check["at_rest"]:
+        res = _result(request, prob, best, False, "", tried, iters, warm, t0, stats,
+                      code="NO_ROBUST_PLAN", extra=extra)
+        res.message = (f"no derivative-robust plan found with N = {prob.n}; returning the plan "
+                       f"with least sampled rest-position RMS {best_rms:.2e} rad (NOT "
+                       f"derivative-robust)")
+        return res
+    return _no_plan(request, prob, best, tried, iters, warm, t0, stats, out_of_time)
