@@ -39,6 +39,8 @@ from ff_planner.params import ParameterError, default_params, n_joints
 
 REPO = Path(__file__).resolve().parent.parent
 CONFIG_DIR = REPO / "config"
+COUNTS_PER_REV = 4096      # encoder increments per motor revolution, simulated drive = bridge
+NOMINAL_CURRENT = 3.0      # A, motor nominal current (EPOS4 per-mille scale), drive = bridge
 
 
 class BringupError(RuntimeError):
@@ -96,9 +98,9 @@ def bridge_config(model: str, hub_url: str) -> dict:
         sfx = "" if model == "arm1dof" else str(j + 1)
         joints.append({"name": f"joint{j + 1}", "node_id": j + 1, "family": "epos4",
                        "current_limit": float(getattr(p, "i_max" + sfx)),
-                       "units": {"nominal_current": 3.0,
+                       "units": {"nominal_current": NOMINAL_CURRENT,
                                  "torque_constant": float(getattr(p, "kt" + sfx)),
-                                 "counts_per_rev": 4096, "gear_ratio": float(getattr(p, "n" + sfx))}})
+                                 "counts_per_rev": COUNTS_PER_REV, "gear_ratio": float(getattr(p, "n" + sfx))}})
     return {"bus": {"interface": "remote", "channel": hub_url, "bitrate": 1_000_000},
             "sync_period": 0.001, "heartbeat_producer_ms": 20, "heartbeat_timeout": 0.2,
             "setpoint_timeout": 0.5, "joints": joints}
@@ -194,7 +196,8 @@ class Stack:
         self.log(f"  simulated arm: {model}, true friction differs from the model by {true or 'nothing'}")
         try:
             sim = {"model": model, "host_hub": True, "hub_port": self.hub_port,
-                   "node_ids": list(range(1, nj + 1)), "q0": q0}
+                   "node_ids": list(range(1, nj + 1)), "q0": q0, "counts_per_rev": COUNTS_PER_REV,
+                   "nominal_current": NOMINAL_CURRENT, "ground_truth_rate": 200.0}
             sim.update({f"true_params.{k}": v for k, v in true.items()})
             sim.update(o.sim_overrides)
             pf = _params_file(self.run_dir / "sim_driver.yaml", "ff_sim_driver", sim)
@@ -237,6 +240,35 @@ class Stack:
             raise
         self.log("ff-bringup: all up")
         return self
+
+    def set_true_params(self, values: Mapping[str, float], timeout: float = 10.0) -> None:
+        """Change the simulated arm's true parameters at runtime (``true_params.<key>``, SI)."""
+        from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+        from rcl_interfaces.srv import SetParameters
+        from rclpy.executors import SingleThreadedExecutor
+
+        default_params(self.options.model).replace(**values)   # refuse unknown keys early
+        node = self._probe()
+        cli = node.create_client(SetParameters, "/ff_sim_driver/set_parameters")
+        try:
+            if not cli.wait_for_service(timeout_sec=timeout):
+                raise BringupError("ff_sim_driver's set_parameters service is not available")
+            req = SetParameters.Request(parameters=[
+                Parameter(name=f"true_params.{k}", value=ParameterValue(
+                    type=ParameterType.PARAMETER_DOUBLE, double_value=float(v)))
+                for k, v in values.items()])
+            fut = cli.call_async(req)
+            ex = SingleThreadedExecutor(context=self._ctx)
+            ex.add_node(node)
+            ex.spin_until_future_complete(fut, timeout_sec=timeout)
+            ex.remove_node(node)
+            if not fut.done() or fut.result() is None:
+                raise BringupError("ff_sim_driver did not answer set_parameters")
+            bad = [r.reason for r in fut.result().results if not r.successful]
+            if bad:
+                raise BringupError(f"ff_sim_driver refused the true parameters: {bad}")
+        finally:
+            node.destroy_client(cli)
 
     def dead(self) -> list[NodeProcess]:
         """Children that have exited."""

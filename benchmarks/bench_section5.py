@@ -1,0 +1,172 @@
+"""The paper's section 5 hardware study, redone on the simulated stack; prints JSON.
+
+Protocol (paper 5.2): 32 feedforward controllers for the 1-DOF arm, 0 → 1 rad in 1 s, three
+equal current steps over [0, tf − coast] (coast 0.05 s). The first current is set on a grid of 32
+values; the other two follow from the end constraints q(tf) = 1 rad, q̇(tf) = 0 in simulation with
+the planner's model (paper table 2, pc = 0.19 Nm). Each controller is run with the true Coulomb
+friction at 0.19, 0.22 and 0.25 Nm; its score is the RMS of the three final position errors
+(measured where the arm came to rest). Paper: best 0.002 rad, worst 0.092 rad.
+
+Here every run goes through the whole stack (executor action → bridge → CAN hub → simulated EPOS +
+arm, the true pc set on the simulated driver at runtime). The grid spans the first currents for
+which the end constraints can be met with |I| <= i_max. The same scores from the exact model
+(no stack) are reported beside, as is the model's sensitivity ∂q(tf)/∂pc of each controller
+(the paper: the best/worst controllers on hardware are the least/most sensitive in simulation).
+
+    python benchmarks/bench_section5.py [--quick] [--offline] [--out FILE]
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from ff_planner.params import default_params
+from ff_planner.profile import CurrentProfile
+from ff_planner.simulate import rest_position, simulate
+
+PCS = (0.19, 0.22, 0.25)
+PAPER = {"best_rms_rad": 0.002, "worst_rms_rad": 0.092, "controllers": 32}
+TF, QF = 1.0, 1.0
+
+
+def solve_rest(i1: float, params, guesses=((0, 0), (5, -5), (-5, 5), (8, -8), (2, -2), (-2, 2))):
+    """(I2, I3) with q(tf) = QF, q̇(tf) = 0 for first current ``i1`` (A), or None."""
+    lim = params.i_max
+
+    def res(x):
+        r = simulate(params, CurrentProfile.uniform([i1, x[0], x[1]], TF), [0.0])
+        return [r.q_f[0] - QF, r.qd_f[0]]
+
+    for g in guesses:
+        s = least_squares(res, g, bounds=([-lim, -lim], [lim, lim]), xtol=1e-14, ftol=1e-14,
+                          gtol=1e-14)
+        if np.max(np.abs(s.fun)) < 1e-7:
+            return float(s.x[0]), float(s.x[1])
+    return None
+
+
+def feasible_range(params, coarse: int = 81) -> tuple[float, float]:
+    """The interval of first currents (A) whose end constraints can be met (edges bisected)."""
+    grid = np.linspace(-params.i_max, params.i_max, coarse)
+    ok = [solve_rest(float(x), params) is not None for x in grid]
+    idx = np.nonzero(ok)[0]
+    if idx.size == 0:
+        raise RuntimeError("no first current meets the end constraints")
+
+    def edge(inside: float, outside: float) -> float:
+        for _ in range(12):
+            mid = 0.5 * (inside + outside)
+            if solve_rest(mid, params) is not None:
+                inside = mid
+            else:
+                outside = mid
+        return inside
+
+    lo = grid[idx[0]] if idx[0] == 0 else edge(grid[idx[0]], grid[idx[0] - 1])
+    hi = grid[idx[-1]] if idx[-1] == coarse - 1 else edge(grid[idx[-1]], grid[idx[-1] + 1])
+    return float(lo), float(hi)
+
+
+def controllers(n: int, params) -> list[dict]:
+    lo, hi = feasible_range(params)
+    out = []
+    for i1 in np.linspace(lo, hi, n):
+        sol = solve_rest(float(i1), params)
+        if sol is None:
+            continue
+        cur = [float(i1), *sol]
+        prof = CurrentProfile.uniform(cur, TF)
+        errs = [float(rest_position(params.replace(pc=pc), prof, [0.0])[0] - QF) for pc in PCS]
+        h = 1e-6
+        sens = (simulate(params.replace(pc=params.pc + h), prof, [0.0]).q_f[0]
+                - simulate(params.replace(pc=params.pc - h), prof, [0.0]).q_f[0]) / (2 * h)
+        out.append({"currents_A": cur, "model_errors_rad": errs,
+                    "model_rms_rad": float(np.sqrt(np.mean(np.square(errs)))),
+                    "model_dq_dpc": float(sens)})
+    return out
+
+
+def run_on_stack(ctrls: list[dict], log) -> dict:
+    from ff_executor.bringup import Stack, StackOptions
+    from ff_executor.client import StackClient
+    from ff_msgs_py.convert import profile_to_msg
+
+    t0 = time.monotonic()
+    failures = 0
+    with Stack(StackOptions(planner=False), log=log) as stack:
+        with StackClient(stack.env, "ff_bench_section5") as client:
+            for pc in PCS:
+                stack.set_true_params({"pc": pc})
+                log(f"true pc = {pc} Nm")
+                for k, c in enumerate(ctrls):
+                    prof = CurrentProfile.uniform(c["currents_A"], TF)
+                    msg = profile_to_msg(prof, "arm1dof", [0.0], [QF], pid=f"s5-{k}-{pc}")
+                    client.reset_arm([0.0])
+                    mv = client.execute(msg)
+                    ok = mv.succeeded and mv.rest_truth is not None
+                    failures += 0 if ok else 1
+                    c.setdefault("stack_errors_rad", []).append(
+                        float(mv.rest_truth[0] - QF) if ok else math.nan)
+                    c.setdefault("executor_errors_rad", []).append(
+                        float(mv.result.position_error[0]) if ok and len(mv.result.position_error)
+                        else math.nan)
+                    c.setdefault("switch_p99_s", []).append(float(mv.result.switch_error_p99))
+    for c in ctrls:
+        c["stack_rms_rad"] = float(np.sqrt(np.mean(np.square(c["stack_errors_rad"]))))
+    return {"runs": len(ctrls) * len(PCS), "failed_runs": failures,
+            "wall_s": time.monotonic() - t0}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="8 controllers instead of 32")
+    ap.add_argument("--offline", action="store_true", help="model only, no stack")
+    ap.add_argument("--out", default=None, help="also write the JSON here")
+    a = ap.parse_args(argv)
+    params = default_params("arm1dof")
+    n = 8 if a.quick else 32
+    log = (lambda s: print(s, file=sys.stderr, flush=True))
+    ctrls = controllers(n, params)
+    out = {"benchmark": "section5_grid", "paper": PAPER, "true_pc_Nm": list(PCS),
+           "model": "table2 (pc = 0.19 Nm nominal)", "tf_s": TF, "qf_rad": QF,
+           "first_current_range_A": [ctrls[0]["currents_A"][0], ctrls[-1]["currents_A"][0]],
+           "controllers": ctrls}
+    key = "model_rms_rad"
+    if not a.offline:
+        out["stack_run"] = run_on_stack(ctrls, log)
+        key = "stack_rms_rad"
+    rms = np.array([c[key] for c in ctrls])
+    best, worst = int(np.nanargmin(rms)), int(np.nanargmax(rms))
+    sens = np.abs([c["model_dq_dpc"] for c in ctrls])
+    out["summary"] = {
+        "source": "stack" if not a.offline else "model",
+        "n_controllers": len(ctrls),
+        "best_rms_rad": float(rms[best]), "best_currents_A": ctrls[best]["currents_A"],
+        "worst_rms_rad": float(rms[worst]), "worst_currents_A": ctrls[worst]["currents_A"],
+        "paper_best_rms_rad": PAPER["best_rms_rad"], "paper_worst_rms_rad": PAPER["worst_rms_rad"],
+        "model_best_rms_rad": float(min(c["model_rms_rad"] for c in ctrls)),
+        "model_worst_rms_rad": float(max(c["model_rms_rad"] for c in ctrls)),
+        "best_is_least_sensitive": bool(best == int(np.argmin(sens))),
+        "worst_sensitivity_rank": int(np.argsort(-sens).tolist().index(worst)),  # 0 = most sensitive
+        "best_first_current_negative": bool(ctrls[best]["currents_A"][0] < 0),
+    }
+    if not a.offline:
+        diffs = np.array([np.array(c["stack_errors_rad"]) - np.array(c["model_errors_rad"])
+                          for c in ctrls])
+        out["summary"]["stack_vs_model_max_abs_diff_rad"] = float(np.nanmax(np.abs(diffs)))
+    text = json.dumps(out, indent=2)
+    print(text)
+    if a.out:
+        with open(a.out, "w", encoding="utf-8") as fh:
+            fh.write(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
