@@ -355,6 +355,40 @@ def section_three(rep: Report, starts: int, seed: int, repeats: int) -> None:
         plot_motion(p, res0.profile, [0.0], [1.0], FRICTION, rep.out / "fig7_three.png",
                     title="robust to pv, pc, pt, N = 5 (paper Fig. 7 style)")
         rep.add("![Fig. 7 analogue](fig7_three.png)", "")
+        _motion_file_check(rep, res0)
+
+
+def _motion_file_check(rep: Report, res: PlanResult) -> None:
+    """Write the plan as ff-motion/1 and re-simulate the file independently, perturbed."""
+    from .motion_file import verify_motion, write_motion
+
+    path = write_motion(rep.out / "motion_k3.json", res)
+    rows, rec = [], {}
+    scales = [{}, {"pv": 1.001}, {"pc": 1.001}, {"pt": 1.001}, {"pv": 0.999, "pc": 0.999, "pt": 0.999},
+              {"pv": 1.1}, {"pc": 1.1}, {"pt": 1.1}, {"pv": 1.1, "pc": 1.1, "pt": 1.1},
+              {"pv": 0.9, "pc": 0.9, "pt": 0.9}]
+    for sc in scales:
+        chk = verify_motion(path, sc, sensitivities=not sc)
+        label = ", ".join(f"{k} ×{v:g}" for k, v in sc.items()) or "nominal (file's own numbers)"
+        rows.append([label, float(chk.error[0]), float(chk.qd_final[0]), float(chk.rest_error[0])])
+        rec[label] = {"q_error": float(chk.error[0]), "qd": float(chk.qd_final[0]),
+                      "rest_error": float(chk.rest_error[0])}
+        if not sc:
+            rec["central_from_file"] = chk.sensitivities
+            rec["prediction_mismatch"] = chk.prediction_mismatch
+    rep.data["motion_file_check"] = rec
+    cen = rec["central_from_file"]
+    rep.add("### The plan as a motion file, re-simulated independently", "",
+            "[motion_k3.json](motion_k3.json) (ff-motion/1) re-read and re-simulated by "
+            "`verify_motion` from the file's own numbers, with friction scaled as listed. "
+            f"Central derivatives recomputed from the file: "
+            + ", ".join(f"{k} {v:+.1e}" for k, v in cen.items())
+            + f"; nominal q(tf) differs from the file's prediction by {rec['prediction_mismatch']:.1e} rad.",
+            "")
+    rep.table(["friction in the re-simulation", "q(tf) − qf (rad)", "q̇(tf) (rad/s)",
+               "rest − qf (rad)"], rows)
+    rep.add("A 0.1 % change moves the final position by ~1e-5 rad or less: second order, as zero "
+            "first derivatives predict; ±10 % changes show the curvature (pt dominates).", "")
 
 
 # --- Fig. 6 sweep ----------------------------------------------------------------------------
@@ -372,7 +406,7 @@ def section_sweep(rep: Report, distances: np.ndarray, starts: int, seed: int) ->
         vals, robust = [], []
         for d in distances:
             req = PlanRequest(qf=(float(d),), uncertain=(name,), steps=3, starts=starts,
-                              seed=seed, time_budget=20.0)
+                              seed=seed, time_budget=5.0)
             res, err = _plan(req)
             if res is None or res.profile is None:
                 vals.append(np.nan)
@@ -389,7 +423,7 @@ def section_sweep(rep: Report, distances: np.ndarray, starts: int, seed: int) ->
     rep.data["sweep"] = {"curves": rec, "thresholds": thresholds, "time_s": time.perf_counter() - t0}
     plot_curves(distances, curves, rep.out / "fig6_sweep.png", xlabel="goal position qf (rad)",
                 ylabel="max |∂q(tf)/∂p| (true)", title="Fig. 6 analogue: robustness vs goal distance",
-                logy=True, vlines={f"paper {k}": v for k, v in PAPER["thresholds"].items()})
+                logy=True, vlines={f"paper {k}": PAPER["thresholds"][k] for k in FRICTION})
     rep.table(["parameter", "paper threshold (rad)", "ours: last robust distance",
                "ours: first failure"],
               [[n, PAPER["thresholds"][n], _fmt_opt(thresholds[n][0]), _fmt_opt(thresholds[n][1])]
@@ -505,6 +539,12 @@ def run(out: Path, quick: bool = False, seed: int = 0,
             "central differences with a 1e-6 relative step) ≤ 1e-6 and |q(tf) − qf| ≤ 1e-6 rad — "
             "stricter than the paper's 0.1 % forward quotient, which can read ~0 at a friction "
             "kink (shown beside).", "")
+    if {"single", "three", "sweep"} & set(sections):
+        tw = time.perf_counter()
+        _plan(PlanRequest(uncertain=("pc",), steps=3, starts=2))   # load compiled kernels
+        rep.data["warmup_s"] = time.perf_counter() - tw
+        rep.add(f"Loading the compiled (numba, cached) kernels took {rep.data['warmup_s']:.2f} s "
+                "once, before the timed runs.", "")
     if "fig3" in sections:
         section_fig3(rep)
     if "single" in sections:
@@ -516,6 +556,19 @@ def run(out: Path, quick: bool = False, seed: int = 0,
         section_sweep(rep, dist, starts=20 if quick else 50, seed=seed)
     if "table4" in sections:
         section_table4(rep)
+    rep.add("## Observations", "",
+            "- The paper's 0.1 % forward quotient is not a derivative test. Our plans have true "
+            "derivatives ≤ 1e-7 (exact forward mode, confirmed by central differences), yet their "
+            "0.1 % forward quotients read 1e-4…1e-2: that is curvature, ½·∂²q/∂p²·Δp. Conversely "
+            "a plan sitting on a friction kink can read ~0 forward while one side is steep. "
+            "Robustness here is judged on true derivatives and on finite changes.",
+            "- Zero first derivatives are local: at ±10 %…±40 % the final-position errors are "
+            "set by curvature, largest for pt (tables above); the rest position (where the arm "
+            "stops after tf) can be worse than q(tf) because under wrong friction the arm is often "
+            "still moving at tf. The robust-sampled objective trades some of this back.",
+            "- Our multistart stops at the first start that gives a verified robust plan, so "
+            "'ms per start' is total time / starts used; the comparable figure to the paper's "
+            "whole optimisation (5.3 s for k = 3) is the total time.", "")
     rep.add("## Not reproduced, and why", "",
             "- The 2-DOF results (section 4.2, Fig. 9) are not part of this report (they are "
             "planned by `ff_planner.robust2d`; see its own tests/benchmarks).",

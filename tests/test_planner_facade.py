@@ -108,3 +108,18 @@ def test_progress_is_passed_through(monkeypatch):
     monkeypatch.setattr(planner, "_dispatch", lambda req: fn)
     r = plan(PlanRequest(), progress=seen.append)
     assert r.success and not r.best_effort and seen == [{"starts_done": 1}]
+
+
+def test_robust_k3_plan_through_the_facade_meets_issue_3():
+    """1-DOF, k = 3, 0 -> 1 rad in 1 s: true derivatives <= 1e-6, on target, at rest."""
+    from ff_planner.sensitivity import sensitivities
+
+    r = plan(PlanRequest(uncertain=("pv", "pc", "pt"), steps=5, starts=100, seed=0))
+    assert r.success and r.robust and not r.best_effort and r.error_code == "OK"
+    p = r.params
+    cen = sensitivities(p, r.profile, [0.0], ["pv", "pc", "pt"], method="central", rel_step=1e-6)
+    ex = sensitivities(p, r.profile, [0.0], ["pv", "pc", "pt"], method="exact")
+    for n in ("pv", "pc", "pt"):
+        assert abs(cen[n]) <= 1e-6 and abs(ex[n]) <= 1e-6 and abs(r.sensitivities[n]) <= 1e-6
+    assert abs(r.q_final[0] - 1.0) <= 1e-6 and r.qd_final[0] == 0.0
+    assert np.max(np.abs(r.profile.currents)) <= p.i_max

@@ -55,3 +55,21 @@ def test_main_reports_unwritable_output(tmp_path, capsys):
     assert main(["--out", str(blocker / "sub"), "--only", "fig3"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("ff-reproduce: error") and "Traceback" not in err
+
+
+def test_single_parameter_section_and_sweep_thresholds(tmp_path):
+    from ff_planner.reproduce import Report, section_single, section_sweep
+
+    rep = Report(tmp_path)
+    section_single(rep, starts=20, seed=0)
+    for n in ("pv", "pc", "pt"):
+        j = rep.data["single"][n]["judge"]
+        assert rep.data["single"][n]["result"]["robust"]
+        assert j["max_true"] <= 1e-6 and j["goal_error"] <= 1e-6
+        assert (tmp_path / f"fig5_{n}.png").exists()
+    # Fig. 6: below the paper's thresholds robust plans exist, above pv's (1.8 rad) not for pv
+    section_sweep(rep, np.array([1.0, 2.5]), starts=20, seed=0)
+    rec = rep.data["sweep"]["curves"]
+    assert rec["pv"]["robust"] == [True, False]
+    assert rec["pc"]["robust"] == [True, True]
+    assert (tmp_path / "fig6_sweep.png").exists()
