@@ -133,11 +133,15 @@ def solve_task(payload: TaskPayload) -> MotionRecord:
         nb = payload.neighbour
         if nb is not None:
             try:
-                r = warm_plan(req, nb, plan_fn=fn)
-                if r.success:
+                # one start: the neighbour's currents (a planner may add a seeded random start
+                # after it; a plan found that way does not count as continuation)
+                r = warm_plan(replace(req, starts=1), nb, plan_fn=fn)
+                if r.success and r.starts_tried <= 1:
+                    r.starts_tried = 1
                     result, how, warm_from = r, "continuation", nb.task_key
                 else:
-                    note = f"continuation from {nb.task_key} failed ({r.error_code}: {r.message}); "
+                    why = f"{r.error_code}: {r.message}" if not r.success else "its start did not converge"
+                    note = f"continuation from {nb.task_key} failed ({why}); "
             except WarmStartUnavailable as exc:
                 note = f"no continuation ({exc}); "
             except PlanningError as exc:
@@ -407,7 +411,7 @@ def build_library(grid: Grid | GridSpec | str | os.PathLike, library: str | os.P
         put_twins(i, r)
 
     # the executor
-    own_cluster = None
+    own_cluster = own_client = None
     if serial and client is None and scheduler is None:
         runner: Any = _SerialRunner()
     else:
@@ -415,7 +419,11 @@ def build_library(grid: Grid | GridSpec | str | os.PathLike, library: str | os.P
             from distributed import Client
 
             if scheduler:
-                client = Client(scheduler)
+                try:
+                    client = own_client = Client(scheduler, timeout=30)
+                except OSError as exc:
+                    raise BuildError(f"cannot reach the Dask scheduler at {scheduler}: {exc}; "
+                                     f"check the address (tcp://HOST:PORT) and that it runs") from None
                 report.scheduler = str(scheduler)
             else:
                 own_cluster, client = start_local_cluster(workers)
@@ -468,6 +476,8 @@ def build_library(grid: Grid | GridSpec | str | os.PathLike, library: str | os.P
     finally:
         runner.close()
         bar.close()
+        if own_client is not None:
+            own_client.close()
         if own_cluster is not None:
             client.close()
             own_cluster.close()

@@ -60,7 +60,8 @@ def _fmt(x: Optional[float], spec: str = ".2g") -> str:
 
 
 def print_summary(rows: list[dict[str, Any]], records: Sequence[MotionRecord], limit: int,
-                  missing: Optional[int], out=sys.stdout) -> None:
+                  missing: Optional[int], out=None) -> None:
+    out = out or sys.stdout
     for s in rows:
         print(f"{s['model']}  params {s['params_hash'][:10]}  {s['objective']}  uncertain "
               f"[{s['uncertain']}]  steps {s['steps']}  coast {s['coast']:g} s", file=out)

@@ -3,6 +3,7 @@ worker killed mid-run, failed/infeasible rows, the CLI, and the planner node ans
 built library."""
 from __future__ import annotations
 
+import json
 import os
 import signal
 import sqlite3
@@ -127,7 +128,7 @@ def test_serial_build_continues_from_neighbours_and_resumes(serial_library):
         assert _content(lib) == before
 
 
-def test_dask_build_with_a_worker_killed_mid_run_matches_serial(tmp_path, serial_library):
+def test_dask_build_with_a_worker_killed_mid_run_matches_serial(tmp_path, serial_library, capsys):
     """2 worker processes on 127.0.0.1; SIGKILL one while it plans; every task stored exactly once
     and identical to the serial build."""
     serial_path, _ = serial_library
@@ -157,6 +158,15 @@ def test_dask_build_with_a_worker_killed_mid_run_matches_serial(tmp_path, serial
         assert client.scheduler.address.startswith("tcp://127.0.0.1:")
         rep = build_library(grid, path, client=client, progress=False,
                             plan_entry=f"{__name__}:slow_plan", on_result=on_result)
+        # the same grid again through the CLI on this (existing) scheduler: everything is skipped
+        gfile = tmp_path / "grid.yaml"
+        gfile.write_text(json.dumps(GRID))
+        capsys.readouterr()
+        assert cli_main(["build", str(gfile), "--library", str(path), "--scheduler",
+                         client.scheduler.address, "--json"]) == 0
+        again = json.loads(capsys.readouterr().out)
+        assert again["stored_before"] == len(grid.tasks) and again["distinct_solved"] == 0
+        assert again["scheduler"] == client.scheduler.address
     finally:
         client.close()
         cluster.close()
@@ -174,7 +184,7 @@ def test_dask_build_with_a_worker_killed_mid_run_matches_serial(tmp_path, serial
 
 
 def test_failed_and_infeasible_rows_keep_their_reason_and_failed_ones_are_retried(tmp_path):
-    data = {**GRID, "q0": 0.0, "qf": [0.5, 3.0], "tf": 0.5}     # 3 rad in 0.5 s is out of reach
+    data = {**GRID, "q0": 0.0, "qf": [0.5, 8.0], "tf": 0.5}     # 8 rad in 0.5 s is out of reach (reach ~5.1 rad)
     grid = expand(parse_grid(data))
     path = tmp_path / "lib.sqlite"
     rep = build_library(grid, path, serial=True, progress=False, plan_entry=f"{__name__}:broken_plan")
@@ -202,6 +212,12 @@ def test_cli_show_and_errors(tmp_path, serial_library, capsys):
     assert png.stat().st_size > 10000 and png.read_bytes()[:4] == b"\x89PNG"
     assert cli_main(["show", "--library", str(tmp_path / "none.sqlite")]) == 2
     assert "no motion library" in capsys.readouterr().err
+    small = tmp_path / "small.yaml"
+    small.write_text(json.dumps({**GRID, "q0": 0.0, "qf": [0.5, 0.75], "tf": 1.0}))
+    assert cli_main(["build", str(small), "--library", str(tmp_path / "s.sqlite"), "--serial"]) == 0
+    cap = capsys.readouterr()
+    assert "2 solved" in cap.out
+    assert "2/2 done" in cap.err and "0 remaining" in cap.err and "ETA" in cap.err   # progress bar
     bad = tmp_path / "bad.yaml"
     bad.write_text("model: arm1dof\nq0: 0\nqf: {start: 0, stop: 1}\ntf: 1\n")
     assert cli_main(["build", str(bad), "--library", str(tmp_path / "x.sqlite"), "--serial"]) == 2
