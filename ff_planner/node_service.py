@@ -168,12 +168,16 @@ def _worker_init(entry: str, warmup: bool) -> None:
     except Exception:  # the planner may not be importable; every job will then say so
         _PLAN_FN = None
         return
-    if warmup:
-        try:
-            _PLAN_FN(PlanRequest(model="arm1dof", q0=[0.0], qf=[0.5], tf=1.0, uncertain=["pc"],
-                                 starts=2, time_budget=60.0))
-        except Exception:
-            pass
+    if warmup:   # cold and warm 1-DOF plans, k = 1 and 3: loads the compiled code of both paths
+        for unc in (["pc"], ["pv", "pc", "pt"]):
+            try:
+                req = PlanRequest(model="arm1dof", q0=[0.0], qf=[1.0], tf=1.0, uncertain=unc, starts=20,
+                                  time_budget=120.0)
+                res = _PLAN_FN(req)
+                if res.profile is not None:
+                    _PLAN_FN(replace(req, qf=[1.01]), initial_currents=res.profile.currents)
+            except Exception:  # noqa: BLE001 - a planner without warm starts, or none at all
+                pass
 
 
 def _ping() -> int:

@@ -22,15 +22,16 @@ SLOW_S = 2.0   # s, how long the stand-in 2-DOF planner works
 
 
 def slow_plan(request: PlanRequest, progress=None, initial_currents=None) -> PlanResult:
-    """Planner entry for the node under test: real planner for arm1dof, a slow stand-in for scara2.
+    """Planner entry for the node under test: the real planner (with warm starts) for arm1dof, a slow
+    stand-in for scara2.
 
     scara2 with seed 666 ignores its time budget (sleeps 60 s) to test that the node enforces it;
     with seed 777 it works until the file $FF_TEST_RELEASE exists (or its budget is spent).
     """
-    from ff_planner.planner import plan
+    from ff_planner.library_build import plan_for_library
 
     if request.model != "scara2":
-        return plan(request, progress)
+        return plan_for_library(request, progress, initial_currents=initial_currents)
     if request.seed == 777:
         end = time.monotonic() + request.time_budget
         while not os.path.exists(os.environ["FF_TEST_RELEASE"]) and time.monotonic() < end:
@@ -145,6 +146,22 @@ def test_good_request_then_warm_from_the_library(client, planner_node):
     assert files and json.loads(files[0].read_text())["format"] == "ff-motion/1"
 
 
+def test_robust_1dof_plan_cold_then_warm_from_its_neighbour(client):
+    fields = dict(model="arm1dof", q0=[0.0], qf=[1.0], move_time=1.0, uncertain=["pv", "pc", "pt"],
+                  starts=50, seed=1)
+    cold = _call(client, **fields)
+    assert cold.success and cold.robust and not cold.warm_start, cold.message
+    assert sorted(cold.sensitivity_names) == ["pc", "pt", "pv"]
+    assert max(abs(v) for v in cold.sensitivity_values) <= 1e-6
+    assert abs(cold.q_final[0] - 1.0) <= 1e-6 and abs(cold.qd_final[0]) <= 1e-6
+    assert cold.profile.n_steps == 5 and cold.starts_tried >= 1
+    near = _call(client, **dict(fields, qf=[1.03]))      # re-optimised from the stored plan
+    assert near.success and near.robust and near.warm_start, near.message
+    assert "warm start from library entry" in near.message
+    assert max(abs(v) for v in near.sensitivity_values) <= 1e-6
+    assert abs(near.q_final[0] - 1.03) <= 1e-6
+
+
 BAD = [
     (dict(ONE_DOF, model="arm7dof"), "UNKNOWN_MODEL", "known models"),
     (dict(ONE_DOF, override_names=["friction"], override_values=[0.1]), "UNKNOWN_PARAMETER", "valid keys"),
@@ -202,7 +219,7 @@ def test_long_2dof_plan_does_not_block_1dof_requests(client, planner_node):
     pending = cli.call_async(long_req)
     answers = []
     for i in range(3):
-        answers.append(_call(client, **dict(ONE_DOF, qf=[0.5 + 0.05 * i], objective="energy-optimal")))
+        answers.append(_call(client, **dict(ONE_DOF, qf=[0.5 + 0.05 * i])))
         assert not pending.done(), f"the 2-DOF plan ended early: {pending.result()}"
     assert all(a.success and not a.warm_start for a in answers), [a.message for a in answers]
     (planner_node[1] / "release").touch()
