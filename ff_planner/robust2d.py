@@ -57,6 +57,12 @@ def joint1_params(p: Scara2Params) -> Arm1DofParams:
                          pv=p.pv1, pc=p.pc1, pt=p.pt1)
 
 
+def joint2_params(p: Scara2Params) -> Arm1DofParams:
+    """The 1-DOF arm that link 2 is while joint 1 is held still: J = C, motor-2 and friction."""
+    _, _, C = scara2.inertia_constants(p)
+    return Arm1DofParams(J=C, kt=p.kt2, n=p.n2, i_max=p.i_max2, pv=p.pv2, pc=p.pc2, pt=p.pt2)
+
+
 def _stop_speed(J: float, pv: float, pc: float, tau: float) -> float:
     """Speed (rad/s) at which zero current and friction stop the joint after exactly tau s."""
     a, b = pv / J, pc / J
@@ -159,51 +165,66 @@ class _Joint1Problem:
 # motor 2: cancel link 1's reaction step by step
 
 
+def hold_torques(p: Scara2Params, held: int, profile: CurrentProfile, q_moving0: float,
+                 q_held: float, samples_per_step: int = 200, zero_coast: bool = True
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Torques (Nm) for the motor of the HELD joint (1 or 2) that keep it in stiction while the
+    other joint runs ``profile`` (its 1-DOF currents; inertia A for joint 1, C for joint 2) from
+    rest at ``q_moving0``: per phase (N steps, then the coast) the midpoint of the reaction's
+    range, which maximises the margin. Returns (torques (N+1,), hold fractions (N+1,)): unused
+    stiction / stiction level per phase (1 = unloaded, 0 = on the edge, < 0 = slips). With
+    ``zero_coast`` the coast torque is 0 (the move's final coast)."""
+    A, B, C = scara2.inertia_constants(p)
+    if held == 2:
+        pm = joint1_params(p)
+        Kh, imax_h, pch, pth = p.n2 * p.kt2, p.i_max2, p.pc2, p.pt2
+    else:
+        pm = joint2_params(p)
+        Kh, imax_h, pch, pth = p.n1 * p.kt1, p.i_max1, p.pc1, p.pt1
+    Km = pm.n * pm.kt
+    times = profile.step_times
+    N = profile.n_steps
+    seg = np.zeros((3 * (N + 3) + 4, 7))
+    ev = np.zeros((3 * (N + 3) + 4, 3))
+    cur = np.ascontiguousarray(profile.currents[:, 0], dtype=float)
+    _, _, nseg, _ = arm1dof.sim_core(pm.J, Km, pm.pv, pm.pc, pm.pt, times, cur, profile.tf,
+                                     float(q_moving0), 0.0, False, seg, ev)
+    T = np.zeros(N + 1)
+    frac = np.zeros(N + 1)
+    for k in range(N + 1):
+        t0, t1 = (times[k], times[k + 1]) if k < N else (times[N], profile.tf)
+        Tm = Km * cur[k] if k < N else 0.0
+        tg = np.linspace(t0, t1, samples_per_step)
+        tg[0] += 1e-12          # one-sided limits inside the phase
+        tg[-1] -= 1e-12
+        qs, vs = arm1dof.eval_segments(seg, min(nseg, seg.shape[0]), tg)
+        Lm = pm.pc + pm.pt * abs(Tm)
+        acc = np.where(vs != 0.0, (Tm - pm.pv * vs - np.sign(vs) * Lm) / pm.J, 0.0)
+        if abs(Tm) > Lm:        # passing through zero velocity under a breakaway torque
+            acc = np.where(vs == 0.0, (Tm - math.copysign(Lm, Tm)) / pm.J, acc)
+        if held == 2:           # link 2 held: H2 = T2 - (B c a1 - B s v1^2), d = q1 - q2
+            d = qs - q_held
+            R = B * np.cos(d) * acc - B * np.sin(d) * vs * vs
+        else:                   # joint 1 held: H1 = T1 - (B c a2 + B s v2^2), d = q1 - q2
+            d = q_held - qs
+            R = B * np.cos(d) * acc + B * np.sin(d) * vs * vs
+        if k == N and zero_coast:
+            Th = 0.0
+        else:
+            Th = float(np.clip(0.5 * (R.min() + R.max()), -Kh * imax_h, Kh * imax_h))
+        L = pch + pth * abs(Th)
+        T[k] = Th
+        frac[k] = (L - np.max(np.abs(Th - R))) / L
+    return T, frac
+
+
 def joint2_hold_currents(p: Scara2Params, profile1: CurrentProfile, q0: np.ndarray,
                          samples_per_step: int = 200) -> tuple[np.ndarray, float]:
     """Motor-2 currents (A, one per step) that keep link 2 (absolute angle q0[1]) in stiction
-    while joint 1 runs ``profile1`` (joint-1 currents only), and the hold fraction: the smallest
-    ratio, over the move, of unused stiction (L2 − |H2|) to L2 = pc2 + pt2·|T2| (1 = no load,
-    0 = on the edge, < 0 = slips)."""
-    A, B, _ = scara2.inertia_constants(p)
-    p1 = joint1_params(p)
-    K1, K2 = p.n1 * p.kt1, p.n2 * p.kt2
-    times = profile1.step_times
-    N = profile1.n_steps
-    seg = np.zeros((3 * (N + 3) + 4, 7))
-    ev = np.zeros((3 * (N + 3) + 4, 3))
-    cur1 = np.ascontiguousarray(profile1.currents[:, 0], dtype=float)
-    _, _, nseg, _ = arm1dof.sim_core(p1.J, K1, p1.pv, p1.pc, p1.pt, times, cur1, profile1.tf,
-                                     float(q0[0]), 0.0, False, seg, ev)
-
-    def reaction(tg: np.ndarray, T1: float) -> np.ndarray:
-        qs, vs = arm1dof.eval_segments(seg, nseg, tg)
-        L1 = p.pc1 + p.pt1 * abs(T1)
-        acc = np.where(vs != 0.0, (T1 - p.pv1 * vs - np.sign(vs) * L1) / A, 0.0)
-        if abs(T1) > L1:   # passing through zero velocity under a breakaway torque
-            acc = np.where(vs == 0.0, (T1 - math.copysign(L1, T1)) / A, acc)
-        d = qs - q0[1]
-        return B * np.cos(d) * acc - B * np.sin(d) * vs * vs
-
-    I2 = np.zeros(N)
-    frac = math.inf
-    for k in range(N + 1):
-        t0, t1 = (times[k], times[k + 1]) if k < N else (times[N], profile1.tf)
-        T1 = K1 * cur1[k] if k < N else 0.0
-        # open interval: stay a hair inside the switches (one-sided limits)
-        tg = np.linspace(t0, t1, samples_per_step)
-        tg[0] += 1e-12
-        tg[-1] -= 1e-12
-        R = reaction(tg, T1)
-        if k < N:
-            T2 = 0.5 * (R.min() + R.max())
-            T2 = float(np.clip(T2, -K2 * p.i_max2, K2 * p.i_max2))
-            I2[k] = T2 / K2
-        else:
-            T2 = 0.0
-        L2 = p.pc2 + p.pt2 * abs(T2)
-        frac = min(frac, float((L2 - np.max(np.abs(T2 - R))) / L2))
-    return I2, frac
+    while joint 1 runs ``profile1`` (joint-1 currents only) to the end of the move (zero current
+    in the coast), and the smallest hold fraction over the move."""
+    T, frac = hold_torques(p, 2, profile1, float(q0[0]), float(q0[1]), samples_per_step)
+    return T[:-1] / (p.n2 * p.kt2), float(frac.min())
 
 
 # ----------------------------------------------------------------------------------------------
@@ -284,46 +305,66 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
     starts = 0
     iters = 0
     candidates = 0
-    while starts < request.starts and time.perf_counter() < deadline:
-        starts += 1
-        x0 = rng.uniform(-0.8, 0.8, N) * p1.i_max
-        x, fun, nfev = prob.solve(x0)
-        iters += nfev
-        cost = float(np.max(np.abs(fun)))
-        best_cost = min(best_cost, cost)
+    cprob = _compiled_joint1(p1, q0, qf, request, N, names1)
+    found = False
+    while starts < request.starts and time.perf_counter() < deadline and not found:
+        if cprob is not None:      # ff_planner.robust1d's compiled exact-Jacobian LM, 16 starts
+            from . import _lm1d
+
+            m = int(min(CHUNK, request.starts - starts))
+            block = rng.uniform(-p1.i_max, p1.i_max, (m, N))
+            try:
+                done, st, it, f, _ = cprob.run(block, stop_first=False)
+            except Exception:  # robust1d changed under us: use the scipy path
+                cprob = None
+                continue
+            starts += int(done)
+            iters += int(it[:done].sum())
+            best_cost = min(best_cost, float(np.min(f[:done])))
+            xs = [block[i].copy() for i in range(done) if st[i] == _lm1d.OK]
+        else:                      # fallback: scipy least squares on arm1dof (FD Jacobians)
+            starts += 1
+            x, fun, nfev = prob.solve(rng.uniform(-0.8, 0.8, N) * p1.i_max)
+            iters += nfev
+            cost = float(np.max(np.abs(fun)))
+            best_cost = min(best_cost, cost)
+            xs = [x] if cost <= 0.1 * tol else []
         if progress:
             progress({"stage": "joint1", "starts_done": starts, "best": best_cost,
-                      "candidates": candidates, "elapsed": time.perf_counter() - t_start})
-        if cost > 0.1 * tol:
-            continue
-        candidates += 1
-        # continuation along the solution set (4 spare dimensions at N = 8) until motor 2 can
-        # hold link 2 with margin: first asking for HOLD_MIN, else HOLD_FALLBACK
-        for hp in holds:
-            x2, fun2, nfev2 = hp.solve(x, max_nfev=100)
-            iters += nfev2
-            if float(np.max(np.abs(fun2))) <= 0.1 * tol:
-                x = x2
-                break
-        prof1 = CurrentProfile(prob.times, x.reshape(-1, 1), request.tf, request.coast)
-        I2, frac = joint2_hold_currents(p, prof1, q0)
-        profile = CurrentProfile(prob.times, np.column_stack([x, I2]), request.tf, request.coast)
-        if frac <= 0.0:
-            continue
-        sim = scara2._simulate_raw(p, profile, q0, np.zeros(2))
-        sens = scara2.sensitivities_scara2(p, profile, q0, names, method="complex")
-        smax = max(abs(v) for k, v in sens.items() if _is_pos(k))
-        err = float(np.max(np.abs(sim.q_f - qf)))
-        ok = err <= tol and smax <= tol and sim.stuck_tf[0] and sim.stuck_tf[1]
-        score = (0 if ok else 1, -frac if ok else smax + err)
-        if best is None or score < best[0]:
-            best = (score, profile, sim, sens, frac)
-        if progress:
-            progress({"stage": "verify", "starts_done": starts, "robust": ok,
-                      "hold_fraction": frac, "max_sensitivity": smax, "error": err,
+                      "candidates": candidates + len(xs),
                       "elapsed": time.perf_counter() - t_start})
-        if ok:      # frac >= HOLD_FALLBACK > 0 here: first verified robust plan wins
-            break
+        for x in xs:
+            if time.perf_counter() >= deadline:
+                break
+            candidates += 1
+            # continuation along the solution set (4 spare dimensions at N = 8) until motor 2 can
+            # hold link 2 with margin: first asking for HOLD_MIN, else HOLD_FALLBACK
+            for hp in holds:
+                x2, fun2, nfev2 = hp.solve(x, max_nfev=100)
+                iters += nfev2
+                if float(np.max(np.abs(fun2))) <= 0.1 * tol:
+                    x = x2
+                    break
+            prof1 = CurrentProfile(prob.times, x.reshape(-1, 1), request.tf, request.coast)
+            I2, frac = joint2_hold_currents(p, prof1, q0)
+            profile = CurrentProfile(prob.times, np.column_stack([x, I2]), request.tf, request.coast)
+            if frac <= 0.0:
+                continue
+            sim = scara2._simulate_raw(p, profile, q0, np.zeros(2))
+            sens = scara2.sensitivities_scara2(p, profile, q0, names, method="complex")
+            smax = max(abs(v) for k, v in sens.items() if _is_pos(k))
+            err = float(np.max(np.abs(sim.q_f - qf)))
+            ok = err <= tol and smax <= tol and sim.stuck_tf[0] and sim.stuck_tf[1]
+            score = (0 if ok else 1, -frac if ok else smax + err)
+            if best is None or score < best[0]:
+                best = (score, profile, sim, sens, frac)
+            if progress:
+                progress({"stage": "verify", "starts_done": starts, "robust": ok,
+                          "hold_fraction": frac, "max_sensitivity": smax, "error": err,
+                          "elapsed": time.perf_counter() - t_start})
+            if ok:      # frac >= HOLD_FALLBACK > 0 here: first verified robust plan wins
+                found = True
+                break
     elapsed = time.perf_counter() - t_start
     if best is None:
         code = "TIME_BUDGET_EXHAUSTED" if time.perf_counter() >= deadline else "NO_ROBUST_PLAN"
@@ -346,6 +387,22 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
         starts_tried=starts, iterations=iters, solve_time=elapsed,
         extra={"method": "hold-link2", "hold_fraction": frac, "candidates": candidates,
                "joint1_inertia": p1.J})
+
+
+CHUNK = 16   # joint-1 starts per compiled call (budget checked between calls)
+
+
+def _compiled_joint1(p1: Arm1DofParams, q0, qf, request: PlanRequest, N: int, names1):
+    """robust1d's compiled solver set up for joint 1 (None if unavailable)."""
+    try:
+        from . import robust1d
+
+        req1 = PlanRequest(model="arm1dof", q0=(float(q0[0]),), qf=(float(qf[0]),),
+                           tf=request.tf, uncertain=tuple(names1), steps=N,
+                           coast=request.coast, params=p1, tol=request.tol)
+        return robust1d._Problem(req1, p1, N)
+    except Exception:  # pragma: no cover - robust1d missing or incompatible
+        return None
 
 
 def _plan_link2_moving(request: PlanRequest, p: Scara2Params, progress: Progress,
