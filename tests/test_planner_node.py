@@ -345,5 +345,19 @@ def test_service_warm_starts_from_the_nearest_stored_plan(tmp_path):
         stats = svc.stats()
         assert stats["source_warm"] == 1 and stats["source_cold"] == 1 and stats["source_hit"] == 1
         assert stats["library_solved"] == 3
+        # a stored "no robust plan here" answers at once when its search was as thorough as asked
+        hard_req = svc.make_request(RequestFields(qf=[-2.0], starts=100, **base))
+        none_found = stub_plan(hard_req)
+        none_found.success, none_found.robust, none_found.error_code = False, False, "NO_ROBUST_PLAN"
+        none_found.starts_tried = 100
+        with MotionLibrary(cfg.library_path) as lib:
+            assert lib.put(record_from_result(hard_req, none_found))
+        known = svc.handle_fields(RequestFields(qf=[-2.0], starts=100, **base))
+        assert not known.success and known.error_code == "NO_ROBUST_PLAN" and known.extra["source"] == "hit"
+        assert "known from the motion library" in known.message
+        deeper = svc.handle_fields(RequestFields(qf=[-2.0], starts=400, **base))   # more starts: solve
+        assert deeper.success and deeper.extra["source"] == "cold"
+        after = svc.handle_fields(RequestFields(qf=[-2.0], starts=100, **base))    # upgraded row
+        assert after.success and after.extra["source"] == "hit"
     finally:
         svc.close()
