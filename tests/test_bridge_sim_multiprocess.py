@@ -1,0 +1,210 @@
+"""Bridge library (EposMaster, this process) <-> simulated EPOS + arm (sim_rig, another process)
+over the loopback CAN hub the simulator hosts: enable sequence, streaming, each injected fault ->
+safe state within 50 ms (after the fault becomes detectable), reason reported, recovery after a
+fault reset."""
+from __future__ import annotations
+
+import re
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+
+import pytest
+
+from ff_hwbridge.cia402 import State
+from ff_hwbridge.config import load_config
+from ff_hwbridge.epos import EposError, EposMaster
+
+HB_MS = 10
+# s; heartbeat / feedback loss is detectable only after this. Generous: this 2-core machine is
+# shared, and a loaded scheduler can hold a process off the CPU for tens of ms.
+HB_TIMEOUT = 0.15
+SAFE_WITHIN = 0.05       # s
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class SimProcess:
+    """``python -m ff_hwbridge.sim_rig --host-hub PORT`` with a stdin command channel."""
+
+    def __init__(self, env):
+        self.errors = tempfile.TemporaryFile("w+")       # stderr (logs), apart from replies
+        self.port = free_port()
+        self.url = f"ws://127.0.0.1:{self.port}/"
+        self.p = subprocess.Popen([sys.executable, "-u", "-m", "ff_hwbridge.sim_rig",
+                                   "--host-hub", str(self.port), "--q0", "0.0"],
+                                  stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+                                  stderr=self.errors, text=True, env=env)
+        end = time.monotonic() + 30
+        while time.monotonic() < end:
+            line = self.p.stdout.readline()
+            if "sim rig ready" in line:
+                return
+            if not line and self.p.poll() is not None:
+                break
+        raise RuntimeError(f"sim rig did not start: {self.stderr()}")
+
+    def stderr(self) -> str:
+        self.errors.seek(0)
+        return self.errors.read()
+
+    def cmd(self, line: str) -> str:
+        self.p.stdin.write(line + "\n")
+        self.p.stdin.flush()
+        return self.p.stdout.readline().strip()
+
+    def currents(self) -> list[float]:
+        reply = self.cmd("state")
+        return [float(x) for x in re.search(r"i=\[([^\]]*)\]", reply).group(1).split(",")]
+
+    def q(self) -> float:
+        return float(re.search(r"q=\[([^\],]*)", self.cmd("state")).group(1))
+
+    def stop(self) -> int:
+        try:
+            self.p.stdin.write("quit\n")
+            self.p.stdin.flush()
+            return self.p.wait(10)
+        except Exception:
+            self.p.kill()
+            return self.p.wait(5)
+
+
+@pytest.fixture(scope="module")
+def sim(ros_env):
+    s = SimProcess(ros_env)
+    yield s
+    code = s.stop()
+    print(s.stderr())
+    assert code == 0
+
+
+def make_master(sim: SimProcess) -> EposMaster:
+    cfg = load_config({
+        "bus": {"interface": "remote", "channel": sim.url},
+        "heartbeat_producer_ms": HB_MS, "heartbeat_timeout": HB_TIMEOUT,
+        "feedback_timeout": HB_TIMEOUT, "setpoint_timeout": 0.5,
+        "joints": [{"name": "joint1", "node_id": 1, "family": "epos4", "current_limit": 5.0,
+                    "units": {"nominal_current": 3.0, "torque_constant": 0.0267,
+                              "counts_per_rev": 2048, "gear_ratio": 54}}]})
+    m = EposMaster(cfg)
+    m.connect()
+    return m
+
+
+def wait_for(pred, timeout=2.0):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(0.001)
+    return pred()
+
+
+@pytest.fixture
+def master(sim):
+    sim.cmd("clear 1")
+    sim.cmd("reset 0")
+    m = make_master(sim)
+    try:
+        m.configure()
+        for attempt in range(2):
+            # One retry: a PRE-OPERATIONAL heartbeat already in flight when the master sends NMT
+            # start reaches it after it marked the node operational, and it latches "left
+            # OPERATIONAL" (a master-side race, reported; seen in ~1 of 10 set-ups over the hub).
+            try:
+                m.enable()
+                if m.wait_for_state(State.OPERATION_ENABLED, 2.0):
+                    break
+            except EposError:
+                pass
+            assert attempt == 0 and "left OPERATIONAL" in str(m.fault_reason), m.fault_reason
+            m.fault_reset()                      # configures the node again, re-enables
+        assert m.wait_for_state(State.OPERATION_ENABLED, 2.0), m.fault_reason
+        yield m
+    finally:
+        m.disconnect()
+        sim.cmd("clear 1")
+
+
+def test_enable_and_stream(sim, master):
+    assert master.feedback()[0].state is State.OPERATION_ENABLED
+    master.command_currents([2.0])
+    assert wait_for(lambda: abs(master.feedback()[0].current - 2.0) < 0.01)
+    assert sim.currents() == [pytest.approx(2.0, abs=0.002)]
+    time.sleep(0.2)
+    assert sim.q() > 0.01 and master.feedback()[0].position > 0.01
+    master.command_currents([9.0])                         # above the 5 A limit: clamped
+    assert wait_for(lambda: abs(master.feedback()[0].current - 5.0) < 0.01)
+    master.disable()
+    assert master.wait_for_state(State.SWITCHED_ON, 1.0)
+    assert sim.currents() == [0.0]
+    assert master.fault_reason is None
+
+
+FAULTS = {
+    # name: (sim command, clear command, reason pattern, detectable after (s))
+    "emcy": ("emcy 1 0x2310", None, r"EMCY .*0x2310|drive fault", 0.0),
+    "heartbeat_stop": ("heartbeat 1 off", "heartbeat 1 on", r"heartbeat lost", HB_TIMEOUT),
+    "drop_rx": ("drop 1 1.0 rx", "clear 1", r"feedback lost|heartbeat lost", HB_TIMEOUT),
+    "drop_tx": ("drop 1 1.0 tx", "clear 1", r"heartbeat lost|feedback lost", HB_TIMEOUT),
+    "delay_tx": ("delay 1 400 tx", "clear 1", r"heartbeat lost|feedback lost", HB_TIMEOUT),
+}
+
+
+# With every frame TO the drive lost, the master's quick-stop RPDO is lost too; EposMaster sends
+# an RPDO only when the controlword/setpoint changes, so once frames flow again it never repeats
+# it and the drive keeps the last current. Strict xfail: passes again once the master re-sends
+# the safe RPDO while the reported state differs from its target.
+MASTER_RESENDS = pytest.mark.xfail(strict=True, reason="EposMaster does not repeat a lost "
+                                   "quick-stop RPDO (drive keeps its last current)")
+
+
+@pytest.mark.parametrize("fault", [pytest.param(f, marks=MASTER_RESENDS) if f == "drop_rx" else f
+                                   for f in FAULTS])
+def test_fault_to_safe_state_and_recovery(sim, master, fault):
+    inject, clear, reason_re, detect_after = FAULTS[fault]
+    master.command_currents([1.5])
+    assert wait_for(lambda: sim.currents() == [pytest.approx(1.5, abs=0.002)])
+    t0 = time.monotonic()
+    assert sim.cmd(inject).startswith("ok")
+    assert wait_for(lambda: master.latched, 1.0), f"no safe state after {fault}"
+    assert wait_for(lambda: any(x.startswith("safe state") for _, x in master.events), 1.0)
+    t_latch = next(t for t, text in master.events if text.startswith("safe state"))
+    assert t_latch - t0 <= detect_after + SAFE_WITHIN, (fault, t_latch - t0, master.fault_reason)
+    assert re.search(reason_re, master.fault_reason), master.fault_reason
+    assert master.applied_currents()[0] == 0.0
+    time.sleep(0.05)                        # the master's reaction happens while the fault lasts
+    if clear:
+        assert sim.cmd(clear).startswith("ok")
+    # the drive ends at zero current (quick stop / fault), once frames flow again
+    assert wait_for(lambda: sim.currents() == [0.0], 1.0), sim.cmd("state")
+    # recovery
+    time.sleep(0.05)
+    master.fault_reset()
+    assert master.wait_for_state(State.OPERATION_ENABLED, 2.0), master.fault_reason
+    assert not master.latched
+    master.command_currents([1.0])
+    assert wait_for(lambda: sim.currents() == [pytest.approx(1.0, abs=0.002)])
+
+
+def test_sdo_silent_fails_configuration_clearly(sim):
+    sim.cmd("clear 1")
+    assert sim.cmd("sdo 1 off").startswith("ok")
+    m = make_master(sim)
+    try:
+        with pytest.raises(EposError, match=r"(?i)sdo|timeout|respon"):
+            m.configure()
+        assert sim.cmd("sdo 1 on").startswith("ok")
+        m.configure()
+        m.enable()
+        assert m.wait_for_state(State.OPERATION_ENABLED, 2.0), m.fault_reason
+    finally:
+        m.disconnect()
+        sim.cmd("clear 1")
