@@ -75,6 +75,10 @@ class StackOptions:
         """The simulated arm's true parameters that differ from the planner's model."""
         base = default_params(self.model)
         out: dict[str, float] = {}
+        unknown = [k for k in self.true_scale if k not in base.keys()]
+        if unknown:
+            raise ParameterError(f"unknown parameter(s) {unknown} for model '{self.model}'; "
+                                 f"valid keys are: {', '.join(base.keys())}")
         for k, s in self.true_scale.items():
             out[k] = float(getattr(base, k)) * float(s)
         out.update({k: float(v) for k, v in self.true_params.items()})
@@ -105,7 +109,7 @@ def bridge_config(model: str, hub_url: str) -> dict:
                                  "torque_constant": float(getattr(p, "kt" + sfx)),
                                  "counts_per_rev": COUNTS_PER_REV, "gear_ratio": float(getattr(p, "n" + sfx))}})
     return {"bus": {"interface": "remote", "channel": hub_url, "bitrate": 1_000_000},
-            "sync_period": SYNC_PERIOD, "heartbeat_producer_ms": 20, "heartbeat_timeout": 0.2,
+            "sync_period": SYNC_PERIOD, "heartbeat_producer_ms": 50, "heartbeat_timeout": 1.0,
             "setpoint_timeout": 0.5, "joints": joints}
 
 
@@ -235,10 +239,19 @@ class Stack:
             bp = {"config_file": str(bcfg)}
             bp.update(o.bridge_overrides)
             pf = _params_file(self.run_dir / "bridge_params.yaml", "ff_hwbridge", bp)
-            p = self._start("ff_hwbridge", "ff_hwbridge.bridge_node",
-                            ["--autostart", "--ros-args", "--params-file", str(pf)], timing=True)
-            self._wait(p, lambda: self._lifecycle_state("ff_hwbridge") == "active",
-                       "lifecycle state active")
+            for attempt in (1, 2):   # a busy machine can stall the first enable sequence
+                p = self._start("ff_hwbridge", "ff_hwbridge.bridge_node",
+                                ["--autostart", "--ros-args", "--params-file", str(pf)], timing=True)
+                try:
+                    self._wait(p, lambda: self._lifecycle_state("ff_hwbridge") == "active",
+                               "lifecycle state active")
+                    break
+                except BringupError as exc:
+                    if attempt == 2 or p.alive():
+                        raise
+                    self.log(f"  ff_hwbridge failed to come up, retrying once: {str(exc)[-300:]}")
+                    self.procs.remove(p)
+                    p.stop()
 
             if o.planner:
                 pp = {"library_path": str(self.run_dir / "motions.sqlite")}
