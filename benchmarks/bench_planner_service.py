@@ -119,8 +119,9 @@ def main() -> None:
         client.one(req(1.0))                                   # first call: discovery, caches
         cold = [client.one(req(float(g))) for g in goals]
         out["cold"] = _quant([t for t, r in cold if r is not None and r.success])
-        out["cold"]["robust"] = sum(bool(r and r.robust) for _, r in cold)
-        out["cold"]["failed"] = [r.message[:120] for _, r in cold if r is not None and not r.success][:5]
+        out["cold"]["robust"] = sum(bool(r and r.success and r.robust) for _, r in cold)
+        out["cold"]["no_plan"] = sum(bool(r and not r.success) for _, r in cold)
+        out["cold"]["failed_examples"] = sorted({r.message[:120] for _, r in cold if r is not None and not r.success})[:3]
         out["cold"]["planner_solve_time_p50_s"] = float(np.median([r.solve_time for _, r in cold if r]))
         out["cold"]["goal_p50_s"] = 0.1
 
@@ -160,7 +161,7 @@ def main() -> None:
         out["warm_reoptimised"] = _quant([t for t, r in near if r is not None and r.success and r.warm_start])
         out["warm_reoptimised"]["answered_warm"] = sum(bool(r and r.warm_start) for _, r in near)
         out["warm_reoptimised"]["succeeded"] = sum(bool(r and r.success) for _, r in near)
-        out["warm_reoptimised"]["robust"] = sum(bool(r and r.robust) for _, r in near)
+        out["warm_reoptimised"]["robust"] = sum(bool(r and r.success and r.robust) for _, r in near)
         out["warm_reoptimised"]["messages"] = sorted({r.message[:100] for _, r in near if r and not r.warm_start})[:3]
         out["warm_goal_s"] = 0.01
         out["round_trip_floor"] = _quant([t for t, r in (client.one(PlanTrajectory.Request(model="nope"))
