@@ -7,6 +7,8 @@ Example (``config/bridge_epos4_1dof.yaml``)::
     heartbeat_producer_ms: 10     # ms, written to each drive's 0x1017
     heartbeat_timeout: 0.04       # s, no heartbeat this long -> safe state
     setpoint_timeout: 0.5         # s, no fresh setpoint this long during a motion -> safe state
+    feedback_timeout: 0.04        # s, no TPDO this long while SYNC runs -> safe state
+                                  #    (default: max(heartbeat_timeout, 20 SYNC periods))
     joints:
       - name: joint1
         node_id: 1
@@ -94,6 +96,7 @@ class BridgeConfig:
     heartbeat_producer_ms: int = 10
     heartbeat_timeout: float = 0.04
     setpoint_timeout: float = 0.5
+    feedback_timeout: float = 0.0
     sdo_timeout: float = 0.5
     boot_timeout: float = 2.0
     state_timeout: float = 1.0
@@ -110,7 +113,10 @@ class BridgeConfig:
         names = [j.name for j in self.joints]
         if len(set(names)) != len(names):
             raise ConfigError(f"joints: names must differ, got {names}")
-        for key in ("sync_period", "heartbeat_timeout", "setpoint_timeout", "sdo_timeout",
+        if self.feedback_timeout == 0.0:   # default: the heartbeat timeout, >= 20 SYNC periods
+            object.__setattr__(self, "feedback_timeout",
+                               max(float(self.heartbeat_timeout), 20.0 * float(self.sync_period)))
+        for key in ("sync_period", "heartbeat_timeout", "setpoint_timeout", "feedback_timeout", "sdo_timeout",
                     "boot_timeout", "state_timeout", "monitor_period"):
             v = getattr(self, key)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):

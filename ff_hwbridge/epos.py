@@ -37,6 +37,7 @@ import struct
 import sys
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass, field, replace
 from typing import Any, Callable, Optional, Sequence
 
@@ -127,7 +128,7 @@ class EposMaster:
         self._monitor_stop = threading.Event()
         self._sync_running = False
         self._configured = False
-        self.events: list[tuple[float, str]] = []       # (monotonic s, text) of faults/resets
+        self.events: deque[tuple[float, str]] = deque(maxlen=200)   # (monotonic s, text)
         self.tx_errors = 0
 
     # --- properties ---------------------------------------------------------------------------
@@ -181,6 +182,7 @@ class EposMaster:
         if bus is None:
             bus = _open_bus(self.config.bus.as_dict())
         net = canopen.Network(bus)
+        net.NOTIFIER_CYCLE = 0.1        # bounds how long disconnect() waits for the receiver
         net.connect()
         self.network = net
         for d in self._drives:
@@ -363,7 +365,7 @@ class EposMaster:
                 return self.trip(f"heartbeat lost: node {d.node_id} ({d.cfg.name}) silent for "
                                  f"{(now - d.last_heartbeat) * 1000.0:.0f} ms (timeout "
                                  f"{timeout * 1000.0:.0f} ms)")
-            fb_timeout = max(timeout, 20.0 * self.config.sync_period)
+            fb_timeout = self.config.feedback_timeout
             if self._sync_running and now - d.feedback.stamp > fb_timeout:
                 return self.trip(f"feedback lost: no TPDO from node {d.node_id} ({d.cfg.name}) for "
                                  f"{(now - d.feedback.stamp) * 1000.0:.0f} ms")
@@ -379,6 +381,8 @@ class EposMaster:
         if self.guard.latch(reason):
             self._react(reason)
             return reason
+        if not self.events or self.events[-1][1][:40] != f"also: {reason}"[:40]:
+            self.events.append((self.clock(), f"also: {reason}"))
         return None
 
     def _react(self, reason: str) -> None:
@@ -552,6 +556,7 @@ class EposMaster:
                 self._send_rpdo(d, 0x0000, 0)
             d.last_heartbeat = now if d.operational else d.last_heartbeat
             d.feedback.stamp = now
+            d.feedback.state = None          # wait for a fresh statusword before judging
         old = self.guard.reset()
         for d in self._drives:
             if not d.operational and self.network is not None and self._configured:

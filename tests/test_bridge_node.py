@@ -27,7 +27,7 @@ def bridge(ros_env):
     ctx = rclpy.Context()
     rclpy.init(context=ctx)
     params = [Parameter("bus_interface", value="virtual"), Parameter("bus_channel", value=channel),
-              Parameter("sync_period", value=0.005), Parameter("heartbeat_timeout", value=0.06),
+              Parameter("sync_period", value=0.005), Parameter("heartbeat_timeout", value=0.3),
               Parameter("setpoint_timeout", value=0.3), Parameter("joint_state_rate", value=50.0)]
     node = BridgeNode(context=ctx, parameter_overrides=params)
     client = Node("ff_bridge_test_client", context=ctx)
@@ -68,7 +68,8 @@ def test_lifecycle_setpoints_faults_and_reset(bridge):
     node, client, drive = bridge
 
     node.trigger_configure()
-    assert node.master is not None and drive.node.nmt.state == "OPERATIONAL"
+    assert node.master is not None
+    assert _wait(lambda: drive.node.nmt.state == "OPERATIONAL")
     node.trigger_activate()
     assert node._active
     assert node._state_machine.current_state[0] == LcState.PRIMARY_STATE_ACTIVE
@@ -102,7 +103,7 @@ def test_lifecycle_setpoints_faults_and_reset(bridge):
     assert cli.wait_for_service(timeout_sec=5.0)
     fut = cli.call_async(Trigger.Request())
     assert _wait(fut.done, 5.0)
-    assert fut.result().success, fut.result().message
+    assert fut.result().success, (fut.result().message, node.master.events)
     assert not node.master.latched
 
     node.trigger_deactivate()
