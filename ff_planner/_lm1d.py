@@ -26,17 +26,18 @@ OK, NO_CONVERGENCE, ABANDONED, KINK, BAD_START = 0, 1, 2, 3, 4
 
 
 @njit(cache=True, nogil=True)
-def residual(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals, cur, W, vb, wpen, wq, r, Jm):
-    """Fill r (m,) and Jm (m, N); returns (finite, kink radius, max |∂q/∂p_i|, |q − goal|)."""
+def residual(J, c, pv, pc, pt, times, tf, q0, goal, pw, pvals, cur, W, vb, wpen, wq,
+             pen_mode, r, Jm):
+    """Fill r (m,) and Jm (m, N).
+
+    pen_mode 0: one-sided penalty w·max(0, |v_c| − vb); 1: equality w·(|v_c| − vb);
+    2: penalty row off (zero). Returns (finite, kink radius, max |∂q/∂p_i|, |q − goal|, |v_c|).
+    """
     n = cur.shape[0]
-    pw = np.zeros(NP)
-    for i in range(NP):
-        if umask[i]:
-            pw[i] = pvals[i]
     kink, tf_radius = hd_sim(J, c, pv, pc, pt, times, cur, tf, q0, False, pw, W)
     q = W[Q_, 0]
     if not math.isfinite(q):
-        return False, kink, math.inf, math.inf
+        return False, kink, math.inf, math.inf, math.inf
     base = 4 + n
     r[0] = wq * (q - goal)
     for j in range(n):
@@ -44,14 +45,14 @@ def residual(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals, cur, W, vb, wp
     row = 1
     dmax = 0.0
     for i in range(NP):
-        if umask[i]:
+        if pw[i] != 0.0:
             dmax = max(dmax, abs(W[Q_, 1 + i]))
             r[row] = W[Q_, 1 + i] * pvals[i]
             for j in range(n):
                 Jm[row, j] = W[Q_, base + i * n + j] * pvals[i]
             row += 1
     vc = W[VC_, 0]
-    if abs(vc) > vb:
+    if (pen_mode == 0 and abs(vc) > vb) or pen_mode == 1:
         sg = 1.0 if vc > 0.0 else -1.0
         r[row] = wpen * (abs(vc) - vb)
         for j in range(n):
@@ -60,7 +61,7 @@ def residual(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals, cur, W, vb, wp
         r[row] = 0.0
         for j in range(n):
             Jm[row, j] = 0.0
-    return True, kink, dmax, abs(q - goal)
+    return True, kink, dmax, abs(q - goal), abs(vc)
 
 
 @njit(cache=True, nogil=True)
@@ -118,34 +119,43 @@ def _lm_step(Jm, r, lam, A, y, delta):
 @njit(cache=True, nogil=True)
 def solve_start(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals, i_max, I, W, vb, wpen,
                 wq, lam0, tol_q, tol_d, min_kink, max_iter, abandon_iter, abandon_norm,
-                max_reject):
-    """LM from the currents in I (modified in place). Returns (status, iterations, |r|², kink)."""
+                max_reject, mode, beta, pw, r, Jm, r2, Jm2, A, y, delta, trial):
+    """LM from the currents in I (modified in place). Returns (status, iterations, |r|², kink).
+
+    mode 0: one-sided rest penalty throughout. mode 1: first solve goal + derivative equations
+    alone; if the arm is then not at rest before tf, continue with the rest condition as the
+    equality |v_c| = beta·vb (square system: Gauss–Newton converges fast along the robust set).
+    """
     n = I.shape[0]
-    k = 0
-    for i in range(NP):
-        if umask[i]:
-            k += 1
-    m = k + 2
-    r = np.empty(m)
-    Jm = np.empty((m, n))
-    r2 = np.empty(m)
-    Jm2 = np.empty((m, n))
-    A = np.empty((m, m))
-    y = np.empty(m)
-    delta = np.empty(n)
-    trial = np.empty(n)
-    ok, kink, dmax, qerr = residual(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals, I, W,
-                                    vb, wpen, wq, r, Jm)
+    m = r.shape[0]
+    pen = 0 if mode == 0 else 2
+    vbt = vb
+    ok, kink, dmax, qerr, vca = residual(J, c, pv, pc, pt, times, tf, q0, goal, pw, pvals, I,
+                                         W, vbt, wpen, wq, pen, r, Jm)
     if not ok:
         return BAD_START, 0, math.inf, kink
     f = _norm2(r)
     lam = lam0
+    it_switch = 0
     for it in range(max_iter):
-        if qerr <= tol_q and dmax <= tol_d and r[m - 1] == 0.0:
-            if kink >= min_kink:
-                return OK, it, f, kink
-            return KINK, it, f, kink
-        if it >= abandon_iter and f > abandon_norm:
+        if qerr <= tol_q and dmax <= tol_d:
+            if vca <= vb:
+                if kink >= min_kink:
+                    return OK, it, f, kink
+                return KINK, it, f, kink
+            if pen == 2:
+                # on the robust set but still moving at tf: slide along it to rest
+                pen = 1
+                vbt = beta * vb
+                ok, kink, dmax, qerr, vca = residual(J, c, pv, pc, pt, times, tf, q0, goal,
+                                                     pw, pvals, I, W, vbt, wpen, wq, pen, r,
+                                                     Jm)
+                f = _norm2(r)
+                lam = lam0
+                it_switch = it
+        if pen != 1 and it >= abandon_iter and f > abandon_norm:
+            return ABANDONED, it, f, kink
+        if pen == 1 and it - it_switch >= abandon_iter and f > abandon_norm:
             return ABANDONED, it, f, kink
         accepted = False
         for _ in range(max_reject):
@@ -155,8 +165,9 @@ def solve_start(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals, i_max, I, W
             for j in range(n):
                 x = I[j] + delta[j]
                 trial[j] = min(max(x, -i_max), i_max)
-            ok2, kink2, dmax2, qerr2 = residual(J, c, pv, pc, pt, times, tf, q0, goal, umask,
-                                                pvals, trial, W, vb, wpen, wq, r2, Jm2)
+            ok2, kink2, dmax2, qerr2, vca2 = residual(J, c, pv, pc, pt, times, tf, q0, goal,
+                                                      pw, pvals, trial, W, vbt, wpen, wq,
+                                                      pen, r2, Jm2)
             f2 = _norm2(r2) if ok2 else math.inf
             if not f2 < f:
                 # |T| has a kink at I = 0: a step that flips a current's sign often fails only
@@ -167,9 +178,9 @@ def solve_start(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals, i_max, I, W
                         trial[j] = 0.0
                         flipped = True
                 if flipped:
-                    ok2, kink2, dmax2, qerr2 = residual(J, c, pv, pc, pt, times, tf, q0, goal,
-                                                        umask, pvals, trial, W, vb, wpen, wq,
-                                                        r2, Jm2)
+                    ok2, kink2, dmax2, qerr2, vca2 = residual(J, c, pv, pc, pt, times, tf, q0,
+                                                              goal, pw, pvals, trial, W, vbt,
+                                                              wpen, wq, pen, r2, Jm2)
                     f2 = _norm2(r2) if ok2 else math.inf
             if f2 < f:
                 for j in range(n):
@@ -177,14 +188,14 @@ def solve_start(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals, i_max, I, W
                 r[:] = r2
                 Jm[:, :] = Jm2
                 f = f2
-                kink, dmax, qerr = kink2, dmax2, qerr2
+                kink, dmax, qerr, vca = kink2, dmax2, qerr2, vca2
                 lam = max(lam * 0.2, 1e-14)
                 accepted = True
                 break
             lam *= 8.0
         if not accepted:
             return NO_CONVERGENCE, it, f, kink
-    if qerr <= tol_q and dmax <= tol_d and r[m - 1] == 0.0:
+    if qerr <= tol_q and dmax <= tol_d and vca <= vb:
         return (OK if kink >= min_kink else KINK), max_iter, f, kink
     return NO_CONVERGENCE, max_iter, f, kink
 
@@ -192,17 +203,34 @@ def solve_start(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals, i_max, I, W
 @njit(cache=True, nogil=True)
 def multistart(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals, i_max, starts, W, vb,
                wpen, wq, lam0, tol_q, tol_d, min_kink, max_iter, abandon_iter, abandon_norm,
-               max_reject, stop_first, out_status, out_iter, out_f, out_kink):
+               max_reject, mode, beta, stop_first, out_status, out_iter, out_f, out_kink):
     """Run LM from each row of ``starts`` (modified in place into the end points).
 
     Stops after the first success when ``stop_first``. Returns the number of starts run.
     """
     ns = starts.shape[0]
+    n = starts.shape[1]
+    k = 0
+    pw = np.zeros(NP)
+    for i in range(NP):
+        if umask[i]:
+            k += 1
+            pw[i] = pvals[i]
+    m = k + 2
+    r = np.empty(m)
+    Jm = np.empty((m, n))
+    r2 = np.empty(m)
+    Jm2 = np.empty((m, n))
+    A = np.empty((m, m))
+    y = np.empty(m)
+    delta = np.empty(n)
+    trial = np.empty(n)
     for s in range(ns):
-        st, it, f, kink = solve_start(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals,
+        st, it, f, kink = solve_start(J, c, pv, pc, pt, times, tf, q0, goal, pw, pvals,
                                       i_max, starts[s], W, vb, wpen, wq, lam0, tol_q, tol_d,
                                       min_kink, max_iter, abandon_iter, abandon_norm,
-                                      max_reject)
+                                      max_reject, mode, beta, pw, r, Jm, r2, Jm2, A, y,
+                                      delta, trial)
         out_status[s] = st
         out_iter[s] = it
         out_f[s] = f
