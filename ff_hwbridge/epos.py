@@ -104,6 +104,7 @@ class _Drive:
     last_boot: float = 0.0
     reset_until: float = 0.0      # monotonic s: Fault is expected (fault reset in progress)
     operational: bool = False
+    seen_operational: bool = False
     emcy: list[str] = field(default_factory=list)
 
     @property
@@ -189,6 +190,7 @@ class EposMaster:
             od = build_object_dictionary(d.units.family, d.node_id)
             node = canopen.RemoteNode(d.node_id, od)
             node.sdo.RESPONSE_TIMEOUT = self.config.sdo_timeout
+            node.sdo.MAX_RETRIES = 2            # a drive busy right after boot-up may answer late
             net.add_node(node)
             d.node = node
             d.rx_fmt = struct_format(rpdo_layout(d.units.family))
@@ -263,6 +265,9 @@ class EposMaster:
             except Exception as exc:  # noqa: BLE001
                 raise EposError(f"node {nid} ({d.cfg.name}): SDO read {what} failed: {exc}") from exc
 
+        # whatever state a previous master left it in: no current (disable voltage, transition
+        # 7/9/10/12), before anything else is changed
+        sdo_write(0x6040, None, 0x0000, "0x6040 controlword (disable voltage)")
         mode = d.cfg.mode_of_operation
         sdo_write(0x6060, None, mode, "0x6060 modes of operation")
         shown = sdo_read(0x6061, None, "0x6061 modes of operation display")
@@ -304,6 +309,7 @@ class EposMaster:
         d.target = State.SWITCH_ON_DISABLED
         d.controlword = 0
         d.setpoint = 0
+        d.seen_operational = False           # a PRE-OP heartbeat may still be under way
         node.nmt.send_command(0x01)          # NMT start -> OPERATIONAL
         d.operational = True
         d.last_heartbeat = self.clock()      # the heartbeat timeout counts from here
@@ -431,7 +437,9 @@ class EposMaster:
                               "in operation; configure again")
                 return
             d.last_heartbeat = now
-            if d.operational and code in (0x04, 0x7F):
+            if code == 0x05:
+                d.seen_operational = True
+            elif d.operational and d.seen_operational and code in (0x04, 0x7F):
                 d.operational = False
                 self.trip(f"node {d.node_id} ({d.cfg.name}) left OPERATIONAL (heartbeat reports "
                           f"{d.nmt_state}); configure again")

@@ -288,3 +288,22 @@ def test_missing_node_gives_clear_error():
             master.configure()
     finally:
         master.disconnect()
+
+
+def test_node_leaving_operational_or_rebooting_latches(rig):
+    master, drives = rig
+    master.configure()
+    master.enable()
+    assert master.wait_for_state(State.OPERATION_ENABLED, 2.0)
+    assert _wait(lambda: master.status()["joint1.nmt"] == "OPERATIONAL")
+    drives[0].node.nmt.send_command(0x02)                    # the drive goes to NMT STOPPED
+    assert _wait(lambda: master.latched, 2.0)
+    assert "left OPERATIONAL" in master.fault_reason
+    # fault reset sets the node up again (NMT reset communication, SDO, PDO, start)
+    master.fault_reset()
+    assert master.wait_for_state(State.OPERATION_ENABLED, 3.0), master.events
+    assert drives[0].node.nmt.state == "OPERATIONAL"
+    drives[0].node.nmt.send_command(0x82)                    # spontaneous reboot: boot-up frame
+    drives[0].node.nmt.send_command(0x80)
+    assert _wait(lambda: master.latched, 2.0)
+    assert "rebooted" in master.fault_reason
