@@ -56,12 +56,23 @@ def main() -> int:
     ap.add_argument("--rate", type=float, default=1000.0, help="setpoints per second")
     ap.add_argument("--sync-period", type=float, default=0.001, help="s")
     ap.add_argument("--family", default="epos4", choices=("epos4", "epos2"))
+    ap.add_argument("--hub", default="sim", choices=("sim", "process"),
+                    help="host the hub in the simulator process (as ff_sim_driver does) or in "
+                         "a process of its own")
     a = ap.parse_args()
 
     port = free_port()
     url = f"ws://127.0.0.1:{port}/"
     record = os.path.join(tempfile.mkdtemp(prefix="ff-bench-can-"), "sim.json")
-    sim = subprocess.Popen([sys.executable, "-u", "-m", "ff_hwbridge.sim_rig", "--host-hub", str(port),
+    hub = None
+    where = ["--host-hub", str(port)]
+    if a.hub == "process":
+        hub = subprocess.Popen([sys.executable, "-u", "-m", "ff_hwbridge.can_hub", "--port", str(port)],
+                               stdout=subprocess.PIPE, text=True)
+        hub.stdout.readline()
+        where = ["--bus-url", url]
+    load_before = os.getloadavg()
+    sim = subprocess.Popen([sys.executable, "-u", "-m", "ff_hwbridge.sim_rig", *where,
                             "--family", a.family, "--record", record],
                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                            text=True)
@@ -125,6 +136,9 @@ def main() -> int:
             sim.wait(20)
         except Exception:
             sim.kill()
+        if hub is not None:
+            hub.terminate()
+            hub.wait(10)
 
     with open(record) as fh:
         rec = json.load(fh)
@@ -140,6 +154,7 @@ def main() -> int:
     result: dict = {"benchmark": "bench_can_stream", "host": platform.node(),
                     "cpus": os.cpu_count(), "duration_s": a.duration, "rate_hz": a.rate,
                     "family": a.family, "transport": "python-can-remote hub on 127.0.0.1",
+                    "hub_in": a.hub, "loadavg_1min_before_after": [load_before[0], os.getloadavg()[0]],
                     "setpoints_sent": n, "safe_state": latched}
     if start is None:
         result["error"] = "stream not found in the drive's arrival log"

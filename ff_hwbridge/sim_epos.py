@@ -337,7 +337,10 @@ class _PeriodicSender:
                 except Exception:
                     pass
             nxt += self._period
-            self._stop.wait(max(0.0, nxt - time.monotonic()))
+            now = time.monotonic()
+            if nxt < now:               # held off the CPU: skip the missed beats, no burst
+                nxt = now + self._period
+            self._stop.wait(max(0.0, nxt - now))
 
     def update(self, data: Any) -> None:
         self._data = bytes(data)

@@ -123,6 +123,7 @@ def test_rig_drives_move_the_arm_and_report_it():
         try:
             rig.boot()
             node = master.add_node(1, rig.drives[0].node.object_dictionary)
+            node.sdo.RESPONSE_TIMEOUT = 2.0
             node.sdo[0x6060].raw = 10
             remap(node, 0x1800, 0x181, [0x60410010, 0x60640020], 1)
             remap(node, 0x1400, 0x201, [0x60400010, 0x60710010], 255)
@@ -147,5 +148,41 @@ def test_rig_drives_move_the_arm_and_report_it():
             q_reported = pos / 2048 * 2 * math.pi / 54.0  # sampled at the SYNC's arrival
             tol = 2 * math.pi / 2048 / 54
             assert q_before - tol <= q_reported <= truth.q[0] + tol
+        finally:
+            master.disconnect()
+
+
+def test_scara_rig_two_drives_on_one_bus():
+    """Two emulated drives (nodes 1, 2) boot on one bus and push current into the coupled arm;
+    setpoints written over SDO apply too."""
+    chan = "test-sim-arm-scara"
+    cfg = RigConfig(model="scara2", node_ids=(1, 2), bus={"interface": "virtual", "channel": chan},
+                    q0=(-0.5, 0.0))
+    with SimRig(cfg) as rig:
+        master = canopen.Network()
+        master.NOTIFIER_CYCLE = 0.05
+        master.connect(interface="virtual", channel=chan)
+        boots = []
+        master.subscribe(0x701, lambda i, d, t: boots.append(1))
+        master.subscribe(0x702, lambda i, d, t: boots.append(2))
+        try:
+            rig.boot()
+            time.sleep(0.05)
+            assert sorted(boots) == [1, 2]
+            nodes = [master.add_node(n, rig.drive(n).node.object_dictionary) for n in (1, 2)]
+            for node in nodes:
+                node.sdo.RESPONSE_TIMEOUT = 2.0
+            assert nodes[1].sdo[0x3001][2].raw == 10000 and rig.drive(2).config.gear_ratio == 198.0
+            for node in nodes:
+                node.sdo[0x6060].raw = 10
+                for cw in (0x06, 0x0F):
+                    node.sdo[0x6040].raw = cw
+            nodes[0].sdo[0x6071].raw = 1000              # 3 A on joint 1
+            nodes[1].sdo[0x6071].raw = -500              # -1.5 A on joint 2
+            s = rig.arm.state()
+            assert s.current == (pytest.approx(3.0), pytest.approx(-1.5))
+            time.sleep(0.1)
+            assert rig.arm.state().q[0] > -0.5
+            assert [r.source for r in rig.drive(1).setpoint_log()] == ["sdo"]
         finally:
             master.disconnect()

@@ -70,6 +70,7 @@ def test_sim_driver_node(ros_env, rclpy_node):
         emcy = []
         net.subscribe(0x81, lambda i, d, t: emcy.append(bytes(d)))
         remote = net.add_node(1, build_object_dictionary(DriveConfig()))
+        remote.sdo.RESPONSE_TIMEOUT = 2.0
         assert remote.sdo[0x1018][1].raw == 0xFB
         assert remote.sdo[0x6041].raw & 0x4F == 0x40          # switch on disabled
 

@@ -16,7 +16,7 @@ from ff_hwbridge.sim_epos import DriveConfig, SimConfigError, SimEpos, build_obj
 _chan = itertools.count()
 
 
-def wait_for(pred, timeout=1.0):
+def wait_for(pred, timeout=3.0):
     end = time.monotonic() + timeout
     while time.monotonic() < end:
         if pred():
@@ -40,7 +40,7 @@ class Rig:
         self.drive = SimEpos(self.cfg, plant)
         self.drive.attach(self.net_s)
         self.node = canopen.RemoteNode(node_id, build_object_dictionary(self.cfg))
-        self.node.sdo.RESPONSE_TIMEOUT = 0.3
+        self.node.sdo.RESPONSE_TIMEOUT = 2.0         # generous: the machine is shared
         self.net_m.add_node(self.node)
 
     # can.Listener protocol
@@ -322,6 +322,7 @@ def test_fault_heartbeat_stop_and_resume(rig):
 
 def test_fault_sdo_silent(rig):
     rig.drive.set_sdo_silent()
+    rig.node.sdo.RESPONSE_TIMEOUT = 0.3
     with pytest.raises(SdoCommunicationError):
         rig.node.sdo[0x6060].raw
     rig.drive.set_sdo_silent(False)
