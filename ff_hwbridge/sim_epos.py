@@ -15,7 +15,7 @@ What it does, per the suite's CANopen contract (CiA 301/402):
   motor current, clamped to the drive's own output current limit like a real drive. Current is
   only driven in OPERATION ENABLED and in the drive's current mode (EPOS4 CST 10, EPOS2 -3).
 - TPDOs with transmission type 1-240 sent on every n-th SYNC in OPERATIONAL, sampled at the SYNC's
-  arrival; heartbeat producer per 0x1017; EMCY (0x080+id) with error register 0x1001 and the
+  arrival (event-driven TPDOs, types 254/255, are not produced: the contract uses SYNC); heartbeat producer per 0x1017; EMCY (0x080+id) with error register 0x1001 and the
   pre-defined error field 0x1003 on a fault; fault reset by a rising controlword bit 7
   (EMCY "error reset" 0x0000 sent).
 - Every received setpoint is recorded with its arrival time (``time.monotonic_ns`` and wall clock
@@ -569,7 +569,9 @@ class SimEpos:
         self._link = _Link(network, self.faults, self.node_id, self._seed)
         self.node.associate_network(self._link)
         self._link.unsubscribe(0, self.node.nmt.on_command)
+        self._link.unsubscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
         self._link.subscribe(0, self._on_nmt)
+        self._link.subscribe(self.node.sdo.rx_cobid, self._on_sdo)
         self._link.subscribe(0x80, self._on_sync)
         for m in self.node.rpdo.map.values():
             m.add_callback(self._on_rpdo)
@@ -806,6 +808,10 @@ class SimEpos:
                     self.node.get_data(var.index, var.subindex))
                 var.set_data(var.od.encode_raw(value))
             self._link.send_message(m.cob_id, bytes(m.data))
+
+    def _on_sdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if self.node.nmt.state != "STOPPED":          # CiA 301: no SDO in STOPPED
+            self.node.sdo.on_request(can_id, data, timestamp)
 
     def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
         if len(data) < 2:

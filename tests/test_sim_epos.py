@@ -277,6 +277,9 @@ def test_tpdos_on_sync_only_when_operational():
         r.net_m.sync.transmit()
         time.sleep(0.05)
         assert len(r.seen(0x181)) == n1
+        r.node.sdo.RESPONSE_TIMEOUT = 0.2
+        with pytest.raises(SdoCommunicationError):       # no SDO in STOPPED either
+            r.node.sdo[0x6060].raw
     finally:
         r.close()
 
