@@ -56,7 +56,7 @@ def main() -> int:
     ap.add_argument("--duration", type=float, default=60.0, help="s of streaming")
     ap.add_argument("--rate", type=float, default=1000.0, help="setpoints per second")
     ap.add_argument("--sync-period", type=float, default=0.001, help="s")
-    ap.add_argument("--spin-margin", type=float, default=0.0008, help="s")
+    ap.add_argument("--spin-margin", type=float, default=0.0003, help="s")
     a = ap.parse_args()
 
     port = _free_port()

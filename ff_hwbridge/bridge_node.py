@@ -68,7 +68,7 @@ PARAMS: dict[str, tuple[Any, str]] = {
     "heartbeat_producer_ms": (10, "ms, written to each drive's 0x1017"),
     "heartbeat_timeout": (0.04, "s, heartbeat consumer timeout -> safe state"),
     "setpoint_timeout": (0.5, "s, no fresh setpoint during a motion -> safe state"),
-    "spin_margin": (0.0008, "s, the scheduler sleeps until this long before a stamp, then spins"),
+    "spin_margin": (0.0003, "s, the scheduler sleeps until this long before a stamp, then spins"),
     "joint_state_rate": (100.0, "Hz"),
     "diagnostics_rate": (2.0, "Hz"),
 }

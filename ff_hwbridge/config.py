@@ -101,7 +101,7 @@ class BridgeConfig:
     boot_timeout: float = 2.0
     state_timeout: float = 1.0
     monitor_period: float = 0.002
-    spin_margin: float = 0.0008
+    spin_margin: float = 0.0003
     reset_communication: bool = True
 
     def __post_init__(self) -> None:

@@ -130,3 +130,33 @@ def test_configure_error_goes_to_error_processing(ros_env):
         node.destroy_node()
     finally:
         rclpy.shutdown(context=ctx)
+
+
+def test_scheduler_applies_in_stamp_order_never_early_and_drops_stale():
+    from ff_hwbridge.scheduler import StampScheduler
+
+    applied = []
+    sched = StampScheduler(lambda stamp, p: applied.append((time.time_ns(), stamp, p))).start()
+    try:
+        t0 = time.time_ns() + 30_000_000
+        for k in (3, 1, 2, 0):                                  # submitted out of order
+            sched.submit(t0 + k * 5_000_000, k)
+        assert _wait(lambda: len(applied) == 4)
+        assert [p for _, _, p in applied] == [0, 1, 2, 3]
+        assert all(now >= stamp for now, stamp, _ in applied)   # never before its stamp
+        assert all(sent >= stamp for stamp, sent in sched.records)
+        sched.submit(t0, "stale")                               # older than the last applied
+        sched.submit(t0 + 14_000_000, "stale too")
+        time.sleep(0.05)
+        assert sched.stale == 2 and len(applied) == 4
+        sched.submit(time.time_ns() - 1_000_000, "late")            # past, but newer: applied at once
+        assert _wait(lambda: len(applied) == 5)
+        assert sched.late >= 1
+        sched.submit(time.time_ns() + 5_000_000, "x")
+        sched.submit(time.time_ns() + 500_000_000, "dropped")
+        assert _wait(lambda: len(applied) == 6)
+        assert sched.clear() == 1 and sched.pending == 0
+        st = sched.stats()
+        assert st.count == 6 and st.min_us >= 0.0 and st.p50_us <= st.max_us
+    finally:
+        sched.stop()
