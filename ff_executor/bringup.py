@@ -41,7 +41,7 @@ REPO = Path(__file__).resolve().parent.parent
 CONFIG_DIR = REPO / "config"
 COUNTS_PER_REV = 4096      # encoder increments per motor revolution, simulated drive = bridge
 NOMINAL_CURRENT = 3.0      # A, motor nominal current (EPOS4 per-mille scale), drive = bridge
-SYNC_PERIOD = 0.005        # s; setpoints are asynchronous RPDOs (applied on arrival), SYNC only paces feedback
+SYNC_PERIOD = 0.01         # s; setpoints are asynchronous RPDOs (applied on arrival), SYNC only paces feedback
 
 
 class BringupError(RuntimeError):
@@ -68,6 +68,8 @@ class StackOptions:
     bridge_overrides: Mapping[str, object] = field(default_factory=dict)
     start_timeout: float = 90.0                # s per process (first start may JIT-compile)
     q0: Sequence[float] = ()                   # rad, initial arm position (default zeros)
+    switch_interval: Optional[float] = 1e-4    # s, GIL switch interval of the sim driver and the
+                                               # bridge (ff_executor.timed); None = Python's 5 ms
     timing_nice: Optional[int] = -10           # nice value for the sim driver and the bridge (the
                                                # timing-critical end); None = leave as is
 
@@ -191,6 +193,9 @@ class Stack:
 
     # --- start / stop -------------------------------------------------------------------------
     def _start(self, name: str, module: str, args: Sequence[str], timing: bool = False) -> NodeProcess:
+        if timing and self.options.switch_interval:
+            args = ["--switch-interval", repr(float(self.options.switch_interval)), module, *args]
+            module = "ff_executor.timed"
         proc = start_module(name, module, list(args), self.env, str(self.run_dir))
         self.procs.append(proc)
         if timing and self.options.timing_nice is not None:
