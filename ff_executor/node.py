@@ -79,7 +79,7 @@ PARAMETERS = {
     "setpoint_topic": ("/ff_hwbridge/setpoints", "where setpoints go"),
     "joint_state_topic": ("/ff_hwbridge/joint_states", "measured joint states"),
     "applied_topic": ("/ff_hwbridge/applied", "bridge reports of applied setpoints (optional)"),
-    "joint_state_timeout": (0.5, "s, stop the move if joint states stop for this long"),
+    "joint_state_timeout": (1.0, "s, stop the move if joint states stop for this long"),
     "refuse_mode": ("abort", "'abort': accept then abort with the reason; 'reject': reject"),
 }
 

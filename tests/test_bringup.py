@@ -91,3 +91,16 @@ def test_ff_bringup_stops_everything_when_a_child_dies(tmp_path, ros_env):
         if proc.poll() is None:
             proc.send_signal(signal.SIGINT)
             proc.wait(30)
+
+
+def test_timed_wrapper_runs_the_module_with_a_fine_switch_interval(tmp_path):
+    mod = tmp_path / "probe_mod.py"
+    mod.write_text("import sys\nprint('interval', round(sys.getswitchinterval() * 1e6), sys.argv[1:])\n")
+    env = dict(os.environ, PYTHONPATH=f"{tmp_path}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
+    out = subprocess.run([sys.executable, "-m", "ff_executor.timed", "--switch-interval", "0.0002",
+                          "probe_mod", "--x", "1"], env=env, capture_output=True, text=True, timeout=30)
+    assert out.returncode == 0, out.stderr
+    assert "interval 200 ['--x', '1']" in out.stdout
+    bad = subprocess.run([sys.executable, "-m", "ff_executor.timed", "--switch-interval", "5",
+                          "probe_mod"], env=env, capture_output=True, text=True, timeout=30)
+    assert bad.returncode != 0 and "switch-interval" in bad.stderr
