@@ -15,7 +15,8 @@ Choices, stated:
   last ``coast`` seconds as every plan does), with N equal current steps (``steps``; default 100)
   and rest at tf. With the sign of the velocity fixed (monotone motion, checked afterwards by
   simulation) the final state is affine in the step currents split as I = I⁺ − I⁻, so this is a
-  convex QP; solved with SLSQP and exact constraint Jacobians.
+  convex QP with two equality constraints; solved exactly through its 2-dimensional dual
+  (semismooth Newton), so 100 or 1000 steps cost milliseconds.
 * Motor resistance R: the paper's arm has a maxon RE 30 (60 W) motor; its 24 V winding (part
   310007, k_t = 25.9 mNm/A, the winding nearest to the paper's 26.7 mNm/A) has a terminal
   resistance of 0.611 Ω in maxon's catalogue (value quoted from the catalogue, not measured). R
@@ -29,7 +30,7 @@ from dataclasses import dataclass
 from typing import Callable, Optional, Sequence
 
 import numpy as np
-from scipy.optimize import brentq, minimize
+from scipy.optimize import brentq
 
 from .params import Arm1DofParams, Params
 from .profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
@@ -205,6 +206,42 @@ def _affine_final_state(p: Arm1DofParams, h: float, n: int, coast: float):
     return M, m0
 
 
+def _box_least_norm(A: np.ndarray, b: np.ndarray, h: float, hi: float,
+                    max_iter: int = 100) -> Optional[np.ndarray]:
+    """argmin h‖x‖² subject to A x = b, 0 ≤ x ≤ hi (A: m × n, m small), by its m-dimensional
+    dual: x(λ) = clip(Aᵀλ / 2h, 0, hi) and a semismooth Newton step on A x(λ) = b with
+    backtracking. None if the box makes A x = b infeasible."""
+    lam = 2.0 * h * np.linalg.lstsq(A @ A.T, b, rcond=None)[0]
+
+    def x_of(l):
+        return np.clip(A.T @ l / (2.0 * h), 0.0, hi)
+
+    x = x_of(lam)
+    r = A @ x - b
+    for _ in range(max_iter):
+        nr = float(np.linalg.norm(r))
+        if nr <= 1e-13 * max(1.0, float(np.linalg.norm(b))):
+            return x
+        free = (A.T @ lam > 0.0) & (A.T @ lam < 2.0 * h * hi)
+        H = (A[:, free] @ A[:, free].T) / (2.0 * h)
+        try:
+            step = np.linalg.solve(H + 1e-14 * np.trace(H) * np.eye(len(b)), -r)
+        except np.linalg.LinAlgError:
+            step = -r
+        t = 1.0
+        while t > 1e-12:
+            lam_new = lam + t * step
+            x_new = x_of(lam_new)
+            r_new = A @ x_new - b
+            if np.linalg.norm(r_new) < (1.0 - 1e-4 * t) * nr:
+                lam, x, r = lam_new, x_new, r_new
+                break
+            t *= 0.5
+        else:
+            return None
+    return x if np.linalg.norm(r) <= 1e-9 * max(1.0, float(np.linalg.norm(b))) else None
+
+
 def energy_optimal_1dof(p: Arm1DofParams, q0: float, qf: float, tf: float, coast: float,
                         steps: int = DEFAULT_ENERGY_STEPS, R: float = R_TERMINAL) -> Baseline:
     """Minimum copper-loss rest-to-rest profile with ``steps`` equal current steps on [0, tf−coast]."""
@@ -219,17 +256,11 @@ def energy_optimal_1dof(p: Arm1DofParams, q0: float, qf: float, tf: float, coast
     # c_k = g (1-pt) I+_k − g (1+pt) I-_k − pc/J ; decision x = [I+, I-] >= 0
     A = np.hstack([M * g * (1.0 - p.pt), -M * g * (1.0 + p.pt)])
     b = np.array([abs(dist), 0.0]) - m0 - M @ np.full(n, -p.pc / p.J)
-    x0 = np.concatenate([np.linspace(1.0, 0.0, n) * p.i_max * 0.3,
-                         np.linspace(0.0, 1.0, n) * p.i_max * 0.3])
-    res = minimize(lambda x: float(x @ x) * h, x0, jac=lambda x: 2.0 * h * x, method="SLSQP",
-                   bounds=[(0.0, p.i_max)] * (2 * n),
-                   constraints=[{"type": "eq", "fun": lambda x: (A @ x - b) / abs(dist),
-                                 "jac": lambda x: A / abs(dist)}],
-                   options={"maxiter": 500, "ftol": 1e-14})
-    if not res.success or np.max(np.abs(A @ res.x - b)) > 1e-7 * max(1.0, abs(dist)):
-        raise PlanningError(f"energy-optimal solve failed ({res.message}); the goal may be out "
-                            f"of reach in tf = {tf} s", code="UNREACHABLE")
-    cur = s * (res.x[:n] - res.x[n:])
+    x = _box_least_norm(A, b, h, p.i_max)
+    if x is None or np.max(np.abs(A @ x - b)) > 1e-9 * max(1.0, abs(dist)):
+        raise PlanningError(f"energy-optimal solve failed: no current profile within ±I_max = "
+                            f"{p.i_max} A reaches the goal at rest in tf = {tf} s", code="UNREACHABLE")
+    cur = s * (x[:n] - x[n:])
     prof = CurrentProfile(np.linspace(0.0, tf - coast, n + 1), cur.reshape(-1, 1), tf, coast)
     return Baseline(prof, R * float(np.sum(cur ** 2)) * h, tf, R)
 
