@@ -1,0 +1,125 @@
+"""Bridge benchmark: time from an injected drive fault to the bridge's safe state, and recovery.
+
+Starts the simulated rig (``python -m ff_hwbridge.sim_rig --host-hub PORT``, own process, CAN hub
+on 127.0.0.1), connects an :class:`~ff_hwbridge.epos.EposMaster`, enables the drive with a small
+current, then per repetition injects a fault through the rig's stdin (EMCY, heartbeat stop,
+dropped TPDOs/heartbeats), waits for the latch, clears the fault and calls ``fault_reset()``.
+
+Latency = monotonic time of the latch (this process) − monotonic time just before the command
+was written to the rig's stdin (CLOCK_MONOTONIC is system-wide on Linux), so it includes the
+pipe and the rig's command handling: an upper bound of the bridge's own reaction. Prints JSON
+with p50 / max per fault, the reasons, and whether every reset re-enabled the drive.
+
+    .venv/bin/python benchmarks/bench_bridge_faults.py --repeats 5
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+from ff_hwbridge.cia402 import State
+from ff_hwbridge.config import load_config
+from ff_hwbridge.epos import EposMaster
+
+FAULTS = {
+    "emcy": ("emcy 1 0x2310", "clear 1"),
+    "heartbeat_stop": ("heartbeat 1 off", "heartbeat 1 on"),
+    "drop_tx_frames": ("dropnext 1 200 tx", "clear 1"),
+}
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--heartbeat-ms", type=int, default=10)
+    ap.add_argument("--heartbeat-timeout", type=float, default=0.04)
+    ap.add_argument("--sync-period", type=float, default=0.001)
+    a = ap.parse_args()
+    port = _free_port()
+    sim = subprocess.Popen([sys.executable, "-u", "-m", "ff_hwbridge.sim_rig", "--host-hub", str(port),
+                            "--model", "arm1dof", "--node-ids", "1"],
+                           stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    master = None
+    try:
+        line = ""
+        end = time.monotonic() + 30
+        while "sim rig ready" not in line and time.monotonic() < end:
+            line = sim.stdout.readline()
+            if not line:
+                break
+        cfg = load_config({
+            "bus": {"interface": "remote", "channel": f"ws://127.0.0.1:{port}/"},
+            "joints": [{"name": "joint1", "node_id": 1, "family": "epos4", "current_limit": 10.0,
+                        "units": {"nominal_current": 3.0, "torque_constant": 0.0267,
+                                  "counts_per_rev": 2048, "gear_ratio": 54.0}}],
+            "sync_period": a.sync_period, "heartbeat_producer_ms": a.heartbeat_ms,
+            "heartbeat_timeout": a.heartbeat_timeout, "setpoint_timeout": 10.0, "sdo_timeout": 2.0})
+        master = EposMaster(cfg)
+        master.connect()
+        master.configure()
+        master.enable()
+        if not master.wait_for_state(State.OPERATION_ENABLED, 3.0):
+            print(json.dumps({"error": f"not enabled: {master.states()} {master.fault_reason}"}))
+            return 1
+        out: dict = {"benchmark": "bridge_faults", "heartbeat_producer_ms": a.heartbeat_ms,
+                     "heartbeat_timeout_s": a.heartbeat_timeout, "sync_period_s": a.sync_period,
+                     "faults": {}, "cpu_count": os.cpu_count()}
+        for name, (inject, clear) in FAULTS.items():
+            lat, reasons, recovered, zero_after = [], set(), 0, 0
+            for _ in range(a.repeats):
+                master.command_currents([0.1])
+                time.sleep(0.3)
+                t_inj = time.monotonic()
+                sim.stdin.write(inject + "\n")
+                sim.stdin.flush()
+                while not master.latched and time.monotonic() - t_inj < 5.0:
+                    time.sleep(0.0005)
+                if master.latched:
+                    t_latch = [t for t, text in master.events if text.startswith("safe state")][-1]
+                    lat.append((t_latch - t_inj) * 1000.0)
+                    reasons.add(master.fault_reason.split(":")[0])
+                    time.sleep(0.01)          # the latch is visible before its reaction is sent
+                    zero_after += int(master.applied_currents()[0] == 0.0)
+                sim.stdin.write(clear + "\n")
+                sim.stdin.flush()
+                time.sleep(0.2)
+                master.fault_reset()
+                recovered += int(master.wait_for_state(State.OPERATION_ENABLED, 3.0))
+            arr = np.asarray(lat)
+            out["faults"][name] = {
+                "detected": len(lat), "repeats": a.repeats,
+                "latency_ms_p50": float(np.median(arr)) if lat else None,
+                "latency_ms_max": float(arr.max()) if lat else None,
+                "within_50ms": int((arr <= 50.0).sum()) if lat else 0,
+                "reasons": sorted(reasons), "zero_current_after_latch": zero_after,
+                "recovered_after_reset": recovered}
+        out["load_avg_1min"] = os.getloadavg()[0]
+        print(json.dumps(out, indent=1))
+        return 0
+    finally:
+        if master is not None:
+            master.disconnect()
+        if sim.poll() is None:
+            try:
+                sim.stdin.write("quit\n")
+                sim.stdin.flush()
+                sim.wait(10)
+            except (OSError, subprocess.TimeoutExpired):
+                sim.kill()
+
+
+if __name__ == "__main__":
+    sys.exit(main())
