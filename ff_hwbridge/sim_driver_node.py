@@ -19,6 +19,7 @@ Publishes ``~/ground_truth`` (sensor_msgs/JointState: rad, rad/s, effort = motor
 """
 from __future__ import annotations
 
+import sys
 from typing import Any, Optional
 
 import rclpy
@@ -55,6 +56,7 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
     "nominal_current": (3.0, "A, motor nominal current (EPOS4 per mille scale)"),
     "ground_truth_rate": (100.0, "Hz"),
     "diagnostics_rate": (1.0, "Hz"),
+    "switch_interval": (0.0005, "s, python thread switch interval (latency of the CAN thread)"),
 }
 FAULT_PARAMETERS: dict[str, Any] = {
     "heartbeat_stopped": False, "sdo_silent": False, "delay_ms": 0.0, "delay_direction": "both",
@@ -69,6 +71,8 @@ class SimDriverNode(Node):
         super().__init__("ff_sim_driver", **kwargs)
         for name, (default, descr) in PARAMETERS.items():
             self.declare_parameter(name, default)
+        if float(self._p("switch_interval")) > 0:
+            sys.setswitchinterval(float(self._p("switch_interval")))
         model = check_model(self._p("model"))
         base = preset(self._p("true_preset")) if self._p("true_preset") else default_params(model)
         if base.model != model:
