@@ -190,6 +190,8 @@ def _number(v, name: str, kind=float):
             v = kind(str(v))
         except ValueError:
             raise UsageError(f"{name} must be a number, got {v!r}") from None
+    if not math.isfinite(float(v)):
+        raise UsageError(f"{name} must be a finite number, got {v!r}")
     if kind is int and float(v) != int(v):
         raise UsageError(f"{name} must be a whole number, got {v!r}")
     return kind(v)
