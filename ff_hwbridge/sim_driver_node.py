@@ -15,7 +15,8 @@ Parameters (see ``PARAMETERS``; ``config/sim_*.yaml``):
   drop_fraction (0..1) + drop_direction, drop_next (int: set N > 0 to drop the next N frames),
   emcy_code (int: set a code 0x1000..0xFFFF to raise that EMCY; the drive goes to FAULT).
 Publishes ``~/ground_truth`` (sensor_msgs/JointState: rad, rad/s, effort = motor current A) and
-``/diagnostics``. Service ``~/reset`` (std_srvs/Trigger): arm back to q0 at rest, zero current.
+``/diagnostics``. Service ``~/reset`` (std_srvs/Trigger): arm back to q0 at rest (the drives keep
+applying their present current: 0 A unless enabled with a non-zero setpoint).
 """
 from __future__ import annotations
 
@@ -205,7 +206,7 @@ class SimDriverNode(Node):
         self.rig.reset_arm()
         s = self.rig.arm.state()
         response.success = True
-        response.message = f"arm at q={list(s.q)} rad, at rest, zero current until the next setpoint"
+        response.message = (f"arm at q={list(s.q)} rad, at rest; drives apply {list(s.current)} A")
         self.get_logger().info(f"reset: {response.message}")
         return response
 

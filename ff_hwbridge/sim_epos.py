@@ -752,6 +752,10 @@ class SimEpos:
                 self.plant.set_current(amps, t_ns)
             self._applied = amps
 
+    def reapply(self) -> None:
+        """Push the current the power stage drives now into the plant again (after a plant reset)."""
+        self._apply(time.monotonic_ns())
+
     def _on_rpdo(self, pdo_map: Any) -> None:
         if self.node.nmt.state != "OPERATIONAL":
             return

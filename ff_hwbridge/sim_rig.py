@@ -101,7 +101,11 @@ class SimRig:
                              f"{[d.node_id for d in self.drives]}")
 
     def reset_arm(self, q0: Optional[Sequence[float]] = None, params: Optional[Params] = None) -> None:
+        """Arm back to ``q0`` (default the configured one) at rest; each drive then drives the
+        current it is applying now (0 A unless it is enabled with a non-zero setpoint)."""
         self.arm.reset(self.config.q0 if q0 is None else q0, None, params)
+        for d in self.drives:
+            d.reapply()
 
     def close(self) -> None:
         for d in self.drives:
