@@ -119,7 +119,8 @@ def _lm_step(Jm, r, lam, A, y, delta):
 @njit(cache=True, nogil=True)
 def solve_start(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals, i_max, I, W, vb, wpen,
                 wq, lam0, tol_q, tol_d, min_kink, max_iter, abandon_iter, abandon_norm,
-                max_reject, mode, beta, pw, r, Jm, r2, Jm2, A, y, delta, trial):
+                max_reject, mode, beta, lam_down, lam_up, flip, pw, r, Jm, r2, Jm2, A, y, delta,
+                trial):
     """LM from the currents in I (modified in place). Returns (status, iterations, |r|², kink).
 
     mode 0: one-sided rest penalty throughout. mode 1: first solve goal + derivative equations
@@ -169,7 +170,7 @@ def solve_start(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals, i_max, I, W
                                                       pw, pvals, trial, W, vbt, wpen, wq,
                                                       pen, r2, Jm2)
             f2 = _norm2(r2) if ok2 else math.inf
-            if not f2 < f:
+            if flip and not f2 < f:
                 # |T| has a kink at I = 0: a step that flips a current's sign often fails only
                 # because of it. Try landing on the kink instead (its derivative is the mean).
                 flipped = False
@@ -189,10 +190,10 @@ def solve_start(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals, i_max, I, W
                 Jm[:, :] = Jm2
                 f = f2
                 kink, dmax, qerr, vca = kink2, dmax2, qerr2, vca2
-                lam = max(lam * 0.2, 1e-14)
+                lam = max(lam * lam_down, 1e-14)
                 accepted = True
                 break
-            lam *= 8.0
+            lam *= lam_up
         if not accepted:
             return NO_CONVERGENCE, it, f, kink
     if qerr <= tol_q and dmax <= tol_d and vca <= vb:
@@ -203,7 +204,8 @@ def solve_start(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals, i_max, I, W
 @njit(cache=True, nogil=True)
 def multistart(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals, i_max, starts, W, vb,
                wpen, wq, lam0, tol_q, tol_d, min_kink, max_iter, abandon_iter, abandon_norm,
-               max_reject, mode, beta, stop_first, out_status, out_iter, out_f, out_kink):
+               max_reject, mode, beta, lam_down, lam_up, flip, stop_first, out_status, out_iter,
+               out_f, out_kink):
     """Run LM from each row of ``starts`` (modified in place into the end points).
 
     Stops after the first success when ``stop_first``. Returns the number of starts run.
@@ -229,8 +231,8 @@ def multistart(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals, i_max, start
         st, it, f, kink = solve_start(J, c, pv, pc, pt, times, tf, q0, goal, pw, pvals,
                                       i_max, starts[s], W, vb, wpen, wq, lam0, tol_q, tol_d,
                                       min_kink, max_iter, abandon_iter, abandon_norm,
-                                      max_reject, mode, beta, pw, r, Jm, r2, Jm2, A, y,
-                                      delta, trial)
+                                      max_reject, mode, beta, lam_down, lam_up, flip, pw, r,
+                                      Jm, r2, Jm2, A, y, delta, trial)
         out_status[s] = st
         out_iter[s] = it
         out_f[s] = f
