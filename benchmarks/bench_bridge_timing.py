@@ -57,6 +57,7 @@ def main() -> int:
     ap.add_argument("--rate", type=float, default=1000.0, help="setpoints per second")
     ap.add_argument("--sync-period", type=float, default=0.001, help="s")
     ap.add_argument("--spin-margin", type=float, default=0.0003, help="s")
+    ap.add_argument("--rt-priority", type=int, default=0, help="SCHED_FIFO priority of the scheduler thread (0 = off)")
     a = ap.parse_args()
 
     port = _free_port()
@@ -89,7 +90,7 @@ def main() -> int:
         raws = np.array([(2 + (k % 26) * 2) * (1 if (k // 26) % 2 == 0 else -1) for k in range(n)])
         amps = raws * NOMINAL / 1000.0
         sched = StampScheduler(lambda stamp, i: master.command_currents([amps[i]]),
-                               spin_margin=a.spin_margin).start()
+                               spin_margin=a.spin_margin, rt_priority=a.rt_priority).start()
         period_ns = int(round(1e9 / a.rate))
         t0 = (time.time_ns() // period_ns + int(0.5e9 // period_ns)) * period_ns   # on the grid
         stamps = t0 + period_ns * np.arange(n, dtype=np.int64)
@@ -137,7 +138,8 @@ def main() -> int:
             "switch_error_us": {"p50": float(np.percentile(err, 50)), "p99": float(np.percentile(err, 99)),
                                 "max": float(err.max()), "min": float(err.min())} if received else None,
             "bridge_send_error_us": {"p50": bridge.p50_us, "p99": bridge.p99_us, "max": bridge.max_us},
-            "late_over_500us": bridge.late, "stale": bridge.stale,
+            "late_over_500us": bridge.late, "stale": bridge.stale, "spin_margin_s": a.spin_margin,
+            "rt_priority": a.rt_priority if sched.rt_active else 0,
             "safe_state": latched, "cpu_count": os.cpu_count(),
             "load_avg_1min": os.getloadavg()[0],
         }

@@ -69,6 +69,7 @@ PARAMS: dict[str, tuple[Any, str]] = {
     "heartbeat_timeout": (0.04, "s, heartbeat consumer timeout -> safe state"),
     "setpoint_timeout": (0.5, "s, no fresh setpoint during a motion -> safe state"),
     "spin_margin": (0.0003, "s, the scheduler sleeps until this long before a stamp, then spins"),
+    "scheduler_rt_priority": (0, "1..99: SCHED_FIFO for the scheduler thread (needs CAP_SYS_NICE); 0 = off"),
     "joint_state_rate": (100.0, "Hz"),
     "diagnostics_rate": (2.0, "Hz"),
 }
@@ -94,7 +95,7 @@ def _flat_config(get) -> dict[str, Any]:
             "joints": joints, "sync_period": get("sync_period"),
             "heartbeat_producer_ms": int(get("heartbeat_producer_ms")),
             "heartbeat_timeout": get("heartbeat_timeout"), "setpoint_timeout": get("setpoint_timeout"),
-            "spin_margin": get("spin_margin")}
+            "spin_margin": get("spin_margin"), "scheduler_rt_priority": int(get("scheduler_rt_priority"))}
 
 
 class BridgeNode(LifecycleNode):
@@ -148,7 +149,8 @@ class BridgeNode(LifecycleNode):
         except (ValueError, EposError, OSError) as exc:
             self.get_logger().error(f"configure failed: {exc}")
             return TransitionCallbackReturn.ERROR
-        self.scheduler = StampScheduler(self._apply, spin_margin=self.config.spin_margin).start()
+        self.scheduler = StampScheduler(self._apply, spin_margin=self.config.spin_margin,
+                                        rt_priority=self.config.scheduler_rt_priority).start()
         self.master.pending_fn = lambda: bool(self.scheduler and self.scheduler.pending)
         self._make_interfaces()
         self.get_logger().info(f"configured: joints {list(self.config.joint_names)} on "

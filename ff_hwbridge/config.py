@@ -7,6 +7,8 @@ Example (``config/bridge_epos4_1dof.yaml``)::
     heartbeat_producer_ms: 10     # ms, written to each drive's 0x1017
     heartbeat_timeout: 0.04       # s, no heartbeat this long -> safe state
     setpoint_timeout: 0.5         # s, no fresh setpoint this long during a motion -> safe state
+    spin_margin: 0.0003           # s, the setpoint scheduler sleeps until this long before a stamp
+    scheduler_rt_priority: 0      # 1..99: SCHED_FIFO for the scheduler thread (needs CAP_SYS_NICE)
     feedback_timeout: 0.04        # s, no TPDO this long while SYNC runs -> safe state
                                   #    (default: max(heartbeat_timeout, 20 SYNC periods))
     joints:
@@ -102,6 +104,7 @@ class BridgeConfig:
     state_timeout: float = 1.0
     monitor_period: float = 0.002
     spin_margin: float = 0.0003
+    scheduler_rt_priority: int = 0
     reset_communication: bool = True
 
     def __post_init__(self) -> None:
@@ -213,6 +216,10 @@ def config_from_mapping(data: Mapping[str, Any]) -> BridgeConfig:
         v = data[f.name]
         if f.name == "reset_communication":
             kw[f.name] = bool(v)
+        elif f.name == "scheduler_rt_priority":
+            if not isinstance(v, int) or isinstance(v, bool) or not 0 <= v <= 99:
+                raise ConfigError(f"scheduler_rt_priority must be an integer 0..99 (0 = off), got {v!r}")
+            kw[f.name] = v
         elif f.name == "heartbeat_producer_ms":
             if isinstance(v, float) and v.is_integer():
                 v = int(v)

@@ -5,6 +5,10 @@ The thread sleeps until ``spin_margin`` s before the earliest due stamp, then sp
 ``(stamp_ns, sent_ns)`` is recorded for switch-time statistics. Stamps are integer ns on
 ``clock_ns`` (default ``time.time_ns``, the ROS system clock).
 
+``rt_priority`` > 0 asks Linux for SCHED_FIFO at that priority for the scheduler thread (a
+real-time kernel and CAP_SYS_NICE make the timing hold under load; without permission it warns
+and runs normally).
+
 A setpoint whose stamp already passed is applied at once (counted ``late``); one whose stamp is
 older than the last applied stamp is dropped (``stale``: it would undo a newer command).
 """
@@ -13,6 +17,7 @@ from __future__ import annotations
 import heapq
 import itertools
 import logging
+import os
 import threading
 import time
 from collections import deque
@@ -53,7 +58,8 @@ class StampScheduler:
 
     def __init__(self, apply: Callable[[int, Any], None], clock_ns: Callable[[], int] = time.time_ns,
                  spin_margin: float = 0.0003, max_records: int = 200_000,
-                 late_threshold: float = 0.0005, name: str = "ff-stamp-scheduler") -> None:
+                 late_threshold: float = 0.0005, name: str = "ff-stamp-scheduler",
+                 rt_priority: int = 0) -> None:
         if not 0.0 <= spin_margin < 0.05:
             raise ValueError(f"spin_margin must be in [0, 0.05) s, got {spin_margin!r}")
         self._apply = apply
@@ -66,6 +72,8 @@ class StampScheduler:
         self._stop = False
         self._thread: Optional[threading.Thread] = None
         self._name = name
+        self.rt_priority = int(rt_priority)
+        self.rt_active = False
         self._last_applied: Optional[int] = None
         self.records: deque[tuple[int, int]] = deque(maxlen=max_records)
         self.late = 0
@@ -127,7 +135,19 @@ class StampScheduler:
                            float(np.percentile(err, 99)), float(err.max()), float(err.min()))
 
     # --- the thread ---------------------------------------------------------------------------
+    def _set_rt_priority(self) -> None:
+        """Linux: SCHED_FIFO for this thread (needs CAP_SYS_NICE / an rtprio limit); else a warning."""
+        if self.rt_priority <= 0:
+            return
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.rt_priority))
+            self.rt_active = True
+        except (AttributeError, OSError) as exc:
+            log.warning("scheduler: cannot use SCHED_FIFO priority %d (%s); running at normal "
+                        "priority", self.rt_priority, exc)
+
     def _run(self) -> None:
+        self._set_rt_priority()
         while True:
             with self._cond:
                 while not self._stop:
