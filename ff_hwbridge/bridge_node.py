@@ -255,6 +255,11 @@ class BridgeNode(LifecycleNode):
                                       "call ~/fault_reset", throttle_duration_sec=1.0)
             return
         currents = list(msg.currents)
+        if len(currents) != len(self.config.joints):
+            self.get_logger().warning(f"setpoint {msg.seq} ignored: {len(currents)} current(s) for "
+                                      f"{len(self.config.joints)} joint(s) {list(self.config.joint_names)}",
+                                      throttle_duration_sec=1.0)
+            return
         stamp_ns = int(msg.stamp.sec) * 1_000_000_000 + int(msg.stamp.nanosec)
         master.note_setpoint(motion_running=not msg.last)
         sched.submit(stamp_ns, (currents, int(msg.seq), str(msg.profile_id), bool(msg.last)))
@@ -265,8 +270,10 @@ class BridgeNode(LifecycleNode):
         if master is None:
             return
         currents, seq, pid, last = payload
-        master.command_currents(currents)
+        cmd = master.command_currents(currents)
         sent_ns = time.time_ns()
+        if cmd.reason and not cmd.latched:
+            self.get_logger().warning(f"setpoint {seq}: {cmd.reason}", throttle_duration_sec=1.0)
         if last:
             master.guard.end_motion()
         self._applied.append((sent_ns, list(master.applied_currents()), seq, pid, last))

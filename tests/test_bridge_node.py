@@ -160,3 +160,27 @@ def test_scheduler_applies_in_stamp_order_never_early_and_drops_stale():
         assert st.count == 6 and st.min_us >= 0.0 and st.p50_us <= st.max_us
     finally:
         sched.stop()
+
+
+def test_config_file_parameter_is_used(ros_env, tmp_path):
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    from ff_hwbridge.bridge_node import BridgeNode
+
+    cfg = tmp_path / "bridge.yaml"
+    cfg.write_text(f"bus: {{interface: virtual, channel: ff-none-{uuid.uuid4().hex[:8]}}}\n"
+                   "boot_timeout: 0.2\n"
+                   "joints:\n"
+                   "  - {name: a, node_id: 5, family: epos2, current_limit: 2.0}\n"
+                   "  - {name: b, node_id: 6, family: epos4, current_limit: 3.0}\n")
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    try:
+        node = BridgeNode(context=ctx, parameter_overrides=[Parameter("config_file", value=str(cfg))])
+        node.trigger_configure()                     # no drives on that bus: no boot-up -> error
+        assert node.master is None
+        assert node.config.joint_names == ("a", "b") and node.config.current_limits == (2.0, 3.0)
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
