@@ -39,6 +39,8 @@ Progress = Optional[Callable[[dict], None]]
 STOP_MARGIN = 0.005      # s, final stop at least this far inside the coast (both ends)
 HOLD_MIN = 0.25          # aim: joint 2 still holds with its friction 25 % lower
 HOLD_FALLBACK = 0.1      # accepted when HOLD_MIN cannot be reached from a start
+HOLD_LEVELS = (HOLD_FALLBACK,)   # margins asked for in turn by the continuation
+STAGE2_NFEV = 40         # evaluations per continuation attempt (then abandon)
 _FD_REL = 1e-5           # relative step of the inner central differences (1-DOF, smooth region)
 
 
@@ -298,7 +300,7 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
     args = (p1, float(q0[0]), float(qf[0]), float(request.tf), float(request.coast), N, names1)
     prob = _Joint1Problem(*args)                       # stage 1: joint 1 robust, rest in coast
     holds = [_Joint1Problem(*args, p2=p, q2=float(q0[1]), hold_min=h)  # stage 2: + link 2 held
-             for h in (HOLD_MIN, HOLD_FALLBACK)]
+             for h in HOLD_LEVELS]
     rng = np.random.default_rng(request.seed)
     best = None          # (score, profile, verification)
     best_cost = math.inf
@@ -307,8 +309,14 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
     candidates = 0
     cprob = _compiled_joint1(p1, q0, qf, request, N, names1)
     found = False
+    turn = 0
     while starts < request.starts and time.perf_counter() < deadline and not found:
-        if cprob is not None:      # ff_planner.robust1d's compiled exact-Jacobian LM, 16 starts
+        turn += 1
+        # alternate two sources of joint-1 robust solutions: robust1d's compiled exact-Jacobian
+        # LM (16 fast starts, full current range) and a scipy start (slower, but its solutions
+        # reach a held link 2 more often)
+        if cprob is not None and (JOINT1_SOURCE == "compiled"
+                                  or (JOINT1_SOURCE == "both" and turn % 2 == 0)):
             from . import _lm1d
 
             m = int(min(CHUNK, request.starts - starts))
@@ -340,7 +348,7 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
             # continuation along the solution set (4 spare dimensions at N = 8) until motor 2 can
             # hold link 2 with margin: first asking for HOLD_MIN, else HOLD_FALLBACK
             for hp in holds:
-                x2, fun2, nfev2 = hp.solve(x, max_nfev=100)
+                x2, fun2, nfev2 = hp.solve(x, max_nfev=STAGE2_NFEV)
                 iters += nfev2
                 if float(np.max(np.abs(fun2))) <= 0.1 * tol:
                     x = x2
@@ -390,6 +398,7 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
 
 
 CHUNK = 16   # joint-1 starts per compiled call (budget checked between calls)
+JOINT1_SOURCE = "compiled"   # "compiled" (robust1d's LM), "scipy", or "both" (alternating)
 
 
 def _compiled_joint1(p1: Arm1DofParams, q0, qf, request: PlanRequest, N: int, names1):
@@ -407,8 +416,14 @@ def _compiled_joint1(p1: Arm1DofParams, q0, qf, request: PlanRequest, N: int, na
 
 def _plan_link2_moving(request: PlanRequest, p: Scara2Params, progress: Progress,
                        t_start: float) -> PlanResult:
-    """Link 2 must move: no truly robust plan is known. Minimise the worst final error over
-    one-at-a-time ±10 % friction changes (least squares) and return it labelled best_effort."""
+    """Link 2 must move. First one joint at a time, each an exact robust 1-DOF problem with the
+    other joint held by stiction (``_robust2d_sequential``, up to half the budget); failing that,
+    the least-worst-case plan over one-at-a-time ±10 % friction changes, labelled best_effort."""
     from ._robust2d_sampled import plan_least_worst
+    from ._robust2d_sequential import plan_sequential
 
+    half = t_start + 0.5 * float(request.time_budget)
+    res = plan_sequential(request, p, progress, t_start, half)
+    if res is not None:
+        return res
     return plan_least_worst(request, p, progress, t_start)

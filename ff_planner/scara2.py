@@ -332,6 +332,16 @@ def _segment(y, t, t_end, T1, T2, st, sd, P, h, rec, rec_t, rec_y, rec_i, nrec, 
             if dt.real <= 0.0:
                 break
             y1 = _rk4(y, dt, T1, T2, sd[0], sd[1], st[0], st[1], P)
+            # a joint that just left rest must keep its direction over the step: if it comes
+            # back through zero within the step, shorten the step until it does not (the
+            # crossing is then caught as an ordinary event from a nonzero velocity)
+            shrink = 0
+            for j in range(2):
+                while ((not st[j]) and y[2 + j].real == 0.0 and sd[j] * y1[2 + j].real < 0.0
+                       and shrink < 60):
+                    dt = 0.5 * dt
+                    shrink += 1
+                    y1 = _rk4(y, dt, T1, T2, sd[0], sd[1], st[0], st[1], P)
             # earliest event in this step
             best = 2.0
             bth = 1.0 + 0.0j
@@ -517,12 +527,28 @@ def _run(P, profile: CurrentProfile, y0, h, record=False, settle=False, settle_m
 
 def simulate_scara2(params: Scara2Params, profile: CurrentProfile, q0: Sequence[float],
                     qd0: Optional[Sequence[float]] = None, trajectory: bool = False, *,
-                    h: float = DEFAULT_H, settle: bool = False):
+                    h: float = DEFAULT_H, settle: bool = False, dt: Optional[float] = None,
+                    t_end: Optional[float] = None):
     """Simulate the move; return ff_planner.simulate.SimResult (q_f, qd_f at tf; on request the
-    trajectory t, q, qd, current). ``settle``: also report where the arm comes to rest with zero
-    current after tf (``extra``/``q_rest``)."""
+    trajectory t, q, qd, current, recorded every substep h (≤ 1 ms, or ``dt`` if finer) and at
+    every event). ``t_end`` > tf extends the recorded trajectory with zero current. ``settle``:
+    also report where the arm comes to rest with zero current after tf (``q_rest``)."""
     q0, qd0 = _check_inputs(params, profile, q0, qd0)
-    sim = _simulate_raw(params, profile, q0, qd0, trajectory, h=h, settle=settle)
+    if dt is not None:
+        if not (math.isfinite(float(dt)) and float(dt) > 0.0):
+            raise PlanningError(f"dt must be a finite number > 0 s, got {dt}")
+        h = min(float(h), float(dt))
+    sim = _simulate_raw(params, profile, q0, qd0, trajectory and t_end is None, h=h,
+                        settle=settle)
+    if trajectory and t_end is not None:
+        t_end = float(t_end)
+        if not (math.isfinite(t_end) and t_end >= profile.tf):
+            raise PlanningError(f"t_end must be >= tf = {profile.tf} s, got {t_end}")
+        longer = CurrentProfile(profile.step_times, profile.currents, t_end,
+                                t_end - float(profile.step_times[-1]))
+        ext = _simulate_raw(params, longer, q0, qd0, True, h=h)
+        sim.t, sim.q, sim.qd, sim.current, sim.event_kind = (ext.t, ext.q, ext.qd, ext.current,
+                                                             ext.event_kind)
     return _to_simresult(sim, profile)
 
 

@@ -15,7 +15,7 @@ P = Scara2Params()
 @pytest.fixture(scope="module")
 def plan():
     req = PlanRequest(model="scara2", q0=(-0.5, 0.0), qf=(0.5, 0.0), tf=1.0,
-                      uncertain=scara2.FRICTION_NAMES, starts=2000, seed=1, time_budget=60)
+                      uncertain=scara2.FRICTION_NAMES, starts=100000, seed=1, time_budget=60)
     seen = []
     res = plan_robust_scara2(req, progress=seen.append)
     return req, res, seen
