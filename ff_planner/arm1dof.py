@@ -163,6 +163,23 @@ def sim_core(J, c, pv, pc, pt, times, cur, tf, q0, v0, to_rest, seg, ev):
 
 
 @njit(cache=True, nogil=True)
+def batch_core(J, c, friction, to_rest, times, cur, tf, q0):
+    """Final states (q, v) for each row (pv, pc, pt) of ``friction`` (M, 3), with the matching
+    ``to_rest`` flag (M,): one compiled call for a verification sweep."""
+    m = friction.shape[0]
+    qs = np.empty(m)
+    vs = np.empty(m)
+    seg = np.empty((0, _SEG_COLS))
+    ev = np.empty((0, 3))
+    for i in range(m):
+        q, v, _, _ = sim_core(J, c, friction[i, 0], friction[i, 1], friction[i, 2], times, cur,
+                              tf, q0, 0.0, to_rest[i], seg, ev)
+        qs[i] = q
+        vs[i] = v
+    return qs, vs
+
+
+@njit(cache=True, nogil=True)
 def advance_core(J, c, pv, pc, pt, q, v, current, dt):
     """State after ``dt`` s of constant ``current`` (A) from (q, v)."""
     seg = np.empty((0, _SEG_COLS))

@@ -30,7 +30,7 @@ import numpy as np
 
 from . import _lm1d
 from ._deriv1d import NP, Q_, VC_, hd_sim, workspace
-from .arm1dof import FRICTION, derivatives, sim_core
+from .arm1dof import FRICTION, batch_core, derivatives
 from .params import Arm1DofParams
 from .profile import CurrentProfile, PlanRequest, PlanResult, PlanningError
 
@@ -88,12 +88,9 @@ def sample_scales(uncertain: Sequence[str], levels: Sequence[float] = (0.1, 0.2)
     return np.array(rows) if rows else np.ones((1, NP))
 
 
-class _FastSim:
-    """q(tf) / rest position of one profile at varied friction, straight into the compiled core
-    (no parameter-object validation per call: verification runs ~40 simulations)."""
-
-    _SEG = np.empty((0, 7))
-    _EV = np.empty((0, 3))
+class _Sweep:
+    """Final states of one profile at many friction settings in one compiled call (verification
+    runs ~40 simulations; building parameter objects for each would dominate a 0.1 ms plan)."""
 
     def __init__(self, params: Arm1DofParams, profile: CurrentProfile, q0: float):
         self.base = {"pv": float(params.pv), "pc": float(params.pc), "pt": float(params.pt)}
@@ -101,33 +98,53 @@ class _FastSim:
         self.times = np.ascontiguousarray(profile.step_times, dtype=float)
         self.cur = np.ascontiguousarray(profile.currents[:, 0], dtype=float)
         self.tf, self.q0 = float(profile.tf), float(q0)
+        self.rows: list = []
+        self.rest: list = []
 
-    def __call__(self, to_rest: bool = False, **friction: float) -> tuple[float, float]:
+    def add(self, to_rest: bool = False, **friction: float) -> int:
+        """Queue a setting; returns its index into the arrays of ``run``."""
         p = dict(self.base, **friction)
-        q, v, _, _ = sim_core(self.J, self.c, p["pv"], p["pc"], p["pt"], self.times, self.cur,
-                              self.tf, self.q0, 0.0, to_rest, self._SEG, self._EV)
-        return float(q), float(v)
+        self.rows.append((p["pv"], p["pc"], p["pt"]))
+        self.rest.append(bool(to_rest))
+        return len(self.rows) - 1
+
+    def run(self) -> tuple[np.ndarray, np.ndarray]:
+        return batch_core(self.J, self.c, np.array(self.rows, dtype=float),
+                          np.array(self.rest, dtype=np.bool_), self.times, self.cur, self.tf,
+                          self.q0)
+
+
+CHANGES = (-0.4, -0.1, 0.1, 0.4)
+
+
+def _queue_finite_change(sw: _Sweep, uncertain: Sequence[str], changes=CHANGES) -> list:
+    groups = [(u, [u]) for u in uncertain] + ([("all", list(uncertain))] if len(uncertain) > 1
+                                               else [])
+    plan = []
+    for name, keys in groups:
+        for ch in changes:
+            fr = {k: sw.base[k] * (1.0 + ch) for k in keys}
+            plan.append((name, ch, sw.add(False, **fr), sw.add(True, **fr)))
+    return plan
+
+
+def _collect_finite_change(plan: list, q: np.ndarray, v: np.ndarray, qf: float) -> dict:
+    out: dict = {}
+    for name, ch, i_tf, i_rest in plan:
+        out.setdefault(name, {})[f"{ch * 100:+.0f}%"] = {
+            "rest_error": float(q[i_rest] - qf), "tf_error": float(q[i_tf] - qf),
+            "qd_tf": float(v[i_tf])}
+    return out
 
 
 def finite_change(params: Arm1DofParams, profile: CurrentProfile, q0: float, qf: float,
-                  uncertain: Sequence[str], changes: Sequence[float] = (-0.4, -0.1, 0.1, 0.4)
-                  ) -> dict:
+                  uncertain: Sequence[str], changes: Sequence[float] = CHANGES) -> dict:
     """Errors (rad) of the rest position and of q(tf), and q̇(tf), when friction parameters are
     off by finite relative ``changes`` — one at a time and all uncertain ones together."""
-    fs = _FastSim(params, profile, q0)
-    out: dict = {}
-    groups = [(u, [u]) for u in uncertain] + ([("all", list(uncertain))] if len(uncertain) > 1
-                                               else [])
-    for name, keys in groups:
-        row = {}
-        for ch in changes:
-            fr = {k: fs.base[k] * (1.0 + ch) for k in keys}
-            q_tf, v_tf = fs(False, **fr)
-            q_rest, _ = fs(True, **fr)
-            row[f"{ch * 100:+.0f}%"] = {"rest_error": q_rest - qf, "tf_error": q_tf - qf,
-                                        "qd_tf": v_tf}
-        out[name] = row
-    return out
+    sw = _Sweep(params, profile, q0)
+    plan = _queue_finite_change(sw, uncertain, changes)
+    q, v = sw.run()
+    return _collect_finite_change(plan, q, v, qf)
 
 
 def verify(params: Arm1DofParams, profile: CurrentProfile, q0: float, qf: float,
@@ -135,15 +152,19 @@ def verify(params: Arm1DofParams, profile: CurrentProfile, q0: float, qf: float,
     """Judge a plan by true derivatives: exact, central differences (1e-6 relative) and the
     paper's 0.1 % forward quotient; the kink radius; goal and rest at tf; finite changes."""
     d = derivatives(params, profile, q0, uncertain=uncertain)
-    fs = _FastSim(params, profile, q0)
-    q_tf, v_tf = fs()
-    central, forward = {}, {}
+    sw = _Sweep(params, profile, q0)
+    i0 = sw.add()
+    idx = {}
     for k in uncertain:
-        p0 = fs.base[k]
+        p0 = sw.base[k]
         h = 1e-6 * abs(p0) if p0 != 0.0 else 1e-9
-        central[k] = (fs(**{k: p0 + h})[0] - fs(**{k: p0 - h})[0]) / (2 * h)
         hf = 1e-3 * abs(p0) if p0 != 0.0 else 1e-6
-        forward[k] = (fs(**{k: p0 + hf})[0] - q_tf) / hf
+        idx[k] = (h, sw.add(**{k: p0 + h}), sw.add(**{k: p0 - h}), hf, sw.add(**{k: p0 + hf}))
+    fplan = _queue_finite_change(sw, uncertain)
+    q, v = sw.run()
+    q_tf, v_tf = float(q[i0]), float(v[i0])
+    central = {k: float((q[ip] - q[im]) / (2 * h)) for k, (h, ip, im, _, _) in idx.items()}
+    forward = {k: float((q[ifw] - q_tf) / hf) for k, (_, _, _, hf, ifw) in idx.items()}
     exact = {k: d.dq_dp[k] for k in uncertain}
     worst = max([abs(v) for v in exact.values()] + [abs(v) for v in central.values()] + [0.0])
     at_goal = abs(q_tf - qf) <= tol
@@ -155,18 +176,19 @@ def verify(params: Arm1DofParams, profile: CurrentProfile, q0: float, qf: float,
             "kink_radius": d.kink_radius, "tf_radius": d.tf_radius, "t_stop": d.t_stop,
             "q_tf": q_tf, "qd_tf": v_tf, "at_goal": at_goal, "at_rest": at_rest,
             "within_limits": within,
-            "finite_change": finite_change(params, profile, q0, qf, uncertain)}
+            "finite_change": _collect_finite_change(fplan, q, v, qf)}
 
 
 class _Problem:
     """The compiled solver's arguments for one request."""
 
-    def __init__(self, request: PlanRequest, params: Arm1DofParams, n: int):
+    def __init__(self, request: PlanRequest, params: Arm1DofParams, n: int,
+                 grid: Optional[float] = None):
         self.params = params
         self.n = n
         self.tf = float(request.tf)
         self.coast = float(request.coast)
-        self.times = np.linspace(0.0, self.tf - self.coast, n + 1)
+        self.times = step_times(self.tf, self.coast, n, grid)
         self.q0 = float(request.q0[0])
         self.goal = float(request.qf[0])
         self.umask = np.array([k in request.uncertain for k in FRICTION])
@@ -202,6 +224,23 @@ class _Problem:
                               self.tf, self.coast)
 
 
+def step_times(tf: float, coast: float, n: int, grid: Optional[float] = None) -> np.ndarray:
+    """N+1 step boundaries (s) on [0, tf − coast]: equal steps, or with ``grid`` (s, e.g. the
+    drive's 1 ms cycle) each boundary rounded to the grid, the last one at or before tf − coast,
+    so that the executed profile is exactly the optimised one."""
+    end = tf - coast
+    if grid is None:
+        return np.linspace(0.0, end, n + 1)
+    if not (math.isfinite(grid) and grid > 0.0):
+        raise PlanningError(f"grid must be a positive number of seconds, got {grid}")
+    cells = math.floor(end / grid + 1e-9)
+    if cells < n:
+        raise PlanningError(f"{n} steps do not fit on a {grid} s grid within tf - coast = "
+                            f"{end} s; use fewer steps or a finer grid")
+    k = np.round(np.linspace(0, cells, n + 1)).astype(np.int64)
+    return k * grid
+
+
 def _check_request(request: PlanRequest) -> Arm1DofParams:
     request.validate()
     if request.model != "arm1dof":
@@ -217,12 +256,20 @@ def _check_request(request: PlanRequest) -> Arm1DofParams:
 
 
 def plan_robust_1dof(request: PlanRequest, progress: Progress = None,
-                     initial_currents: Optional[np.ndarray] = None) -> PlanResult:
-    """Plan a robust rest-to-rest move of the 1-DOF arm; see the module docstring."""
+                     initial_currents: Optional[np.ndarray] = None,
+                     grid: Optional[float] = None) -> PlanResult:
+    """Plan a robust rest-to-rest move of the 1-DOF arm; see the module docstring.
+
+    initial_currents: (N,) A, a warm start tried first (e.g. a motion-library neighbour).
+    grid: put the switch times on this grid (s), e.g. 1e-3 for a 1 kHz drive (also read from
+    ``request.grid`` when the request has that field).
+    """
     t0 = time.perf_counter()
     params = _check_request(request)
     n = request.n_steps()
-    prob = _Problem(request, params, n)
+    if grid is None:
+        grid = getattr(request, "grid", None)
+    prob = _Problem(request, params, n, grid)
     rng = np.random.default_rng(request.seed)
     spread = prob.settings["spread"] * prob.i_max
     total = int(request.starts)

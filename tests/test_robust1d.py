@@ -100,3 +100,13 @@ def test_helpers():
     assert 0.05 < vb < 0.06
     s = sample_scales(["pc", "pt"])
     assert s.shape == (4 * 2 + 4, 3) and np.all(s[:, 0] == 1.0)
+
+
+def test_switch_times_on_a_cycle_grid():
+    r = plan_robust_1dof(PlanRequest(uncertain=("pc",), starts=500, seed=1), grid=1e-3)
+    assert r.success and r.robust
+    t = r.profile.step_times
+    assert np.allclose(t / 1e-3, np.round(t / 1e-3), atol=1e-9) and t[-1] <= 0.95 + 1e-12
+    assert not np.allclose(t, np.linspace(0, 0.95, 4))      # N = 3: 0.3167 s is off-grid
+    with pytest.raises(PlanningError, match="grid"):
+        plan_robust_1dof(PlanRequest(uncertain=("pc",)), grid=0.5)
