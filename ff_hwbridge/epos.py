@@ -65,6 +65,12 @@ EMCY_CLASSES = {0x00: "error reset / no error", 0x10: "generic error", 0x20: "cu
                 0xF0: "additional functions", 0xFF: "device specific"}
 
 
+# s: repeat the controlword while the drive's state differs from the target; refresh any RPDO
+# at least this often (both are idempotent for the drive: a fault reset needs a rising edge)
+RESEND_PERIOD = 0.005
+REFRESH_PERIOD = 0.05
+
+
 class EposError(RuntimeError):
     """A drive that cannot be reached or configured; the message names the node and the step."""
 
@@ -105,6 +111,7 @@ class _Drive:
     reset_until: float = 0.0      # monotonic s: Fault is expected (fault reset in progress)
     operational: bool = False
     seen_operational: bool = False
+    last_tx: float = 0.0          # monotonic s of the latest RPDO
     emcy: list[str] = field(default_factory=list)
 
     @property
@@ -493,18 +500,26 @@ class EposMaster:
                           + (f"; last {d.emcy[-1]}" if d.emcy else ""))
             if now >= d.reset_until:
                 return           # stay in Fault until an explicit fault reset
-        target = d.target
-        if target is State.QUICK_STOP_ACTIVE and state not in (State.OPERATION_ENABLED,
-                                                               State.QUICK_STOP_ACTIVE):
-            target = State.SWITCH_ON_DISABLED
-        try:
-            cw, _ = cia402.next_controlword(state, target, d.controlword)
-        except cia402.TransitionError:
-            cw = cia402.HOLD_CONTROLWORD.get(state, 0)
-        setpoint = d.setpoint if (state is State.OPERATION_ENABLED and target is State.OPERATION_ENABLED
-                                  and not self.guard.latched) else 0
-        if cw != d.controlword or setpoint != d.setpoint:
-            self._send_rpdo(d, cw, setpoint)
+        with self._send_lock:     # decide and send atomically w.r.t. command_currents
+            target = d.target
+            if target is State.QUICK_STOP_ACTIVE and state not in (State.OPERATION_ENABLED,
+                                                                   State.QUICK_STOP_ACTIVE):
+                target = State.SWITCH_ON_DISABLED
+            try:
+                cw, _ = cia402.next_controlword(state, target, d.controlword)
+            except cia402.TransitionError:
+                cw = cia402.HOLD_CONTROLWORD.get(state, 0)
+            setpoint = d.setpoint if (state is State.OPERATION_ENABLED
+                                      and target is State.OPERATION_ENABLED
+                                      and not self.guard.latched) else 0
+            # RPDOs are not acknowledged: while the drive is not where we want it, repeat the
+            # controlword (a lost quick stop must not leave the drive driving current), and
+            # refresh the RPDO now and then anyway (a lost setpoint heals)
+            since = now - d.last_tx
+            if (cw != d.controlword or setpoint != d.setpoint
+                    or (state is not target and since >= RESEND_PERIOD)
+                    or since >= REFRESH_PERIOD):
+                self._send_rpdo(d, cw, setpoint)
 
     def _send_rpdo(self, d: _Drive, controlword: int, setpoint: int) -> None:
         """Send RPDO1 (controlword + raw setpoint, clamped to the raw limit)."""
@@ -515,6 +530,7 @@ class EposMaster:
         with self._send_lock:
             d.controlword = int(controlword) & 0xFFFF
             d.setpoint = sp
+            d.last_tx = self.clock()
             try:
                 self.network.send_message(0x200 + d.node_id, data)
             except Exception:  # noqa: BLE001 - a full bus must not kill the caller's thread
@@ -596,11 +612,12 @@ class EposMaster:
         cmd = self.guard.filter(amps)
         for d, a in zip(self._drives, cmd.currents):
             raw = d.units.amps_to_setpoint(float(a), limit=d.cfg.current_limit)
-            state = d.feedback.state
-            if state is not State.OPERATION_ENABLED or d.target is not State.OPERATION_ENABLED:
-                raw = 0
-            if d.operational:
-                self._send_rpdo(d, d.controlword, raw)
+            with self._send_lock:
+                state = d.feedback.state
+                if state is not State.OPERATION_ENABLED or d.target is not State.OPERATION_ENABLED:
+                    raw = 0
+                if d.operational:
+                    self._send_rpdo(d, d.controlword, raw)
         return cmd
 
     def command_zero(self) -> None:
