@@ -464,7 +464,8 @@ class PlannerService:
                     return r
                 except FutureTimeout:
                     fut.cancel()  # pebble: a running task's worker is killed and replaced
-                    self._stats["workers_killed"] += 1
+                    with self._lock:
+                        self._stats["workers_killed"] += 1
                     return failure(request, "TIME_BUDGET_EXHAUSTED",
                                    f"no plan within the time budget of {request.time_budget:.3g} s; "
                                    f"raise time_budget, ask for fewer starts, or plan offline (ff-plan)")
@@ -574,7 +575,8 @@ def config_from_mapping(values: Mapping[str, Any]) -> ServiceConfig:
             unknown.append(name)
     if unknown:
         raise ServiceConfigError(f"unknown planner parameter(s) {unknown}; valid: {sorted(plain)}, "
-                                 f"<model>.preset, <model>.params.<key>")
+                                 f"<model>.preset, <model>.params.<key> (and for the node: "
+                                 f"diagnostics_period, executor_threads)")
     cfg.presets, cfg.overrides = presets, overrides
     cfg.validate()
     for m in MODELS:
