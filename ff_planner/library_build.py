@@ -18,8 +18,8 @@ compute: ``solve_task(payload) -> MotionRecord`` is a pure function of its paylo
 
 Continuation: tasks are solved in the order of :func:`ff_planner.library_grid.continuation_tree`
 (a task is submitted once its tree parent is stored); it starts from the currents of its nearest
-*solved* ancestor (``warm_plan``, no multistart) and falls back to a cold multistart solve when
-that fails. Since the tree and the ancestors' outcomes are fixed before a task starts, the stored
+*solved* ancestor (``warm_plan``, no multistart), then from a few seeded perturbations of them
+(``local_starts``, each a single start), and falls back to a cold multistart solve when all fail. Since the tree and the ancestors' outcomes are fixed before a task starts, the stored
 results do not depend on the number of workers or on timing (for a deterministic, seeded planner
 that finishes inside its time budget). The record says how: ``solved_how`` = "continuation"
 (``warm_from`` = the ancestor's key), "cold" (multistart) or "shift" (a shifted copy of an
@@ -112,10 +112,37 @@ class TaskPayload:
     neighbour: Optional[MotionRecord] = None    # solved ancestor to continue from; None = cold
     plan_entry: str = DEFAULT_PLAN_ENTRY
     fallback_cold: bool = True
+    local_starts: int = 8           # continuation: the neighbour's currents + 7 perturbations of them
+    local_sigma: float = 0.3        # A, perturbation scale (× √k for the k-th)
 
 
 def _writer() -> str:
     return f"ff-library {socket.gethostname()} pid {os.getpid()}"
+
+
+def _continue(req: PlanRequest, nb: MotionRecord, fn: Callable, local_starts: int, sigma: float
+              ) -> tuple[Optional[PlanResult], int]:
+    """Continuation from a solved neighbour: its currents as the single start, then up to
+    ``local_starts`` − 1 seeded perturbations of them (σ·√k A, clipped to the limits), each a
+    single start. A plan counts only if found from that start (a planner may add one random
+    start after it). Returns (result or None, starts used)."""
+    one = replace(req, starts=1)
+    r = warm_plan(one, nb, plan_fn=fn)          # checks the shapes; raises WarmStartUnavailable
+    if r.success and r.starts_tried <= 1:
+        return r, 1
+    base = nb.currents()
+    p = req.resolved_params()
+    i_max = (np.array([p.i_max]) if req.model == "arm1dof"
+             else np.array([getattr(p, f"i_max{j + 1}") for j in range(base.shape[1])]))
+    rng = np.random.default_rng([int(req.seed), 0x1B])
+    for k in range(1, max(1, int(local_starts))):
+        init = np.clip(base + rng.normal(0.0, sigma * math.sqrt(k), base.shape), -i_max, i_max)
+        r = fn(one, None, initial_currents=init)
+        if r.success and r.starts_tried <= 1:
+            r.warm_start = True
+            r.extra = dict(r.extra or {}, warm_from=nb.task_key, local_start=k)
+            return r, k + 1
+    return None, max(1, int(local_starts))
 
 
 def solve_task(payload: TaskPayload) -> MotionRecord:
@@ -133,15 +160,14 @@ def solve_task(payload: TaskPayload) -> MotionRecord:
         nb = payload.neighbour
         if nb is not None:
             try:
-                # one start: the neighbour's currents (a planner may add a seeded random start
-                # after it; a plan found that way does not count as continuation)
-                r = warm_plan(replace(req, starts=1), nb, plan_fn=fn)
-                if r.success and r.starts_tried <= 1:
-                    r.starts_tried = 1
-                    result, how, warm_from = r, "continuation", nb.task_key
+                result, tries = _continue(req, nb, fn, payload.local_starts, payload.local_sigma)
+                if result is not None:
+                    result.starts_tried = tries
+                    how, warm_from = "continuation", nb.task_key
+                    if tries > 1:
+                        note = f"continuation from {nb.task_key}: perturbed start {tries - 1}; "
                 else:
-                    why = f"{r.error_code}: {r.message}" if not r.success else "its start did not converge"
-                    note = f"continuation from {nb.task_key} failed ({why}); "
+                    note = f"continuation from {nb.task_key} failed ({tries} local start(s)); "
             except WarmStartUnavailable as exc:
                 note = f"no continuation ({exc}); "
             except PlanningError as exc:
@@ -364,7 +390,7 @@ def _nearest_solved_ancestor(grid: Grid, i: int, recs: dict[int, MotionRecord]) 
 def build_library(grid: Grid | GridSpec | str | os.PathLike, library: str | os.PathLike | MotionLibrary, *,
                   workers: Optional[int] = None, scheduler: Optional[str] = None, client: Any = None,
                   serial: bool = False, continuation: bool = True, roots: int = 1,
-                  plan_entry: str = DEFAULT_PLAN_ENTRY, progress: bool = True,
+                  plan_entry: str = DEFAULT_PLAN_ENTRY, local_starts: int = 8, progress: bool = True,
                   stream: Optional[TextIO] = None,
                   on_result: Optional[Callable[[int, MotionRecord], None]] = None) -> BuildReport:
     """Solve every task of ``grid`` not yet stored in ``library``; see the module docstring.
@@ -372,7 +398,8 @@ def build_library(grid: Grid | GridSpec | str | os.PathLike, library: str | os.P
     Executor: ``client`` (a distributed.Client) if given; else ``scheduler`` ("tcp://HOST:PORT",
     an existing cluster); else ``serial`` (this process); else a LocalCluster on 127.0.0.1 with
     ``workers`` processes (default one per core). ``continuation=False`` solves every task cold
-    (multistart) in grid order (for comparison). ``on_result(task_index, record)`` is called after
+    (multistart) in grid order (for comparison); ``local_starts`` = single-start solves from the
+    neighbour's currents and perturbations of them before falling back to multistart. ``on_result(task_index, record)`` is called after
     each distinct task is stored (tests use it).
     """
     if not isinstance(grid, Grid):
@@ -437,7 +464,8 @@ def build_library(grid: Grid | GridSpec | str | os.PathLike, library: str | os.P
 
     def payload(i: int) -> TaskPayload:
         nb = _nearest_solved_ancestor(grid, i, recs) if continuation else None
-        return TaskPayload(grid.tasks[i].request, grid.tasks[i].key, nb, plan_entry)
+        return TaskPayload(grid.tasks[i].request, grid.tasks[i].key, nb, plan_entry,
+                           local_starts=local_starts)
 
     def ready(i: int) -> bool:
         if not continuation:

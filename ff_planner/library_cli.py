@@ -109,7 +109,8 @@ def plot_map(records: Sequence[MotionRecord], path: str | Path, title: str = "")
     for r in records:
         groups[group_of(r)].append(r)
     n = max(1, len(groups))
-    fig, axes = plt.subplots(1, n, figsize=(6.0 * n, 4.8), squeeze=False)
+    fig, axes = plt.subplots(1, n, figsize=(6.0 * n, 5.4), squeeze=False)
+    fig.subplots_adjust(bottom=0.24, top=0.86)
     sc = None
     for ax, (g, rs) in zip(axes[0], sorted(groups.items(), key=lambda kv: kv[0])):
         # shift copies sit on top of the motion they copy: draw solved ones first, copies smaller
@@ -138,7 +139,7 @@ def plot_map(records: Sequence[MotionRecord], path: str | Path, title: str = "")
         ax.set_ylabel("move time tf (s)")
         ax.set_title(f"{g[0]} {g[2]} [{g[3]}] N={g[4]}", fontsize=9)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=7, loc="best")
+        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=3, frameon=False)
     if sc is not None:
         cb = fig.colorbar(sc, ax=list(axes[0]), shrink=0.85)
         cb.set_label("log10 max |dq(tf)/dp|  (orange ring: not robust)")
@@ -173,7 +174,7 @@ def cmd_build(a: argparse.Namespace) -> int:
     try:
         rep = build_library(grid, a.library, workers=a.workers, scheduler=a.scheduler, client=client,
                             serial=a.serial, continuation=not a.no_continuation, roots=a.roots,
-                            plan_entry=a.plan_entry, progress=not a.quiet)
+                            plan_entry=a.plan_entry, local_starts=a.local_starts, progress=not a.quiet)
     finally:
         if client is not None:
             client.close()
@@ -230,6 +231,8 @@ def parser() -> argparse.ArgumentParser:
     b.add_argument("--serial", action="store_true", help="no Dask: solve in this process")
     b.add_argument("--no-continuation", action="store_true",
                    help="solve every task cold (multistart), ignoring neighbours")
+    b.add_argument("--local-starts", type=int, default=8,
+                   help="continuation: starts from the neighbour's currents and perturbations of them")
     b.add_argument("--roots", type=int, default=1, help="cold-started subtrees (more early parallelism)")
     b.add_argument("--dashboard", action="store_true", help="LocalCluster dashboard on 127.0.0.1")
     b.add_argument("--plan-entry", default="ff_planner.library_build:plan_for_library",
