@@ -35,6 +35,7 @@ class MiniEpos:
         self.family = units.family
         self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
         self.net = canopen.Network(self.bus)
+        self.net.NOTIFIER_CYCLE = 0.05
         self.net.connect()
         self.node = canopen.LocalNode(node_id, build_object_dictionary(units.family, node_id, units))
         self.net.add_node(self.node)
@@ -45,6 +46,7 @@ class MiniEpos:
         self.position = 0
         self.rpm = 0
         self.answer_sync = True
+        self.drop_rx = False
         self.rx_log: list[tuple[int, int]] = []
         self.transitions: list[int] = []
         self.lock = threading.Lock()
@@ -95,6 +97,8 @@ class MiniEpos:
 
     def _on_rpdo(self, can_id: int, data: bytes, ts: float) -> None:
         self.maps()
+        if self.drop_rx:
+            return
         if self.node.nmt.state != "OPERATIONAL" or self.rpdo_cob & 0x80000000:
             return
         fmt = "<" + "".join(FMT[i] for i, _ in self.rpdo_map)
@@ -307,3 +311,25 @@ def test_node_leaving_operational_or_rebooting_latches(rig):
     drives[0].node.nmt.send_command(0x80)
     assert _wait(lambda: master.latched, 2.0)
     assert "rebooted" in master.fault_reason
+
+
+def test_lost_quick_stop_is_repeated_and_lost_setpoint_heals(rig):
+    master, drives = rig
+    master.configure()
+    master.enable()
+    assert master.wait_for_state(State.OPERATION_ENABLED, 2.0)
+    master.command_currents([1.5])
+    assert _wait(lambda: drives[0].setpoint_raw == 500)
+    drives[0].drop_rx = True                                 # every RPDO to the drive is lost
+    master.quick_stop("test: quick stop")
+    time.sleep(0.05)
+    assert drives[0].state is State.OPERATION_ENABLED and drives[0].setpoint_raw == 500
+    drives[0].drop_rx = False                                # frames flow again
+    assert _wait(lambda: drives[0].state is State.QUICK_STOP_ACTIVE and drives[0].setpoint_raw == 0)
+    master.fault_reset()
+    assert master.wait_for_state(State.OPERATION_ENABLED, 2.0)
+    drives[0].drop_rx = True
+    master.command_currents([0.6])                           # this setpoint is lost ...
+    time.sleep(0.02)
+    drives[0].drop_rx = False
+    assert _wait(lambda: drives[0].setpoint_raw == 200)      # ... and healed by the refresh
