@@ -156,9 +156,13 @@ def main() -> None:
         hits = [client.one(req(float(g))) for g in goals]       # same tasks: library hits
         shifts = [client.one(req(float(g) + 0.75, q0=0.75)) for g in goals]   # shifted copies
         near = [client.one(req(float(g) + 0.013)) for g in goals]             # nearest neighbour
-        out["warm_hit"] = _quant([t for t, r in hits if r is not None and r.success and r.warm_start])
-        out["warm_shift"] = _quant([t for t, r in shifts if r is not None and r.success and r.warm_start])
-        out["warm_reoptimised"] = _quant([t for t, r in near if r is not None and r.success and r.warm_start])
+        def kind(rs, prefix):   # the node's message says how a warm answer came about
+            return [t for t, r in rs if r is not None and r.success and r.warm_start
+                    and r.message.startswith(prefix)]
+
+        out["warm_hit"] = _quant(kind(hits, "from the motion library (library entry"))
+        out["warm_shift"] = _quant(kind(shifts, "from the motion library (shifted copy"))
+        out["warm_reoptimised"] = _quant(kind(near, "warm start from library entry"))
         out["warm_reoptimised"]["answered_warm"] = sum(bool(r and r.warm_start) for _, r in near)
         out["warm_reoptimised"]["succeeded"] = sum(bool(r and r.success) for _, r in near)
         out["warm_reoptimised"]["robust"] = sum(bool(r and r.success and r.robust) for _, r in near)
