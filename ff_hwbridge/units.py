@@ -1,7 +1,11 @@
 """Unit conversions between the suite (A, rad, rad/s, joint side) and an EPOS drive's objects.
 
-ONE place for them. Drive-side units, as found in maxon's EPOS4 Firmware Specification and
-object dictionary (checked against public maxon-based drivers that set/read these objects):
+ONE place for them. Drive-side units per maxon's EPOS4 Firmware Specification / object
+dictionary. maxon's own pages were not reachable through the search tool here; what was found and
+agrees: a public ROS EPOS driver (eposx_hardware) writes 0x3001:05 as torque constant [mNm/A] x 1000
+(so µNm/A) and takes the CST rated torque as nominal current x torque constant; a public EtherCAT
+EPOS4 driver reads 0x6076 and divides by 1000 to get mNm (so µNm); CiA 402 defines 0x6071/0x6077
+in per mille of 0x6076. Re-check against the firmware spec of the drive in use:
 
 - 0x3001:01 nominal current, UNSIGNED32, mA.
 - 0x3001:02 output current limit, UNSIGNED32, mA.
