@@ -24,7 +24,7 @@ from . import scara2
 from .params import Scara2Params
 from .profile import CurrentProfile, PlanRequest, PlanResult
 
-SPLITS = (0.5, 0.4, 0.6)     # fraction of tf given to the first phase
+SPLITS = {1: (0.7, 0.6, 0.5), 2: (0.3, 0.4, 0.5)}   # share of tf of the first phase, by its joint
 HOLD_MIN = 0.1               # held joint must keep 10 % of its stiction unused
 
 
@@ -33,8 +33,9 @@ def _phase(p: Scara2Params, joint: int, qa0: float, qaf: float, q_other: float, 
     """1-DOF robust plan for ``joint`` over t s with the other joint held at q_other.
     Returns (times (n+1,), I_moving (n,), T_held (n+1,), min hold fraction) or None."""
     from . import robust1d
-    from .robust2d import hold_torques, joint1_params, joint2_params
+    from .robust2d import _Joint1Problem, hold_torques, joint1_params, joint2_params
 
+    stop = time.perf_counter() + budget
     pm = joint1_params(p) if joint == 1 else joint2_params(p)
     held = 2 if joint == 1 else 1
     k = len(names)
@@ -50,9 +51,22 @@ def _phase(p: Scara2Params, joint: int, qa0: float, qaf: float, q_other: float, 
                 return None
             if not r.success:
                 break           # more starts at this n rarely help: try more steps
+            if time.perf_counter() > stop:
+                return None
+            x = r.profile.currents[:, 0].copy()
             T, frac = hold_torques(p, held, r.profile, qa0, q_other, zero_coast=zero_coast)
-            if frac.min() >= HOLD_MIN:
-                return r.profile.step_times, r.profile.currents[:, 0], T, float(frac.min())
+            if frac.min() < HOLD_MIN:   # continuation along the robust set to a held joint
+                hp = _Joint1Problem(pm, qa0, qaf, t, request.coast, len(x), tuple(names), p2=p,
+                                    q2=q_other, hold_min=HOLD_MIN, held=held,
+                                    zero_coast=zero_coast)
+                x2, fun, _ = hp.solve(x, max_nfev=60)
+                if float(np.max(np.abs(fun))) > 0.1 * request.tol:
+                    continue
+                x = x2
+                prof = CurrentProfile(r.profile.step_times, x.reshape(-1, 1), t, request.coast)
+                T, frac = hold_torques(p, held, prof, qa0, q_other, zero_coast=zero_coast)
+            if frac.min() >= 0.5 * HOLD_MIN:
+                return r.profile.step_times, x, T, float(frac.min())
     return None
 
 
@@ -67,7 +81,7 @@ def plan_sequential(request: PlanRequest, p: Scara2Params, progress: Optional[Ca
     K = {1: p.n1 * p.kt1, 2: p.n2 * p.kt2}
     tries = 0
     for first, second in ((1, 2), (2, 1)):
-        for split in SPLITS:
+        for split in SPLITS[first]:
             if time.perf_counter() >= deadline:
                 return None
             tries += 1

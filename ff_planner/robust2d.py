@@ -78,7 +78,8 @@ class _Joint1Problem:
 
     def __init__(self, p1: Arm1DofParams, q0: float, qf: float, tf: float, coast: float, N: int,
                  names: tuple[str, ...], p2: Optional[Scara2Params] = None, q2: float = 0.0,
-                 hold_min: float = HOLD_MIN, samples: int = 24):
+                 hold_min: float = HOLD_MIN, samples: int = 24, held: int = 2,
+                 zero_coast: bool = True):
         self.J, self.c = p1.J, p1.n * p1.kt
         self.fr = {"pv": p1.pv, "pc": p1.pc, "pt": p1.pt}
         self.q0, self.qf, self.tf, self.coast, self.N = q0, qf, tf, coast, N
@@ -105,7 +106,12 @@ class _Joint1Problem:
             self.gidx = np.concatenate(idx)
             self.starts_idx = np.arange(N + 1) * samples
             self.A, self.B, _ = scara2.inertia_constants(p2)
-            self.K2 = p2.n2 * p2.kt2
+            # the held joint's motor and stiction (link 2 by default; joint 1 when link 2 moves)
+            self.held, self.zero_coast = held, zero_coast
+            if held == 2:
+                self.K2, self.imax_h, self.pch, self.pth = p2.n2 * p2.kt2, p2.i_max2, p2.pc2, p2.pt2
+            else:
+                self.K2, self.imax_h, self.pch, self.pth = p2.n1 * p2.kt1, p2.i_max1, p2.pc1, p2.pt1
             self.rseg = np.zeros((3 * (N + 3) + 4, 7))
             self.rev = np.zeros((3 * (N + 3) + 4, 3))
 
@@ -121,13 +127,18 @@ class _Joint1Problem:
         L1 = self.fr["pc"] + self.fr["pt"] * np.abs(T1)
         acc = np.where(vs != 0.0, (T1 - self.fr["pv"] * vs - np.sign(vs) * L1) / self.J,
                        np.where(np.abs(T1) > L1, (T1 - np.sign(T1) * L1) / self.J, 0.0))
-        d = qs - self.q2
-        R = self.B * np.cos(d) * acc - self.B * np.sin(d) * vs * vs
+        if self.held == 2:
+            d = qs - self.q2
+            R = self.B * np.cos(d) * acc - self.B * np.sin(d) * vs * vs
+        else:
+            d = self.q2 - qs
+            R = self.B * np.cos(d) * acc + self.B * np.sin(d) * vs * vs
         rmin = np.minimum.reduceat(R, self.starts_idx)
         rmax = np.maximum.reduceat(R, self.starts_idx)
-        T2 = np.clip(0.5 * (rmin + rmax), -self.K2 * p2.i_max2, self.K2 * p2.i_max2)
-        T2[-1] = 0.0
-        L2 = p2.pc2 + p2.pt2 * np.abs(T2)
+        T2 = np.clip(0.5 * (rmin + rmax), -self.K2 * self.imax_h, self.K2 * self.imax_h)
+        if self.zero_coast:
+            T2[-1] = 0.0
+        L2 = self.pch + self.pth * np.abs(T2)
         frac = (L2 - np.maximum(T2 - rmin, rmax - T2)) / L2
         return T2, frac
 
