@@ -66,7 +66,7 @@ PARAMS: dict[str, tuple[Any, str]] = {
     "gear_ratios": ([54.0], "per joint"),
     "sync_period": (0.001, "s, SYNC period"),
     "heartbeat_producer_ms": (10, "ms, written to each drive's 0x1017"),
-    "heartbeat_timeout": (0.04, "s, heartbeat consumer timeout -> safe state"),
+    "heartbeat_timeout": (0.1, "s, heartbeat consumer timeout -> safe state"),
     "setpoint_timeout": (0.5, "s, no fresh setpoint during a motion -> safe state"),
     "spin_margin": (0.0003, "s, the scheduler sleeps until this long before a stamp, then spins"),
     "scheduler_rt_priority": (0, "1..99: SCHED_FIFO for the scheduler thread (needs CAP_SYS_NICE); 0 = off"),

@@ -96,7 +96,7 @@ class BridgeConfig:
     joints: tuple[JointConfig, ...]
     sync_period: float = 0.001
     heartbeat_producer_ms: int = 10
-    heartbeat_timeout: float = 0.04
+    heartbeat_timeout: float = 0.1
     setpoint_timeout: float = 0.5
     feedback_timeout: float = 0.0
     sdo_timeout: float = 0.5

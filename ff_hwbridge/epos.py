@@ -111,6 +111,7 @@ class _Drive:
     reset_until: float = 0.0      # monotonic s: Fault is expected (fault reset in progress)
     operational: bool = False
     seen_operational: bool = False
+    tpdo_seen: bool = False
     last_tx: float = 0.0          # monotonic s of the latest RPDO
     emcy: list[str] = field(default_factory=list)
 
@@ -317,6 +318,7 @@ class EposMaster:
         d.controlword = 0
         d.setpoint = 0
         d.seen_operational = False           # a PRE-OP heartbeat may still be under way
+        d.tpdo_seen = False
         node.nmt.send_command(0x01)          # NMT start -> OPERATIONAL
         d.operational = True
         d.last_heartbeat = self.clock()      # the heartbeat timeout counts from here
@@ -374,14 +376,19 @@ class EposMaster:
         for d in self._drives:
             if not d.operational:
                 continue
-            if d.last_heartbeat is not None and now - d.last_heartbeat > timeout:
+            # until the first OPERATIONAL heartbeat / first TPDO after NMT start, allow
+            # state_timeout (a drive may take a while to start its PDOs)
+            grace = max(timeout, self.config.state_timeout)
+            hb_limit = timeout if d.seen_operational else grace
+            if d.last_heartbeat is not None and now - d.last_heartbeat > hb_limit:
                 return self.trip(f"heartbeat lost: node {d.node_id} ({d.cfg.name}) silent for "
                                  f"{(now - d.last_heartbeat) * 1000.0:.0f} ms (timeout "
-                                 f"{timeout * 1000.0:.0f} ms)")
-            fb_timeout = self.config.feedback_timeout
-            if self._sync_running and now - d.feedback.stamp > fb_timeout:
+                                 f"{hb_limit * 1000.0:.0f} ms)")
+            fb_limit = self.config.feedback_timeout if d.tpdo_seen else max(self.config.feedback_timeout, grace)
+            if self._sync_running and now - d.feedback.stamp > fb_limit:
                 return self.trip(f"feedback lost: no TPDO from node {d.node_id} ({d.cfg.name}) for "
-                                 f"{(now - d.feedback.stamp) * 1000.0:.0f} ms")
+                                 f"{(now - d.feedback.stamp) * 1000.0:.0f} ms (timeout "
+                                 f"{fb_limit * 1000.0:.0f} ms)")
         reason = self.guard.check(now, pending=self.pending_fn())
         if reason:
             self._react(reason)
@@ -470,6 +477,7 @@ class EposMaster:
                 fb.state = None
             now = self.clock()
             fb.stamp = now
+            d.tpdo_seen = True
             self._step(d, now)
         return on_tpdo1
 
