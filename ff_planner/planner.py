@@ -134,6 +134,14 @@ def plan(request: PlanRequest, progress: Progress = None) -> PlanResult:
     result.extra["facade_time_s"] = elapsed
     if elapsed > request.time_budget:
         result.extra["over_time_budget"] = True
+    if result.profile is not None and "rest_position" not in result.extra:
+        try:   # where the arm stops with zero current after tf: what a user will see
+            from .simulate import rest_position
+
+            result.extra["rest_position"] = np.asarray(
+                rest_position(result.params, result.profile, result.q0), dtype=float).tolist()
+        except (ValueError, ArithmeticError):
+            pass
     if not result.success:
         result.best_effort = result.profile is not None
         if result.error_code == "OK":
