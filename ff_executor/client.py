@@ -47,6 +47,13 @@ class MoveOutcome:
     truth: Recording
     joints: Recording
     rest_truth: Optional[np.ndarray]   # rad, ground-truth position once settled
+    switch_delays: list = field(default_factory=list)   # s, bridge-applied − stamp per switch
+
+    @property
+    def switch_spread(self) -> float:
+        """s, max − min of the switch delays: the relative timing error between switches
+        (a common delay of the whole profile does not move the arm's final position)."""
+        return float(np.ptp(self.switch_delays)) if self.switch_delays else float("nan")
 
     @property
     def succeeded(self) -> bool:
@@ -87,6 +94,23 @@ class StackClient:
                                       lambda m: self._on_js(m, "truth"), qos)
         self.node.create_subscription(JointState, "/ff_hwbridge/joint_states",
                                       lambda m: self._on_js(m, "joints"), qos)
+        from ff_msgs.msg import CurrentSetpoint
+        from ff_msgs_py.convert import time_to_ns
+
+        self._stamps: dict = {}
+        self._applied: dict = {}
+
+        def on_setpoint(m) -> None:
+            with self._lock:
+                self._stamps[(m.profile_id, m.seq)] = (time_to_ns(m.stamp), tuple(m.currents))
+
+        def on_applied(m) -> None:
+            with self._lock:
+                self._applied[(m.profile_id, m.seq)] = time_to_ns(m.stamp)
+
+        rel = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
+        self.node.create_subscription(CurrentSetpoint, "/ff_hwbridge/setpoints", on_setpoint, rel)
+        self.node.create_subscription(CurrentSetpoint, "/ff_hwbridge/applied", on_applied, rel)
         self.executor = MultiThreadedExecutor(num_threads=2, context=self.ctx)
         self.executor.add_node(self.node)
         self._spin = threading.Thread(target=self.executor.spin, daemon=True)
@@ -173,6 +197,7 @@ class StackClient:
         fb_times: list[float] = []
         with self._lock:
             self._truth, self._joints = Recording(), Recording()
+            self._stamps, self._applied = {}, {}
         t_goal = self.now()
         goal = ExecuteProfile.Goal(profile=profile_msg)
         if start_time_ns:
@@ -191,7 +216,13 @@ class StackClient:
             truth, joints = self._truth, self._joints
             self._truth = self._joints = None
             lt = self.last_truth
+            delays, prev = [], None
+            for key in sorted(self._stamps, key=lambda k: self._stamps[k][0]):
+                stamp, cur = self._stamps[key]
+                if cur != prev and key in self._applied:
+                    delays.append((self._applied[key] - stamp) / NS)
+                prev = cur
         gaps = np.diff(fb_times) if len(fb_times) > 1 else np.array([np.inf])
         rest = lt[1] if lt is not None else None
         return MoveOutcome(res.status, res.result, len(fb_times), float(gaps.max()),
-                           t_goal, truth, joints, rest)
+                           t_goal, truth, joints, rest, delays)

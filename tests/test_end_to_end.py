@@ -30,8 +30,11 @@ def stack_client(tmp_path_factory):
 
 def test_robust_lands_and_baseline_misses_with_coulomb_20_percent_off(stack_client):
     stack, client = stack_client
-    s = run_motions(client, 1.0, 1.0, MOTIONS, log=lambda _m: None)
+    # timing gate: a robust move whose switch timing at the bridge spread more than 0.3 ms was
+    # disturbed by the (shared) machine, not by friction; it is repeated up to 3 times
+    s = run_motions(client, 1.0, 1.0, MOTIONS, log=lambda _m: None, attempts=3, max_spread=3e-4)
     rob, base = s["robust"], s["baseline"]
+    assert rob["timing_ok"], f"no run met the 0.3 ms switch-timing gate (machine overloaded?): {rob['runs']}"
     for m in (rob, base):
         assert m["executed"], m["message"]
         assert m["setpoints_sent"] >= m["steps"] // 2
