@@ -15,7 +15,6 @@ plus the bridge-side error (stamp -> RPDO handed to the bus) and late counts.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import os
 import socket

@@ -116,7 +116,6 @@ class BridgeNode(LifecycleNode):
         self._timers: list[Any] = []
         self._pub_js = self._pub_diag = self._pub_applied = None
         self._diag_now = threading.Event()
-        self._lock = threading.Lock()
 
     # --- helpers ----------------------------------------------------------------------------------
     def _get(self, name: str) -> Any:

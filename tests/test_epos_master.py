@@ -17,7 +17,7 @@ import canopen
 import pytest
 
 from ff_hwbridge import cia402
-from ff_hwbridge.cia402 import Command, State
+from ff_hwbridge.cia402 import State
 from ff_hwbridge.config import load_config
 from ff_hwbridge.epos import EposError, EposMaster
 from ff_hwbridge.epos_od import build_object_dictionary
