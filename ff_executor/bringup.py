@@ -62,7 +62,9 @@ class StackOptions:
     run_dir: Optional[str] = None              # logs, generated parameter files, motion library
     executor_params: Optional[str] = None      # default config/executor.yaml (or _scara2)
     planner_params: Optional[str] = None       # default config/planner.yaml
-    executor_overrides: Mapping[str, object] = field(default_factory=dict)
+    # the simulated stack runs on shared machines: hand setpoints to the bridge 0.3 s ahead
+    executor_overrides: Mapping[str, object] = field(
+        default_factory=lambda: {"lead_time": 0.3, "start_margin": 0.5})
     planner_overrides: Mapping[str, object] = field(default_factory=dict)
     sim_overrides: Mapping[str, object] = field(default_factory=dict)
     bridge_overrides: Mapping[str, object] = field(default_factory=dict)
