@@ -495,6 +495,7 @@ class SimEpos:
     def _reset_application(self) -> None:
         with self._lock:
             self.node.data_store.clear()
+            self._refresh_settings()
             self.state = State.SWITCH_ON_DISABLED    # transitions 0 and 1 happen at power-on
             self._controlword = 0
             self._setpoint_raw = 0
@@ -503,6 +504,7 @@ class SimEpos:
             self._fault_code = 0
             self._error_register = 0
             self._sync_counts: dict[int, int] = {}
+            self._tpdo_structs: dict[tuple, struct.Struct] = {}
             self._pending_sync_rpdo: list[Any] = []
             self.transitions: list[int] = []
             self._in_rpdo = False
@@ -538,28 +540,36 @@ class SimEpos:
             else self._dict[index][sub]
         return obj.decode_raw(self.node.get_data(index, sub))
 
+    def _refresh_settings(self) -> None:
+        """Cache the drive settings the 1 kHz path needs (re-read after writes to them)."""
+        self._mode_c = int(self._raw(0x6060))
+        self._qs_c = int(self._raw(0x605A))
+        self._limit_c = self._raw(0x3001 if self.family == "epos4" else 0x6410, 2) / 1000.0
+        if self.family == "epos4":
+            kt = self._raw(0x3001, 5)
+            self._scale_c = self._raw(0x6076) / kt / 1000.0 if kt else 0.0
+        else:
+            self._scale_c = 1.0 / 1000.0
+
+    _SETTINGS = frozenset({0x6060, 0x605A, 0x3001, 0x6410, 0x6076})
+
     def _mode(self) -> int:
-        return int(self._raw(0x6060))
+        return self._mode_c
 
     def _in_current_mode(self) -> bool:
-        return self._mode() == CURRENT_MODE[self.family]
+        return self._mode_c == CURRENT_MODE[self.family]
 
     def current_limit(self) -> float:
         """A: the drive's own output current limit (0x3001:02 / 0x6410:02)."""
-        return self._raw(0x3001 if self.family == "epos4" else 0x6410, 2) / 1000.0
+        return self._limit_c
 
     def setpoint_to_current(self, raw: int) -> float:
-        """A for a raw setpoint: EPOS4 ‰ of 0x6076 (divided by kt 0x3001:05); EPOS2 mA."""
-        if self.family == "epos4":
-            kt = self._raw(0x3001, 5)
-            return raw / 1000.0 * self._raw(0x6076) / kt if kt else 0.0
-        return raw / 1000.0
+        """A for a raw setpoint: EPOS4 ‰ of 0x6076 (· 0x6076 / 0x3001:05); EPOS2 mA."""
+        return raw * self._scale_c
 
     def current_to_setpoint(self, amps: float) -> int:
         """Inverse of ``setpoint_to_current`` (rounded to the wire's integer)."""
-        if self.family == "epos4":
-            return int(round(amps * 1000.0 * self._raw(0x3001, 5) / self._raw(0x6076)))
-        return int(round(amps * 1000.0))
+        return int(round(amps / self._scale_c)) if self._scale_c else 0
 
     # -- network ----------------------------------------------------------------------------
     def attach(self, network: canopen.Network) -> None:
@@ -618,7 +628,7 @@ class SimEpos:
         stopped = qd == 0.0
         with self._lock:
             if (self.state is State.QUICK_STOP_ACTIVE and stopped
-                    and 1 <= int(self._raw(0x605A)) <= 4):
+                    and 1 <= self._qs_c <= 4):
                 self._set_state(State.SWITCH_ON_DISABLED, 12, t_ns)   # quick stop done
         ma = int(round(amps * 1000.0))
         vals: dict[tuple[int, int], Any] = {
@@ -700,6 +710,8 @@ class SimEpos:
 
     def _after_write(self, index: int, subindex: int) -> None:
         """After a write is stored: reload PDO maps, run the drive logic."""
+        if index in self._SETTINGS:
+            self._refresh_settings()
         if 0x1400 <= index <= 0x17FF:
             self._reload_pdos(("rpdo", (index & 0x1FF) + 1))
         elif 0x1800 <= index <= 0x1BFF:
@@ -728,7 +740,7 @@ class SimEpos:
     def _apply_controlword(self, cw: int, t_ns: int) -> None:
         with self._lock:
             prev, self._controlword = self._controlword, cw
-            new, fired = drive_step(self.state, cw, prev, int(self._raw(0x605A)))
+            new, fired = drive_step(self.state, cw, prev, self._qs_c)
             if 15 in fired:
                 self._clear_fault()
             for tr in fired:
@@ -771,10 +783,14 @@ class SimEpos:
             self._in_rpdo = True
             cw = sp = None
             try:
+                store = self.node.data_store
                 for var in pdo_map.map:
                     byte0 = var.offset // 8
                     chunk = data[byte0:byte0 + len(var.od) // 8]
-                    self.node.set_data(var.index, var.subindex, chunk)
+                    if var.index in self._SETTINGS:       # validated + cached: full path
+                        self.node.set_data(var.index, var.subindex, chunk)
+                    else:                                 # plain process data: just store it
+                        store.setdefault(var.index, {})[var.subindex] = chunk
                     if var.index == 0x6040:
                         cw = var.od.decode_raw(chunk)
                     elif (var.index, var.subindex) == sp_key:
@@ -806,12 +822,22 @@ class SimEpos:
             self._sync_counts[id(m)] = 0
             if live is None:
                 live = self._live(t_ns)
-            for var in m.map:
-                key = (var.index, var.subindex)
-                value = live[key] if key in live else var.od.decode_raw(
-                    self.node.get_data(var.index, var.subindex))
-                var.set_data(var.od.encode_raw(value))
-            self._link.send_message(m.cob_id, bytes(m.data))
+            values = [live[key] if key in live else od_var.decode_raw(self.node.get_data(*key))
+                      for key, od_var in self._tpdo_layout(m)]
+            self._link.send_message(m.cob_id, self._tpdo_struct(m).pack(*values))
+
+    def _tpdo_layout(self, m: Any) -> list[tuple[tuple[int, int], ODVariable]]:
+        return [((v.index, v.subindex), v.od) for v in m.map]
+
+    def _tpdo_struct(self, m: Any) -> struct.Struct:
+        """Packer of a TPDO's mapped objects (entries are whole objects, checked on mapping)."""
+        key = tuple((v.index, v.subindex) for v in m.map)
+        st = self._tpdo_structs.get(key)
+        if st is None:
+            st = struct.Struct("<" + "".join(v.od.STRUCT_TYPES[v.od.data_type].format.lstrip("<")
+                                             for v in m.map))
+            self._tpdo_structs[key] = st
+        return st
 
     def _on_sdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
         if self.node.nmt.state != "STOPPED":          # CiA 301: no SDO in STOPPED
