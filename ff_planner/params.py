@@ -211,4 +211,8 @@ def load_params(source: Union[str, Path, Mapping[str, Any]]) -> Params:
 
 def friction_scaled(params: Params, scale: Mapping[str, float]) -> Params:
     """A copy with friction parameters multiplied: ``{"pc": 1.2}`` is Coulomb friction +20 %."""
+    unknown = [k for k in scale if k not in params.keys()]
+    if unknown:
+        raise ParameterError(f"unknown parameter(s) {unknown} for model '{params.model}'; "
+                             f"valid keys are: {', '.join(params.keys())}")
     return params.replace(**{k: getattr(params, k) * float(s) for k, s in scale.items()})
