@@ -50,6 +50,9 @@ LM_SETTINGS = {
 }
 
 
+WIDE_SPREAD = 0.8   # every other chunk of random starts uses ±0.8·i_max
+
+
 def lm_settings(k: int) -> dict:
     """The LM settings for k uncertain parameters."""
     return LM_SETTINGS[1] if k <= 1 else LM_SETTINGS[3]
@@ -129,11 +132,14 @@ def _queue_finite_change(sw: _Sweep, uncertain: Sequence[str], changes=CHANGES) 
 
 
 def _collect_finite_change(plan: list, q: np.ndarray, v: np.ndarray, qf: float) -> dict:
+    """rest_error is None where the arm never stops (negative viscous friction outruns
+    Coulomb friction at that speed)."""
     out: dict = {}
     for name, ch, i_tf, i_rest in plan:
+        rest = float(q[i_rest] - qf)
         out.setdefault(name, {})[f"{ch * 100:+.0f}%"] = {
-            "rest_error": float(q[i_rest] - qf), "tf_error": float(q[i_tf] - qf),
-            "qd_tf": float(v[i_tf])}
+            "rest_error": rest if math.isfinite(rest) else None,
+            "tf_error": float(q[i_tf] - qf), "qd_tf": float(v[i_tf])}
     return out
 
 
@@ -296,7 +302,11 @@ def plan_robust_1dof(request: PlanRequest, progress: Progress = None,
             block, warm_block = warm_block, None
         else:                            # seeded random starts, drawn chunk by chunk
             m = min(CHUNK, total - drawn)
-            block = rng.uniform(-spread, spread, (m, n))
+            # even chunks: the spread tuned on the paper's task; odd chunks: a wide one, which
+            # finds plans sooner for longer or slower moves
+            wide = (drawn // CHUNK) % 2 == 1
+            s_c = WIDE_SPREAD * prob.i_max if wide else spread
+            block = rng.uniform(-s_c, s_c, (m, n))
             drawn += m
         done, st, it, f, kk = prob.run(block, stop_first=not sampled)
         tried += done
@@ -494,3 +504,33 @@ def warmup() -> float:
 
     simulate(Arm1DofParams(), CurrentProfile.uniform([1.0, -1.0], 1.0), [0.0], trajectory=True)
     return time.perf_counter() - t0
+
+
+def smallest_robust_steps(request: PlanRequest, n_max: int = 12,
+                          progress: Progress = None) -> tuple[Optional[PlanResult], list[dict]]:
+    """The smallest N (from 2 + k up to ``n_max``) that admits a truly robust plan.
+
+    Returns (the first robust PlanResult or None, evidence): one row per N tried with the starts
+    run, whether a robust plan was found, and the best residual seen — so that "no robust plan
+    with N steps" is stated with what was tried. Each N gets ``request.starts`` starts and
+    ``request.time_budget`` seconds.
+    """
+    from dataclasses import replace as dc_replace
+
+    evidence = []
+    k = len(request.uncertain)
+    for n in range(max(1, k + 2 if request.steps is None else request.steps), n_max + 1):
+        r = plan_robust_1dof(dc_replace(request, steps=n), progress)
+        evidence.append({"steps": n, "robust": bool(r.robust and r.success),
+                         "starts_tried": r.starts_tried, "solve_time_s": r.solve_time,
+                         "error_code": r.error_code,
+                         "max_abs_derivative": (r.extra.get("verification") or {}).get(
+                             "max_abs_derivative")})
+        if r.success and r.robust:
+            return r, evidence
+    return None, evidence
+
+
+def warmup_main() -> None:
+    """Console entry point: compile/cache the 1-DOF kernels now and print how long it took."""
+    print(f"ff_planner 1-DOF kernels ready in {warmup():.2f} s")
