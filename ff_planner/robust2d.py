@@ -438,3 +438,14 @@ def _plan_link2_moving(request: PlanRequest, p: Scara2Params, progress: Progress
     if res is not None:
         return res
     return plan_least_worst(request, p, progress, t_start)
+
+
+def warm_up() -> float:
+    """Compile/load every kernel the 2-DOF planner uses (scara2, arm1dof, robust1d's solver)
+    by planning a short task; returns the seconds it took. For install time or node start."""
+    t = time.perf_counter()
+    scara2.warm_up()
+    req = PlanRequest(model="scara2", q0=(-0.5, 0.0), qf=(0.5, 0.0), tf=1.0,
+                      uncertain=scara2.FRICTION_NAMES, starts=32, seed=0, time_budget=600)
+    plan_robust_scara2(req)
+    return time.perf_counter() - t

@@ -718,3 +718,17 @@ def forward_dynamics(params: Scara2Params, q: Sequence[float], qd: Sequence[floa
     M = np.array([[A, B * c], [B * c, C]])
     rhs = np.array([T1 - F1 - B * s * w2 ** 2, T2 - F2 + B * s * w1 ** 2])
     return np.linalg.solve(M, rhs)
+
+
+def warm_up() -> float:
+    """Compile (or load from numba's on-disk cache) every kernel of this module; returns the
+    seconds it took. Call at install time or node start so no user request pays for it."""
+    import time as _time
+
+    t = _time.perf_counter()
+    p = Scara2Params()
+    prof = CurrentProfile.uniform([[3.0, 1.0], [-2.0, 0.5], [0.0, 0.2]], 0.4)
+    _simulate_raw(p, prof, np.array([-0.5, 0.0]), np.zeros(2), trajectory=True, settle=True)
+    sensitivities_scara2(p, prof, [-0.5, 0.0], ("pc1",))
+    advance(p, [0.0, 0.0], [0.0, 0.0], [1.0, 1.0], 1e-3)
+    return _time.perf_counter() - t
