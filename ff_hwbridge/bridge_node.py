@@ -67,6 +67,8 @@ PARAMS: dict[str, tuple[Any, str]] = {
     "sync_period": (0.001, "s, SYNC period"),
     "heartbeat_producer_ms": (10, "ms, written to each drive's 0x1017"),
     "heartbeat_timeout": (0.1, "s, heartbeat consumer timeout -> safe state"),
+    "master_heartbeat_ms": (0, "ms, > 0: produce a master heartbeat the drives consume (0x1016)"),
+    "master_node_id": (127, "node id of the master's heartbeat"),
     "setpoint_timeout": (0.5, "s, no fresh setpoint during a motion -> safe state"),
     "spin_margin": (0.0003, "s, the scheduler sleeps until this long before a stamp, then spins"),
     "scheduler_rt_priority": (0, "1..99: SCHED_FIFO for the scheduler thread (needs CAP_SYS_NICE); 0 = off"),
@@ -94,7 +96,8 @@ def _flat_config(get) -> dict[str, Any]:
                     "channel": get("bus_channel") or "ff-bridge", "bitrate": int(get("bus_bitrate"))},
             "joints": joints, "sync_period": get("sync_period"),
             "heartbeat_producer_ms": int(get("heartbeat_producer_ms")),
-            "heartbeat_timeout": get("heartbeat_timeout"), "setpoint_timeout": get("setpoint_timeout"),
+            "heartbeat_timeout": get("heartbeat_timeout"),
+            "master_heartbeat_ms": int(get("master_heartbeat_ms")), "master_node_id": int(get("master_node_id")), "setpoint_timeout": get("setpoint_timeout"),
             "spin_margin": get("spin_margin"), "scheduler_rt_priority": int(get("scheduler_rt_priority"))}
 
 

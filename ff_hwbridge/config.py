@@ -6,6 +6,9 @@ Example (``config/bridge_epos4_1dof.yaml``)::
     sync_period: 0.001            # s, SYNC producer period (TPDOs come on every SYNC)
     heartbeat_producer_ms: 10     # ms, written to each drive's 0x1017
     heartbeat_timeout: 0.04       # s, no heartbeat this long -> safe state
+    master_heartbeat_ms: 0        # ms, > 0: the master produces a heartbeat (id master_node_id,
+                                  #   default 127) and each drive consumes it (0x1016:01, timeout
+                                  #   3x): if the bridge process dies, the drives stop by themselves
     setpoint_timeout: 0.5         # s, no fresh setpoint this long during a motion -> safe state
     spin_margin: 0.0003           # s, the setpoint scheduler sleeps until this long before a stamp
     scheduler_rt_priority: 0      # 1..99: SCHED_FIFO for the scheduler thread (needs CAP_SYS_NICE)
@@ -96,6 +99,8 @@ class BridgeConfig:
     joints: tuple[JointConfig, ...]
     sync_period: float = 0.001
     heartbeat_producer_ms: int = 10
+    master_heartbeat_ms: int = 0
+    master_node_id: int = 127
     heartbeat_timeout: float = 0.1
     setpoint_timeout: float = 0.5
     feedback_timeout: float = 0.0
@@ -129,6 +134,14 @@ class BridgeConfig:
         if not (isinstance(self.heartbeat_producer_ms, int) and 0 < self.heartbeat_producer_ms <= 65535):
             raise ConfigError("heartbeat_producer_ms must be an integer 1..65535 ms, got "
                               f"{self.heartbeat_producer_ms!r}")
+        if not (isinstance(self.master_heartbeat_ms, int) and 0 <= self.master_heartbeat_ms <= 20000):
+            raise ConfigError("master_heartbeat_ms must be an integer 0..20000 ms (0 = off), got "
+                              f"{self.master_heartbeat_ms!r}")
+        if not (isinstance(self.master_node_id, int) and 1 <= self.master_node_id <= 127):
+            raise ConfigError(f"master_node_id must be an integer 1..127, got {self.master_node_id!r}")
+        if self.master_heartbeat_ms and self.master_node_id in [j.node_id for j in self.joints]:
+            raise ConfigError(f"master_node_id {self.master_node_id} is also a drive's node id; "
+                              "choose an unused id for the master's heartbeat")
         if self.heartbeat_timeout * 1000.0 <= self.heartbeat_producer_ms:
             raise ConfigError(f"heartbeat_timeout ({self.heartbeat_timeout} s) must exceed the "
                               f"producer time ({self.heartbeat_producer_ms} ms); use 2-4x of it")
@@ -220,7 +233,7 @@ def config_from_mapping(data: Mapping[str, Any]) -> BridgeConfig:
             if not isinstance(v, int) or isinstance(v, bool) or not 0 <= v <= 99:
                 raise ConfigError(f"scheduler_rt_priority must be an integer 0..99 (0 = off), got {v!r}")
             kw[f.name] = v
-        elif f.name == "heartbeat_producer_ms":
+        elif f.name in ("heartbeat_producer_ms", "master_heartbeat_ms", "master_node_id"):
             if isinstance(v, float) and v.is_integer():
                 v = int(v)
             kw[f.name] = v

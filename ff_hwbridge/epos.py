@@ -136,6 +136,7 @@ class EposMaster:
         self._monitor: Optional[threading.Thread] = None
         self._monitor_stop = threading.Event()
         self._sync_running = False
+        self._master_hb: Any = None
         self._configured = False
         self.events: deque[tuple[float, str]] = deque(maxlen=200)   # (monotonic s, text)
         self.tx_errors = 0
@@ -220,6 +221,7 @@ class EposMaster:
                     self._send_rpdo(d, cia402.CONTROLWORD[cia402.Command.DISABLE_VOLTAGE], 0)
         finally:
             self.stop_sync()
+            self._stop_master_heartbeat()
             for d in self._drives:
                 d.operational = False
             try:
@@ -236,6 +238,7 @@ class EposMaster:
         """SDO/PDO set-up of every drive, NMT start, SYNC and monitoring. EposError on failure."""
         if self.network is None:
             self.connect()
+        self._start_master_heartbeat()     # before the drives start watching it
         for d in self._drives:
             self._configure_drive(d)
         self.start_sync()
@@ -283,6 +286,9 @@ class EposMaster:
             raise EposError(f"node {nid}: drive shows mode {shown} after 0x6060 = {mode}; "
                             f"is it an {fam.upper()} in a state that accepts the mode?")
         sdo_write(0x1017, None, self.config.heartbeat_producer_ms, "0x1017 producer heartbeat (ms)")
+        if self.config.master_heartbeat_ms:
+            consumer = (self.config.master_node_id << 16) | (3 * self.config.master_heartbeat_ms)
+            sdo_write(0x1016, 1, consumer, "0x1016:01 consumer heartbeat time (master)")
         if d.cfg.read_motor_data:
             if fam == "epos4":
                 nom = sdo_read(0x3001, 1, "0x3001:01 nominal current (mA)")
@@ -335,7 +341,20 @@ class EposMaster:
         pdo_map.enabled = True
         pdo_map.save()
 
-    # --- SYNC and monitoring -----------------------------------------------------------------
+    # --- master heartbeat, SYNC and monitoring ------------------------------------------------
+    def _start_master_heartbeat(self) -> None:
+        """Produce the master's heartbeat (OPERATIONAL) when ``master_heartbeat_ms`` > 0."""
+        if self.config.master_heartbeat_ms and self._master_hb is None and self.network is not None:
+            self._master_hb = self.network.send_periodic(
+                0x700 + self.config.master_node_id, [0x05], self.config.master_heartbeat_ms / 1000.0)
+
+    def _stop_master_heartbeat(self) -> None:
+        if self._master_hb is not None:
+            try:
+                self._master_hb.stop()
+            finally:
+                self._master_hb = None
+
     def start_sync(self) -> None:
         """Start the SYNC producer (``sync_period``)."""
         if self.network is not None and not self._sync_running:

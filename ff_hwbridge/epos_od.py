@@ -4,7 +4,8 @@ Written from the CiA 301/402 object definitions and maxon's documented object li
 no EDS is copied. The master (``epos.py``) uses it for its RemoteNodes; a simulated drive can use
 it for a LocalNode (``build_object_dictionary(family, units=...)`` fills the motor data).
 
-Objects: 0x1000 device type, 0x1001 error register, 0x1017 producer heartbeat (ms),
+Objects: 0x1000 device type, 0x1001 error register, 0x1016:01 consumer heartbeat time
+((node id << 16) | ms), 0x1017 producer heartbeat (ms),
 0x1400/0x1600 RPDO1, 0x1800/0x1A00 TPDO1, 0x1801/0x1A01 TPDO2, 0x6040 controlword,
 0x6041 statusword, 0x6060/0x6061 modes of operation (+display), 0x6064 position actual (inc),
 0x606C velocity actual (rpm), 0x6076 motor rated torque (µNm), 0x6071 target torque (per mille),
@@ -84,6 +85,9 @@ def build_object_dictionary(family: str = "epos4", node_id: int = 1,
     od.add_object(_var("Device type", 0x1000, 0, UNSIGNED32, "ro", 0x00020192))
     od.add_object(_var("Error register", 0x1001, 0, UNSIGNED8, "ro", 0))
     od.add_object(_var("Producer heartbeat time", 0x1017, 0, UNSIGNED16, "rw", 0))
+    _record(od, "Consumer heartbeat time", 0x1016, [
+        (1, "Consumer heartbeat time 1", UNSIGNED32, "rw", 0),    # (node id << 16) | time ms
+    ])
     _pdo_comm(od, "Receive PDO 1 parameter", 0x1400, 0x200 + node_id, 255)
     _pdo_map(od, "Receive PDO 1 mapping", 0x1600, [0x60400010])
     _pdo_comm(od, "Transmit PDO 1 parameter", 0x1800, 0x180 + node_id, 255)

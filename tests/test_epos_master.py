@@ -333,3 +333,25 @@ def test_lost_quick_stop_is_repeated_and_lost_setpoint_heals(rig):
     time.sleep(0.02)
     drives[0].drop_rx = False
     assert _wait(lambda: drives[0].setpoint_raw == 200)      # ... and healed by the refresh
+
+
+def test_master_heartbeat_is_produced_and_consumed_by_the_drive():
+    channel = f"ff-test-{uuid.uuid4().hex[:8]}"
+    cfg = _config(channel, master_heartbeat_ms=20)
+    drive = MiniEpos(channel, 1, cfg.joints[0].units)
+    seen = []
+    drive.net.subscribe(0x77F, lambda cid, data, ts: seen.append(bytes(data)))
+    master = EposMaster(cfg)
+    master.connect()
+    try:
+        master.configure()
+        assert int(drive.node.sdo[0x1016][1].raw) == (127 << 16) | 60
+        assert _wait(lambda: len(seen) >= 3)
+        assert set(seen) == {b"\x05"}
+        master.disconnect()
+        n = len(seen)
+        time.sleep(0.1)
+        assert len(seen) <= n + 1                              # stops with the master
+    finally:
+        master.disconnect()
+        drive.close()
