@@ -233,7 +233,9 @@ class Stack:
         try:
             sim = {"model": model, "host_hub": True, "hub_port": self.hub_port,
                    "node_ids": list(range(1, nj + 1)), "q0": q0, "counts_per_rev": COUNTS_PER_REV,
-                   "nominal_current": NOMINAL_CURRENT, "ground_truth_rate": 100.0}
+                   "nominal_current": NOMINAL_CURRENT, "ground_truth_rate": 100.0,
+                   # arm1dof.advance is exact for any step; the SCARA integrates numerically
+                   "physics_step": 1e-3 if model == "arm1dof" else 1e-4}
             sim.update({f"true_params.{k}": v for k, v in true.items()})
             sim.update(o.sim_overrides)
             pf = _params_file(self.run_dir / "sim_driver.yaml", "ff_sim_driver", sim)
