@@ -114,18 +114,7 @@ def master(sim):
     m = make_master(sim)
     try:
         m.configure()
-        for attempt in range(2):
-            # One retry: a PRE-OPERATIONAL heartbeat already in flight when the master sends NMT
-            # start reaches it after it marked the node operational, and it latches "left
-            # OPERATIONAL" (a master-side race, reported; seen in ~1 of 10 set-ups over the hub).
-            try:
-                m.enable()
-                if m.wait_for_state(State.OPERATION_ENABLED, 2.0):
-                    break
-            except EposError:
-                pass
-            assert attempt == 0 and "left OPERATIONAL" in str(m.fault_reason), m.fault_reason
-            m.fault_reset()                      # configures the node again, re-enables
+        m.enable()
         assert m.wait_for_state(State.OPERATION_ENABLED, 2.0), m.fault_reason
         yield m
     finally:
@@ -158,16 +147,7 @@ FAULTS = {
 }
 
 
-# With every frame TO the drive lost, the master's quick-stop RPDO is lost too; EposMaster sends
-# an RPDO only when the controlword/setpoint changes, so once frames flow again it never repeats
-# it and the drive keeps the last current. Strict xfail: passes again once the master re-sends
-# the safe RPDO while the reported state differs from its target.
-MASTER_RESENDS = pytest.mark.xfail(strict=True, reason="EposMaster does not repeat a lost "
-                                   "quick-stop RPDO (drive keeps its last current)")
-
-
-@pytest.mark.parametrize("fault", [pytest.param(f, marks=MASTER_RESENDS) if f == "drop_rx" else f
-                                   for f in FAULTS])
+@pytest.mark.parametrize("fault", list(FAULTS))
 def test_fault_to_safe_state_and_recovery(sim, master, fault):
     inject, clear, reason_re, detect_after = FAULTS[fault]
     master.command_currents([1.5])
@@ -183,7 +163,8 @@ def test_fault_to_safe_state_and_recovery(sim, master, fault):
     time.sleep(0.05)                        # the master's reaction happens while the fault lasts
     if clear:
         assert sim.cmd(clear).startswith("ok")
-    # the drive ends at zero current (quick stop / fault), once frames flow again
+    # the drive ends at zero current (quick stop / fault); with frames TO the drive lost, once
+    # they flow again (the master repeats its quick stop until the drive follows)
     assert wait_for(lambda: sim.currents() == [0.0], 1.0), sim.cmd("state")
     # recovery
     time.sleep(0.05)
