@@ -150,7 +150,8 @@ def main() -> int:
     arrivals = rec["setpoints"]["1"]
     # Match the stream in the drive's arrival log, in order, by raw value. The enable sequence
     # sends RPDOs (setpoint 0) before it; anything else the drive received that the scheduler did
-    # not send (e.g. a repeated older setpoint) is counted as "unexpected".
+    # not schedule (the master's periodic RPDO refresh, or a repeated older setpoint) is counted
+    # as "extra".
     units = master.units[0]
     want = [units.amps_to_setpoint(x, limit=10.0) for x in pattern]
     raws = [r[2] for r in arrivals]
@@ -181,7 +182,7 @@ def main() -> int:
                                  if stamps[k] in sent_at])
         result.update({
             "setpoints_received": len(matched), "lost": lost,
-            "unexpected_setpoints_inside_stream": unexpected,
+            "extra_rpdos_inside_stream": unexpected,
             "switch_error_us": pct(err_us),
             "jitter_us": pct(err_us - np.median(err_us)) if err_us.size else {},
             "sent_error_us": sent_stats,
