@@ -231,7 +231,7 @@ def parser() -> argparse.ArgumentParser:
     b.add_argument("--serial", action="store_true", help="no Dask: solve in this process")
     b.add_argument("--no-continuation", action="store_true",
                    help="solve every task cold (multistart), ignoring neighbours")
-    b.add_argument("--local-starts", type=int, default=8,
+    b.add_argument("--local-starts", type=int, default=16,
                    help="continuation: starts from the neighbour's currents and perturbations of them")
     b.add_argument("--roots", type=int, default=1, help="cold-started subtrees (more early parallelism)")
     b.add_argument("--dashboard", action="store_true", help="LocalCluster dashboard on 127.0.0.1")
