@@ -393,6 +393,13 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
             error_code=code, starts_tried=starts, iterations=iters, solve_time=elapsed)
     (ok_flag, _), profile, sim, sens, frac = best
     robust = ok_flag == 0
+    refined = None
+    if robust and request.objective == "robust-sampled" and names1:
+        refined = _refine(request, p, holds[0], profile, names, names1, deadline, progress,
+                          t_start)
+        if refined is not None:
+            profile, sim, sens, frac = refined
+    elapsed = time.perf_counter() - t_start
     msg = (f"robust plan: joint 2 held by stiction (holds down to {100 * (1 - frac):.0f} % "
            f"of nominal joint-2 friction), max |dq/dp| = "
            f"{max(abs(v) for k, v in sens.items() if _is_pos(k)):.2g}")
@@ -405,7 +412,31 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
         sensitivities={k: v for k, v in sens.items() if _is_pos(k)},
         starts_tried=starts, iterations=iters, solve_time=elapsed,
         extra={"method": "hold-link2", "hold_fraction": frac, "candidates": candidates,
-               "joint1_inertia": p1.J})
+               "joint1_inertia": p1.J, "sampled_refinement": refined is not None})
+
+
+def _refine(request, p, hp, profile, names, names1, deadline, progress, t_start):
+    """robust-sampled: spend the spare freedom on smaller finite-change errors; returns
+    (profile, sim, sens, frac) of the refined plan if it still verifies, else None."""
+    from ._robust2d_refine import refine_sampled
+
+    q0 = np.asarray(request.q0, float)
+    qf = np.asarray(request.qf, float)
+    x = refine_sampled(hp, profile.currents[:, 0].copy(), names1, deadline, request.tol)
+    if x is None:
+        return None
+    prof1 = CurrentProfile(profile.step_times, x.reshape(-1, 1), request.tf, request.coast)
+    I2, frac = joint2_hold_currents(p, prof1, q0)
+    new = CurrentProfile(profile.step_times, np.column_stack([x, I2]), request.tf, request.coast)
+    sim = scara2._simulate_raw(p, new, q0, np.zeros(2))
+    sens = scara2.sensitivities_scara2(p, new, q0, names, method="complex")
+    smax = max(abs(v) for k, v in sens.items() if _is_pos(k))
+    ok = (float(np.max(np.abs(sim.q_f - qf))) <= request.tol and smax <= request.tol
+          and all(sim.stuck_tf) and frac > 0.0)
+    if progress:
+        progress({"stage": "refine-sampled", "robust": ok, "hold_fraction": frac,
+                  "elapsed": time.perf_counter() - t_start})
+    return (new, sim, sens, frac) if ok else None
 
 
 CHUNK = 16   # joint-1 starts per compiled call (budget checked between calls)

@@ -64,3 +64,22 @@ def test_tiny_budget_reports_clearly():
     res = plan_robust_scara2(req)
     assert not res.success and res.error_code in ("NO_ROBUST_PLAN", "TIME_BUDGET_EXHAUSTED")
     assert res.message
+
+
+def test_robust_sampled_keeps_true_robustness_and_reduces_sampled_error(plan):
+    from ff_planner._robust2d_refine import rest_errors, sample_scales
+    from ff_planner.robust2d import _Joint1Problem, joint1_params
+
+    req0, res0, _ = plan
+    req = PlanRequest(model="scara2", q0=(-0.5, 0.0), qf=(0.5, 0.0), tf=1.0,
+                      uncertain=scara2.FRICTION_NAMES, starts=100000, seed=1, time_budget=60,
+                      objective="robust-sampled")
+    res = plan_robust_scara2(req)
+    assert res.success and res.robust
+    assert max(abs(v) for v in res.sensitivities.values()) <= 1e-6
+    if res.extra.get("sampled_refinement"):
+        hp = _Joint1Problem(joint1_params(P), -0.5, 0.5, 1.0, 0.05, 8, ("pv", "pc", "pt"))
+        sc = sample_scales(("pv", "pc", "pt"))
+        e_new = rest_errors(hp, res.profile.currents[:, 0].copy(), sc)
+        e_old = rest_errors(hp, res0.profile.currents[:, 0].copy(), sc)
+        assert e_new @ e_new < e_old @ e_old
