@@ -43,20 +43,20 @@ def workspace(n: int) -> np.ndarray:
     return np.zeros((N_ROWS, row_len(n)))
 
 
-@njit(cache=True, nogil=True)
+@njit("void(float64[:, ::1], int64, float64)", cache=True, nogil=True)
 def _const(W, o, val):
     for k in range(W.shape[1]):
         W[o, k] = 0.0
     W[o, 0] = val
 
 
-@njit(cache=True, nogil=True)
+@njit("void(float64[:, ::1], int64, int64)", cache=True, nogil=True)
 def _copy(W, o, x):
     for k in range(W.shape[1]):
         W[o, k] = W[x, k]
 
 
-@njit(cache=True, nogil=True)
+@njit("void(float64[:, ::1], int64, int64, int64, float64, float64, float64)", cache=True, nogil=True)
 def _lin(W, o, x, y, al, be, ga):
     """o = al·x + be·y + ga."""
     for k in range(W.shape[1]):
@@ -64,7 +64,7 @@ def _lin(W, o, x, y, al, be, ga):
     W[o, 0] += ga
 
 
-@njit(cache=True, nogil=True)
+@njit("void(float64[:, ::1], int64, int64, int64, int64)", cache=True, nogil=True)
 def _mul(W, o, x, y, n):
     """o = x·y (o may alias x or y)."""
     x0 = W[x, 0]
@@ -81,7 +81,7 @@ def _mul(W, o, x, y, n):
     W[o, 0] = x0 * y0
 
 
-@njit(cache=True, nogil=True)
+@njit("void(float64[:, ::1], int64, int64, float64, float64, float64, int64)", cache=True, nogil=True)
 def _uni(W, o, x, g0, g1, g2, n):
     """o = g(x) given g, g', g'' at x's value (o may alias x)."""
     base = 4 + n
@@ -95,7 +95,7 @@ def _uni(W, o, x, g0, g1, g2, n):
     W[o, 0] = g0
 
 
-@njit(cache=True, nogil=True)
+@njit("void(float64[:, ::1], int64)", cache=True, nogil=True)
 def _free(W, n):
     """(Q, V) ← state after TAU of v' = A·v + B."""
     _mul(W, Z_, A_, TAU_, n)
@@ -117,7 +117,7 @@ def _free(W, n):
     _lin(W, V_, V_, TMP3_, 1.0, 1.0, 0.0)
 
 
-@njit(cache=True, nogil=True)
+@njit("float64(float64[:, ::1], int64)", cache=True, nogil=True)
 def _cross_tau(W, n):
     """TAU ← time until V reaches zero under v' = A·v + B; returns its value (inf if never)."""
     v = W[V_, 0]
@@ -138,7 +138,7 @@ def _cross_tau(W, n):
     return W[TAU_, 0]
 
 
-@njit(cache=True, nogil=True)
+@njit("float64(float64[:, ::1], int64, float64[::1], float64)", cache=True, nogil=True)
 def _radius_of(W, r, pw, margin):
     """Relative parameter change (first order) that moves row r's value by ``margin``."""
     s = 0.0
@@ -149,7 +149,7 @@ def _radius_of(W, r, pw, margin):
     return abs(margin) / s
 
 
-@njit(cache=True, nogil=True)
+@njit("float64(float64[:, ::1], int64, int64, float64, float64, float64, float64, float64, float64[::1], float64, boolean, boolean)", cache=True, nogil=True)
 def _phase(W, n, j, c, J, torque, t_start, t_end, pw, kink, rest_phase, track_end):
     """Advance the Taylor state (TIME, Q, V) under constant torque from t_start until t_end.
 

@@ -2,15 +2,17 @@
 
 Unknowns: the N step currents I (A), box |I| ≤ i_max (projected steps). Equations (all in rad):
 
-    r_0     = q_rest(I) − q_goal                       (rest position = q(tf) once stopped)
-    r_i     = ∂q_rest/∂p_i · p_i     for each uncertain p_i (scaled derivative)
-    r_pen   = w · max(0, |q̇(tf − coast)| − v_bound)   (one-sided: at rest before tf − margin)
+    r_0     = wq · (q(tf) − q_goal)
+    r_i     = ∂q(tf)/∂p_i · p_i     for each uncertain p_i (scaled derivative)
+    r_pen   = w · max(0, |q̇(tf − coast)| − v_bound)   (one-sided rest condition)
 
-q is the position at tf; v_bound is the coast-entry speed from which zero current stops the arm
-a margin before tf, so once the penalty is zero the arm is at rest at tf on both sides of the
-nominal parameters (q(tf) = the rest position, q̇(tf) = 0 exactly). Jacobians are exact (``_deriv1d``). The
-step is the minimum-norm LM step δ = −Jᵀ(JJᵀ + λI)⁻¹r (m = k+2 rows ≤ N columns). Starts whose
-residual is still large after a few iterations are abandoned.
+v_bound is the coast-entry speed from which zero current stops the arm a margin before tf, so
+once the penalty is zero the arm is at rest at tf on both sides of the nominal parameters
+(q(tf) = the rest position, q̇(tf) = 0 exactly). Jacobians are exact (``_deriv1d``: forward mode
+with the mixed ∂²q/∂p∂I). The step is the minimum-norm LM step δ = −Jᵀ(JJᵀ + λI)⁻¹r
+(m = k+2 rows ≤ N columns), projected onto the box. Starts whose residual is still large after a
+few iterations are abandoned; a converged start whose plan lies within MIN_KINK of a
+non-smooth point is reported as KINK, not OK.
 """
 from __future__ import annotations
 
@@ -25,7 +27,7 @@ from ._deriv1d import NP, Q_, VC_, hd_sim
 OK, NO_CONVERGENCE, ABANDONED, KINK, BAD_START = 0, 1, 2, 3, 4
 
 
-@njit(cache=True, nogil=True)
+@njit("Tuple((boolean, float64, float64, float64, float64))(float64, float64, float64, float64, float64, float64[::1], float64, float64, float64, float64[::1], float64[::1], float64[::1], float64[:, ::1], float64, float64, float64, int64, float64[::1], float64[:, ::1])", cache=True, nogil=True)
 def residual(J, c, pv, pc, pt, times, tf, q0, goal, pw, pvals, cur, W, vb, wpen, wq,
              pen_mode, r, Jm):
     """Fill r (m,) and Jm (m, N).
@@ -117,46 +119,26 @@ def _lm_step(Jm, r, lam, A, y, delta):
 
 
 @njit(cache=True, nogil=True)
-def solve_start(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals, i_max, I, W, vb, wpen,
-                wq, lam0, tol_q, tol_d, min_kink, max_iter, abandon_iter, abandon_norm,
-                max_reject, mode, beta, lam_down, lam_up, flip, pw, r, Jm, r2, Jm2, A, y, delta,
-                trial):
+def solve_start(J, c, pv, pc, pt, times, tf, q0, goal, pvals, i_max, I, W, vb, wpen, wq, lam0,
+                tol_q, tol_d, min_kink, max_iter, abandon_iter, abandon_norm, max_reject,
+                lam_down, lam_up, pw, r, Jm, r2, Jm2, A, y, delta, trial):
     """LM from the currents in I (modified in place). Returns (status, iterations, |r|², kink).
 
-    mode 0: one-sided rest penalty throughout. mode 1: first solve goal + derivative equations
-    alone; if the arm is then not at rest before tf, continue with the rest condition as the
-    equality |v_c| = beta·vb (square system: Gauss–Newton converges fast along the robust set).
+    The rest condition is the one-sided penalty row (pen_mode 0). Work arrays are passed in.
     """
     n = I.shape[0]
-    m = r.shape[0]
-    pen = 0 if mode == 0 else 2
-    vbt = vb
     ok, kink, dmax, qerr, vca = residual(J, c, pv, pc, pt, times, tf, q0, goal, pw, pvals, I,
-                                         W, vbt, wpen, wq, pen, r, Jm)
+                                         W, vb, wpen, wq, 0, r, Jm)
     if not ok:
         return BAD_START, 0, math.inf, kink
     f = _norm2(r)
     lam = lam0
-    it_switch = 0
     for it in range(max_iter):
-        if qerr <= tol_q and dmax <= tol_d:
-            if vca <= vb:
-                if kink >= min_kink:
-                    return OK, it, f, kink
-                return KINK, it, f, kink
-            if pen == 2:
-                # on the robust set but still moving at tf: slide along it to rest
-                pen = 1
-                vbt = beta * vb
-                ok, kink, dmax, qerr, vca = residual(J, c, pv, pc, pt, times, tf, q0, goal,
-                                                     pw, pvals, I, W, vbt, wpen, wq, pen, r,
-                                                     Jm)
-                f = _norm2(r)
-                lam = lam0
-                it_switch = it
-        if pen != 1 and it >= abandon_iter and f > abandon_norm:
-            return ABANDONED, it, f, kink
-        if pen == 1 and it - it_switch >= abandon_iter and f > abandon_norm:
+        if qerr <= tol_q and dmax <= tol_d and vca <= vb:
+            if kink >= min_kink:
+                return OK, it, f, kink
+            return KINK, it, f, kink
+        if it >= abandon_iter and f > abandon_norm:
             return ABANDONED, it, f, kink
         accepted = False
         for _ in range(max_reject):
@@ -167,22 +149,9 @@ def solve_start(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals, i_max, I, W
                 x = I[j] + delta[j]
                 trial[j] = min(max(x, -i_max), i_max)
             ok2, kink2, dmax2, qerr2, vca2 = residual(J, c, pv, pc, pt, times, tf, q0, goal,
-                                                      pw, pvals, trial, W, vbt, wpen, wq,
-                                                      pen, r2, Jm2)
+                                                      pw, pvals, trial, W, vb, wpen, wq, 0, r2,
+                                                      Jm2)
             f2 = _norm2(r2) if ok2 else math.inf
-            if flip and not f2 < f:
-                # |T| has a kink at I = 0: a step that flips a current's sign often fails only
-                # because of it. Try landing on the kink instead (its derivative is the mean).
-                flipped = False
-                for j in range(n):
-                    if I[j] * trial[j] < 0.0:
-                        trial[j] = 0.0
-                        flipped = True
-                if flipped:
-                    ok2, kink2, dmax2, qerr2, vca2 = residual(J, c, pv, pc, pt, times, tf, q0,
-                                                              goal, pw, pvals, trial, W, vbt,
-                                                              wpen, wq, pen, r2, Jm2)
-                    f2 = _norm2(r2) if ok2 else math.inf
             if f2 < f:
                 for j in range(n):
                     I[j] = trial[j]
@@ -204,8 +173,7 @@ def solve_start(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals, i_max, I, W
 @njit(cache=True, nogil=True)
 def multistart(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals, i_max, starts, W, vb,
                wpen, wq, lam0, tol_q, tol_d, min_kink, max_iter, abandon_iter, abandon_norm,
-               max_reject, mode, beta, lam_down, lam_up, flip, stop_first, out_status, out_iter,
-               out_f, out_kink):
+               max_reject, lam_down, lam_up, stop_first, out_status, out_iter, out_f, out_kink):
     """Run LM from each row of ``starts`` (modified in place into the end points).
 
     Stops after the first success when ``stop_first``. Returns the number of starts run.
@@ -228,11 +196,10 @@ def multistart(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals, i_max, start
     delta = np.empty(n)
     trial = np.empty(n)
     for s in range(ns):
-        st, it, f, kink = solve_start(J, c, pv, pc, pt, times, tf, q0, goal, pw, pvals,
-                                      i_max, starts[s], W, vb, wpen, wq, lam0, tol_q, tol_d,
-                                      min_kink, max_iter, abandon_iter, abandon_norm,
-                                      max_reject, mode, beta, lam_down, lam_up, flip, pw, r,
-                                      Jm, r2, Jm2, A, y, delta, trial)
+        st, it, f, kink = solve_start(J, c, pv, pc, pt, times, tf, q0, goal, pvals, i_max,
+                                      starts[s], W, vb, wpen, wq, lam0, tol_q, tol_d, min_kink,
+                                      max_iter, abandon_iter, abandon_norm, max_reject, lam_down,
+                                      lam_up, pw, r, Jm, r2, Jm2, A, y, delta, trial)
         out_status[s] = st
         out_iter[s] = it
         out_f[s] = f

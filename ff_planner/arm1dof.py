@@ -35,7 +35,7 @@ EVENT_NAMES = {EV_BREAKAWAY: "breakaway", EV_STICK: "stick", EV_REVERSE: "revers
 _SEG_COLS = 7
 
 
-@njit(cache=True, nogil=True)
+@njit("UniTuple(float64, 2)(float64, float64, float64, float64, float64)", cache=True, nogil=True)
 def _free(q: float, v: float, tau: float, a: float, b: float):
     """State after τ s of v' = a·v + b from (q, v)."""
     ez, f1, f2 = phi12_value(a * tau)
@@ -43,7 +43,7 @@ def _free(q: float, v: float, tau: float, a: float, b: float):
     return q + v * e1 + b * tau * tau * f2, v * ez + b * e1
 
 
-@njit(cache=True, nogil=True)
+@njit("float64(float64, float64, float64)", cache=True, nogil=True)
 def _cross_time(v: float, a: float, b: float) -> float:
     """Time until v' = a·v + b brings v to zero (inf if never); needs b opposing v."""
     if b == 0.0 or b * v >= 0.0:
@@ -55,7 +55,7 @@ def _cross_time(v: float, a: float, b: float) -> float:
     return -x * psi_value(z)
 
 
-@njit(cache=True, nogil=True)
+@njit("Tuple((float64, float64, float64, int64, int64))(float64, float64, float64, float64, float64, float64, float64, float64, float64, float64[:, ::1], int64, float64[:, ::1], int64, int64)", cache=True, nogil=True)
 def _phase(t, q, v, torque, t_end, J, a, pc, pt, seg, nseg, ev, nev, rest_kind):
     """Advance the state under constant ``torque`` from t to t_end (may be inf).
 

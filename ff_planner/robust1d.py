@@ -44,9 +44,9 @@ CHUNK = 16              # starts per compiled call (the time budget is checked b
 # uniform in ±spread·i_max.
 LM_SETTINGS = {
     1: dict(wpen=0.1, wq=1.0, lam0=1e-2, max_iter=25, abandon_iter=3, abandon_norm=1e-2,
-            max_reject=3, mode=0, beta=0.9, lam_down=0.1, lam_up=5.0, flip=False, spread=0.3),
+            max_reject=3, lam_down=0.1, lam_up=5.0, spread=0.3),
     3: dict(wpen=0.1, wq=3.0, lam0=1e-2, max_iter=25, abandon_iter=4, abandon_norm=1e-3,
-            max_reject=5, mode=0, beta=0.9, lam_down=0.1, lam_up=5.0, flip=False, spread=0.2),
+            max_reject=5, lam_down=0.1, lam_up=5.0, spread=0.2),
 }
 
 
@@ -221,8 +221,7 @@ class _Problem:
         done = _lm1d.multistart(*self.args(), starts, self.W, self.vb, s["wpen"], s["wq"],
                                 s["lam0"], self.tol_q, self.tol_d, MIN_KINK, s["max_iter"],
                                 s["abandon_iter"], s["abandon_norm"], s["max_reject"],
-                                s["mode"], s["beta"], s["lam_down"], s["lam_up"], s["flip"],
-                                stop_first, st, it, f, kk)
+                                s["lam_down"], s["lam_up"], stop_first, st, it, f, kk)
         return done, st, it, f, kk
 
     def profile(self, currents: np.ndarray) -> CurrentProfile:
