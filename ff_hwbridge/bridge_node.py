@@ -31,6 +31,7 @@ CAN hub's ws://127.0.0.1:PORT/). Command line: ``ff-hwbridge [--autostart] [--co
 from __future__ import annotations
 
 import argparse
+import logging
 import sys
 import threading
 import time
@@ -38,6 +39,7 @@ from collections import deque
 from typing import Any, Optional, Sequence
 
 import rclpy
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.signals import SignalHandlerOptions
@@ -101,6 +103,24 @@ def _flat_config(get) -> dict[str, Any]:
             "spin_margin": get("spin_margin"), "scheduler_rt_priority": int(get("scheduler_rt_priority"))}
 
 
+class _RosLogHandler(logging.Handler):
+    """Forwards the libraries' python logging (ff_hwbridge.*, canopen) to the node's ROS logger."""
+
+    def __init__(self, ros_logger: Any) -> None:
+        super().__init__(logging.WARNING)
+        self._ros = ros_logger
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            text = f"{record.name}: {record.getMessage()}"
+            if record.levelno >= logging.ERROR:
+                self._ros.error(text)
+            else:
+                self._ros.warning(text)
+        except Exception:  # noqa: BLE001 - logging must never raise
+            pass
+
+
 class BridgeNode(LifecycleNode):
     """The ``ff_hwbridge`` lifecycle node (see the module docstring)."""
 
@@ -119,6 +139,9 @@ class BridgeNode(LifecycleNode):
         self._timers: list[Any] = []
         self._pub_js = self._pub_diag = self._pub_applied = None
         self._diag_now = threading.Event()
+        self._log_handler = _RosLogHandler(self.get_logger())
+        for name in ("ff_hwbridge", "canopen"):
+            logging.getLogger(name).addHandler(self._log_handler)
 
     # --- helpers ----------------------------------------------------------------------------------
     def _get(self, name: str) -> Any:
@@ -204,6 +227,11 @@ class BridgeNode(LifecycleNode):
         self._teardown()
         return TransitionCallbackReturn.SUCCESS
 
+    def destroy_node(self) -> None:
+        for name in ("ff_hwbridge", "canopen"):
+            logging.getLogger(name).removeHandler(self._log_handler)
+        super().destroy_node()
+
     def _teardown(self) -> None:
         self._active = False
         if self.scheduler is not None:
@@ -234,8 +262,12 @@ class BridgeNode(LifecycleNode):
         self._pub_js = self.create_publisher(JointState, "~/joint_states", 10)
         self._pub_applied = self.create_publisher(CurrentSetpoint, "~/applied", 100)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        sub = self.create_subscription(CurrentSetpoint, "~/setpoints", self._on_setpoint, 100)
-        srv = self.create_service(Trigger, "~/fault_reset", self._on_fault_reset)
+        # own callback groups: a fault reset (which waits for the drives) or a timer never
+        # holds up the intake of setpoints
+        sub = self.create_subscription(CurrentSetpoint, "~/setpoints", self._on_setpoint, 100,
+                                       callback_group=MutuallyExclusiveCallbackGroup())
+        srv = self.create_service(Trigger, "~/fault_reset", self._on_fault_reset,
+                                  callback_group=MutuallyExclusiveCallbackGroup())
         self._entities += [("pub", self._pub_js), ("pub", self._pub_applied),
                            ("pub", self._pub_diag), ("sub", sub), ("srv", srv)]
         self._timers.append(self.create_timer(1.0 / float(self._get("joint_state_rate")),
@@ -263,7 +295,10 @@ class BridgeNode(LifecycleNode):
                                       throttle_duration_sec=1.0)
             return
         stamp_ns = int(msg.stamp.sec) * 1_000_000_000 + int(msg.stamp.nanosec)
-        master.note_setpoint(motion_running=not msg.last)
+        # a motion runs (the watchdog watches) after a profile's setpoint that is not its last,
+        # or after a manual setpoint with a non-zero current; a manual zero ends it
+        running = not msg.last and (bool(msg.profile_id) or any(c != 0.0 for c in currents))
+        master.note_setpoint(motion_running=running)
         sched.submit(stamp_ns, (currents, int(msg.seq), str(msg.profile_id), bool(msg.last)))
 
     def _apply(self, stamp_ns: int, payload: Any) -> None:
@@ -284,8 +319,7 @@ class BridgeNode(LifecycleNode):
         """Master thread: safe state latched."""
         if self.scheduler is not None:
             self.scheduler.clear()
-        self.get_logger().error(f"safe state: {reason}")
-        self._diag_now.set()
+        self._diag_now.set()              # the reason is logged by the master (forwarded)
 
     def _on_fault_reset(self, request: Any, response: Any) -> Any:
         if self.master is None:
@@ -372,7 +406,7 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
     node = None
     try:
         node = BridgeNode(config_file=args.config, channel=args.channel)
-        executor = MultiThreadedExecutor(num_threads=3)
+        executor = MultiThreadedExecutor(num_threads=4)
         executor.add_node(node)
         if args.autostart:
             node.trigger_configure()
