@@ -110,3 +110,14 @@ def test_switch_times_on_a_cycle_grid():
     assert not np.allclose(t, np.linspace(0, 0.95, 4))      # N = 3: 0.3167 s is off-grid
     with pytest.raises(PlanningError, match="grid"):
         plan_robust_1dof(PlanRequest(uncertain=("pc",)), grid=0.5)
+
+
+def test_progress_reports_and_smallest_steps():
+    from ff_planner.robust1d import smallest_robust_steps
+
+    seen = []
+    r, evidence = smallest_robust_steps(PlanRequest(steps=4, starts=200, seed=0), n_max=5,
+                                        progress=seen.append)
+    assert r is not None and r.profile.n_steps == 5
+    assert [e["steps"] for e in evidence] == [4, 5] and not evidence[0]["robust"]
+    assert seen and {"starts_done", "robust_found", "best"} <= set(seen[0])

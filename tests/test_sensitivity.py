@@ -114,3 +114,24 @@ def test_api_methods_agree_and_forward_is_the_paper_quotient():
         sensitivities(T2, prof, [0.0], names=["mu"])
     with pytest.raises(ParameterError, match="method"):
         sensitivities(T2, prof, [0.0], method="magic")
+
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.lists(st.floats(-8, 8), min_size=2, max_size=6), st.sampled_from(["pv", "pc", "pt"]))
+def test_exact_derivative_property(currents, name):
+    """Wherever the plan is not near a kink, exact == central differences (both sides agree)."""
+    prof = CurrentProfile.uniform(currents, 1.0)
+    d = derivatives(T2, prof, 0.0, to_rest=True)
+    if not d.smooth or not np.isfinite(d.q):
+        return
+    p0 = getattr(T2, name)
+    h = 1e-7 * abs(p0)
+    qp = final_state(T2.replace(**{name: p0 + h}), prof, 0.0, to_rest=True)[0]
+    qm = final_state(T2.replace(**{name: p0 - h}), prof, 0.0, to_rest=True)[0]
+    q0 = d.q
+    fwd, bwd = (qp - q0) / h, (q0 - qm) / h
+    tol = 1e-4 * max(1.0, abs(d.dq_dp[name]))
+    assert abs(fwd - d.dq_dp[name]) <= tol and abs(bwd - d.dq_dp[name]) <= tol
