@@ -65,6 +65,11 @@ class CanHub:
         """A python-can bus config that joins this hub."""
         return {"interface": "remote", "channel": self.url, "bitrate": DEFAULT_BITRATE}
 
+    def local_bus_config(self) -> dict[str, Any]:
+        """A bus config for code in THIS process: the hub's virtual channel directly (no
+        websocket hop; frames still reach every remote client)."""
+        return {"interface": "virtual", "channel": self.channel, "bitrate": DEFAULT_BITRATE}
+
     def bound_address(self) -> tuple[str, int]:
         """The (host, port) the server socket is bound to (tests check it is loopback)."""
         return self._server.socket.getsockname()[:2]

@@ -87,7 +87,7 @@ class SimDriverNode(Node):
         self.hub: Optional[CanHub] = None
         if self._p("host_hub"):
             self.hub = start_hub(int(self._p("hub_port")))
-            bus = self.hub.bus_config()
+            bus = self.hub.local_bus_config()     # same process: the hub's channel, no websocket
         else:
             bus = {"interface": self._p("bus.interface"), "channel": self._p("bus.channel"),
                    "bitrate": int(self._p("bus.bitrate"))}

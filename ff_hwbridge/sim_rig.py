@@ -188,11 +188,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         params = default_params(a.model).replace(**dict(kv.split("=", 1) for kv in a.param))
         if a.host_hub is not None:
             hub = start_hub(a.host_hub)
-            url = hub.url
+            bus = hub.local_bus_config()      # same process: join the hub's channel directly
         else:
-            url = a.bus_url
+            bus = {"interface": "remote", "channel": a.bus_url}
         cfg = RigConfig(model=a.model, node_ids=tuple(int(x, 0) for x in a.node_ids.split(",")),
-                        family=a.family, bus={"interface": "remote", "channel": url},
+                        family=a.family, bus=bus,
                         true_params=params, q0=tuple(float(x) for x in a.q0.split(",")),
                         step=a.step)
         rig = SimRig(cfg)
