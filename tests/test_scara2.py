@@ -135,3 +135,27 @@ def test_bad_input_is_refused_clearly():
         scara2.sensitivities_scara2(P, GENERIC, Q0, names=["pq1"])
     with pytest.raises(PlanningError, match="dt"):
         scara2.advance(P, Q0, [0, 0], [0, 0], -1.0)
+
+
+def test_held_link2_derivatives_match_exact_1dof():
+    """Complex-step derivatives through the 2-DOF integrator equal arm1dof's exact forward-mode
+    derivatives of joint 1 (link 2 held), w.r.t. friction and currents."""
+    from ff_planner import arm1dof
+    from ff_planner.robust2d import joint1_params, joint2_hold_currents
+
+    prof1 = CurrentProfile.uniform([[4.0], [-1.0], [-4.0]], 0.6)
+    i2, frac = joint2_hold_currents(P, prof1, Q0)
+    prof = CurrentProfile(prof1.step_times, np.column_stack([prof1.currents[:, 0], i2]), 0.6)
+    cs = scara2.sensitivities_scara2(P, prof, Q0, names=("pv1", "pc1", "pt1"))
+    d = arm1dof.derivatives(joint1_params(P), prof1, Q0[0])
+    for k in ("pv", "pc", "pt"):
+        assert cs[f"q1/{k}1"] == pytest.approx(d.dq_dp[k], rel=1e-8, abs=1e-11)
+        assert cs[f"q2/{k}1"] == 0.0
+    # w.r.t. the joint-1 currents: complex step through the full model
+    base = scara2._pack(P)
+    y0 = np.r_[Q0, 0.0, 0.0].astype(complex)
+    for i in range(prof.n_steps):
+        cur = prof.currents.astype(complex)
+        cur[i, 0] += 1e-30j
+        y = scara2._run(base, prof, y0, scara2.DEFAULT_H, currents=cur)[0]
+        assert y[0].imag / 1e-30 == pytest.approx(d.dq_dI[i], rel=1e-8, abs=1e-11)
