@@ -57,7 +57,11 @@ def main() -> int:
     ap.add_argument("--sync-period", type=float, default=0.001, help="s")
     ap.add_argument("--spin-margin", type=float, default=0.0003, help="s")
     ap.add_argument("--rt-priority", type=int, default=0, help="SCHED_FIFO priority of the scheduler thread (0 = off)")
+    ap.add_argument("--switch-interval", type=float, default=0.0,
+                    help="s, sys.setswitchinterval for this process (0 = python's default 5 ms)")
     a = ap.parse_args()
+    if a.switch_interval > 0:
+        sys.setswitchinterval(a.switch_interval)
 
     port = _free_port()
     record = os.path.join(tempfile.mkdtemp(prefix="ff-bench-"), "setpoints.json")
@@ -139,6 +143,7 @@ def main() -> int:
             "bridge_send_error_us": {"p50": bridge.p50_us, "p99": bridge.p99_us, "max": bridge.max_us},
             "late_over_500us": bridge.late, "stale": bridge.stale, "spin_margin_s": a.spin_margin,
             "rt_priority": a.rt_priority if sched.rt_active else 0,
+            "switch_interval_s": sys.getswitchinterval(),
             "safe_state": latched, "cpu_count": os.cpu_count(),
             "load_avg_1min": os.getloadavg()[0],
         }
