@@ -113,7 +113,7 @@ class _Drive:
     seen_operational: bool = False
     tpdo_seen: bool = False
     last_tx: float = 0.0          # monotonic s of the latest RPDO
-    emcy: list[str] = field(default_factory=list)
+    emcy: deque = field(default_factory=lambda: deque(maxlen=20))   # recent EMCY texts
 
     @property
     def node_id(self) -> int:
