@@ -58,6 +58,10 @@ def main() -> int:
     ap.add_argument("--family", default="epos4", choices=("epos4", "epos2"))
     ap.add_argument("--sim-switch-interval", type=float, default=0.0005,
                     help="s, python thread switch interval in the simulator (sim_rig's default)")
+    ap.add_argument("--sim-rt-priority", type=int, default=0,
+                    help="run the simulator process under SCHED_FIFO at this priority (chrt -f)")
+    ap.add_argument("--master-rt-priority", type=int, default=0,
+                    help="SCHED_FIFO priority of the master's scheduler thread")
     ap.add_argument("--hub", default="sim", choices=("sim", "process"),
                     help="host the hub in the simulator process (as ff_sim_driver does) or in "
                          "a process of its own")
@@ -74,7 +78,8 @@ def main() -> int:
         hub.stdout.readline()
         where = ["--bus-url", url]
     load_before = os.getloadavg()
-    sim = subprocess.Popen([sys.executable, "-u", "-m", "ff_hwbridge.sim_rig", *where,
+    rt = ["chrt", "-f", str(a.sim_rt_priority)] if a.sim_rt_priority > 0 else []
+    sim = subprocess.Popen([*rt, sys.executable, "-u", "-m", "ff_hwbridge.sim_rig", *where,
                             "--family", a.family, "--record", record,
                             "--switch-interval", str(a.sim_switch_interval)],
                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
@@ -109,7 +114,7 @@ def main() -> int:
         n = int(a.duration * a.rate)
         pattern = [(((k * 37) % 61) - 30) * 0.01 for k in range(n)]   # period 61, |I| <= 0.3 A
         sched = StampScheduler(lambda stamp, amps: master.command_currents([amps]),
-                               spin_margin=cfg.spin_margin)
+                               spin_margin=cfg.spin_margin, rt_priority=a.master_rt_priority)
         sched.start()
         t0 = time.time_ns() + 500_000_000
         period = int(1e9 / a.rate)
@@ -171,7 +176,8 @@ def main() -> int:
     result: dict = {"benchmark": "bench_can_stream", "host": platform.node(),
                     "cpus": os.cpu_count(), "duration_s": a.duration, "rate_hz": a.rate,
                     "family": a.family, "transport": "python-can-remote hub on 127.0.0.1",
-                    "hub_in": a.hub, "sim_switch_interval_s": a.sim_switch_interval or 0.005, "loadavg_1min_before_after": [load_before[0], os.getloadavg()[0]],
+                    "hub_in": a.hub, "sim_switch_interval_s": a.sim_switch_interval or 0.005,
+                    "sim_rt_priority": a.sim_rt_priority, "master_rt_priority": a.master_rt_priority, "loadavg_1min_before_after": [load_before[0], os.getloadavg()[0]],
                     "setpoints_sent": n, "safe_state": latched}
     if start is None:
         result["error"] = "stream not found in the drive's arrival log"
