@@ -92,8 +92,9 @@ def main() -> int:
         n = int(round(a.duration * a.rate))
         raws = np.array([(2 + (k % 26) * 2) * (1 if (k // 26) % 2 == 0 else -1) for k in range(n)])
         amps = raws * NOMINAL / 1000.0
-        sched = StampScheduler(lambda stamp, i: master.command_currents([amps[i]]),
-                               spin_margin=a.spin_margin, rt_priority=a.rt_priority).start()
+        sched = StampScheduler(lambda stamp, prepared: master.send_prepared(prepared),
+                               spin_margin=a.spin_margin, rt_priority=a.rt_priority,
+                               prepare=lambda i: master.prepare_currents([amps[i]])).start()
         period_ns = int(round(1e9 / a.rate))
         t0 = (time.time_ns() // period_ns + int(0.5e9 // period_ns)) * period_ns   # on the grid
         stamps = t0 + period_ns * np.arange(n, dtype=np.int64)

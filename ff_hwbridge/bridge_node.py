@@ -175,7 +175,8 @@ class BridgeNode(LifecycleNode):
             self.get_logger().error(f"configure failed: {exc}")
             return TransitionCallbackReturn.ERROR
         self.scheduler = StampScheduler(self._apply, spin_margin=self.config.spin_margin,
-                                        rt_priority=self.config.scheduler_rt_priority).start()
+                                        rt_priority=self.config.scheduler_rt_priority,
+                                        prepare=self._prepare).start()
         self.master.pending_fn = lambda: bool(self.scheduler and self.scheduler.pending)
         self._make_interfaces()
         self.get_logger().info(f"configured: joints {list(self.config.joint_names)} on "
@@ -301,14 +302,21 @@ class BridgeNode(LifecycleNode):
         master.note_setpoint(motion_running=running)
         sched.submit(stamp_ns, (currents, int(msg.seq), str(msg.profile_id), bool(msg.last)))
 
-    def _apply(self, stamp_ns: int, payload: Any) -> None:
-        """Scheduler thread, at the stamp: send the RPDOs (through the safety guard)."""
-        master = self.master
-        if master is None:
-            return
+    def _prepare(self, payload: Any) -> Any:
+        """Scheduler thread, just before the stamp: safety guard + unit conversion."""
         currents, seq, pid, last = payload
-        cmd = master.command_currents(currents)
+        master = self.master
+        return (master.prepare_currents(currents) if master else None), seq, pid, last
+
+    def _apply(self, stamp_ns: int, payload: Any) -> None:
+        """Scheduler thread, at the stamp: send the prepared RPDOs."""
+        master = self.master
+        prepared, seq, pid, last = payload
+        if master is None or prepared is None:
+            return
+        master.send_prepared(prepared)
         sent_ns = time.time_ns()
+        cmd = prepared.command
         if cmd.reason and not cmd.latched:
             self.get_logger().warning(f"setpoint {seq}: {cmd.reason}", throttle_duration_sec=1.0)
         if last:

@@ -71,6 +71,14 @@ RESEND_PERIOD = 0.005
 REFRESH_PERIOD = 0.05
 
 
+@dataclass(frozen=True)
+class PreparedCommand:
+    """Currents that passed the guard (``command``) and their raw drive setpoints, per joint."""
+
+    command: SafeCommand
+    raw: tuple[int, ...]
+
+
 class EposError(RuntimeError):
     """A drive that cannot be reached or configured; the message names the node and the step."""
 
@@ -634,18 +642,30 @@ class EposMaster:
         return all(d.feedback.state is state for d in self._drives)
 
     # --- commands -------------------------------------------------------------------------------
-    def command_currents(self, amps: Sequence[float]) -> SafeCommand:
-        """Send motor currents (A, one per joint) through the guard; returns what was sent."""
+    def prepare_currents(self, amps: Sequence[float]) -> PreparedCommand:
+        """Guard + unit conversion of motor currents (A, one per joint), nothing sent yet: lets a
+        scheduler do the work before a stamp and only ``send_prepared`` at it."""
         cmd = self.guard.filter(amps)
-        for d, a in zip(self._drives, cmd.currents):
-            raw = d.units.amps_to_setpoint(float(a), limit=d.cfg.current_limit)
+        raws = tuple(d.units.amps_to_setpoint(float(a), limit=d.cfg.current_limit)
+                     for d, a in zip(self._drives, cmd.currents))
+        return PreparedCommand(cmd, raws)
+
+    def send_prepared(self, prepared: PreparedCommand) -> None:
+        """Send prepared setpoints (one RPDO per joint). Zero while latched or when a drive is
+        not (to be) in Operation enabled; the raw value is clamped to the limit once more."""
+        for d, raw in zip(self._drives, prepared.raw):
             with self._send_lock:
-                state = d.feedback.state
-                if state is not State.OPERATION_ENABLED or d.target is not State.OPERATION_ENABLED:
+                if (self.guard.latched or d.feedback.state is not State.OPERATION_ENABLED
+                        or d.target is not State.OPERATION_ENABLED):
                     raw = 0
                 if d.operational:
                     self._send_rpdo(d, d.controlword, raw)
-        return cmd
+
+    def command_currents(self, amps: Sequence[float]) -> SafeCommand:
+        """Send motor currents (A, one per joint) through the guard now; returns what was sent."""
+        prepared = self.prepare_currents(amps)
+        self.send_prepared(prepared)
+        return prepared.command
 
     def command_zero(self) -> None:
         """Zero current on every joint (no latch)."""

@@ -1,6 +1,7 @@
 """Apply stamped setpoints at their stamp time, from a dedicated thread, and record the timing.
 
-The thread sleeps until ``spin_margin`` s before the earliest due stamp, then spins on the clock
+The thread sleeps until ``spin_margin`` s before the earliest due stamp, runs the optional
+``prepare(payload)`` (work that need not wait: safety clamp, unit conversion), then spins on the clock
 (yielding the GIL while more than 50 µs remain) until the stamp and calls ``apply(stamp_ns, payload)`` (which sends the RPDO). After it returns,
 ``(stamp_ns, sent_ns)`` is recorded for switch-time statistics. Stamps are integer ns on
 ``clock_ns`` (default ``time.time_ns``, the ROS system clock).
@@ -59,10 +60,11 @@ class StampScheduler:
     def __init__(self, apply: Callable[[int, Any], None], clock_ns: Callable[[], int] = time.time_ns,
                  spin_margin: float = 0.0003, max_records: int = 200_000,
                  late_threshold: float = 0.0005, name: str = "ff-stamp-scheduler",
-                 rt_priority: int = 0) -> None:
+                 rt_priority: int = 0, prepare: Optional[Callable[[Any], Any]] = None) -> None:
         if not 0.0 <= spin_margin < 0.05:
             raise ValueError(f"spin_margin must be in [0, 0.05) s, got {spin_margin!r}")
         self._apply = apply
+        self._prepare = prepare
         self._clock_ns = clock_ns
         self._margin_ns = int(spin_margin * 1e9)
         self._late_ns = int(late_threshold * 1e9)
@@ -164,6 +166,14 @@ class StampScheduler:
             if self._last_applied is not None and item.stamp_ns < self._last_applied:
                 self.stale += 1
                 continue
+            payload = item.payload
+            if self._prepare is not None:        # the work that need not wait for the stamp
+                try:
+                    payload = self._prepare(payload)
+                except Exception:  # noqa: BLE001
+                    self.errors += 1
+                    log.exception("preparing a setpoint failed")
+                    continue
             # spin; while more than ~50 µs remain, yield the GIL so that the bus receiver and
             # the SYNC thread of this process are not starved by the spin
             while True:
@@ -176,7 +186,7 @@ class StampScheduler:
             if start - item.stamp_ns > self._late_ns:
                 self.late += 1
             try:
-                self._apply(item.stamp_ns, item.payload)
+                self._apply(item.stamp_ns, payload)
             except Exception:  # noqa: BLE001 - the thread must survive a failing send
                 self.errors += 1
                 log.exception("applying a setpoint failed")

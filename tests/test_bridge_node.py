@@ -184,3 +184,20 @@ def test_config_file_parameter_is_used(ros_env, tmp_path):
         node.destroy_node()
     finally:
         rclpy.shutdown(context=ctx)
+
+
+def test_scheduler_prepares_before_the_stamp():
+    from ff_hwbridge.scheduler import StampScheduler
+
+    seen = []
+    sched = StampScheduler(lambda stamp, p: seen.append((time.time_ns(), stamp, p)),
+                           prepare=lambda p: (time.time_ns(), p * 2)).start()
+    try:
+        stamp = time.time_ns() + 20_000_000
+        sched.submit(stamp, 21)
+        assert _wait(lambda: seen)
+        applied_at, st, (prepared_at, value) = seen[0]
+        assert value == 42 and st == stamp
+        assert prepared_at < stamp <= applied_at
+    finally:
+        sched.stop()
