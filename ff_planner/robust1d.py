@@ -460,16 +460,22 @@ def _finish_sampled(request, prob, found, best_I, tried, iters, warm, t0, stats,
     if best is None:
         return _no_plan(request, prob, None, tried, iters, warm, t0, stats, out_of_time)
     rms_before = best_rms
-    try:
-        I1, _ = _refine_sampled(prob, best.copy(), scales, with_derivs, remaining)
+    # refine each candidate along the robust set (SLSQP, exact Jacobians); keep the best that
+    # still verifies, within the time budget
+    for I0 in sorted(cands, key=lambda c: _rms(prob, c, scales)):
+        if time.perf_counter() - t0 > request.time_budget:
+            break
+        try:
+            I1, _ = _refine_sampled(prob, I0.copy(), scales, with_derivs, remaining)
+        except (ValueError, ArithmeticError):
+            continue
+        rms1 = _rms(prob, I1, scales)
+        if not rms1 < best_rms:
+            continue
         ok = verify(prob.params, prob.profile(I1), prob.q0, prob.goal, request.uncertain,
                     request.tol)
-        keep = ok["robust"] if with_derivs else (ok["at_goal"] and ok["at_rest"])
-        rms1 = _rms(prob, I1, scales)
-        if keep and rms1 <= best_rms:
+        if ok["robust"] if with_derivs else (ok["at_goal"] and ok["at_rest"]):
             best, best_rms = I1, rms1
-    except (ValueError, ArithmeticError):
-        pass
     extra = {"sampled_rms": best_rms, "sampled_rms_before_refine": rms_before,
              "sampled_points": scales.tolist(), "sampled_worst": float(
                  np.max(np.abs(_sampled_terms(prob, best, scales)[0])))}
