@@ -42,7 +42,7 @@ def main(argv=None) -> int:
     log = (lambda s: print(s, file=sys.stderr, flush=True))
     rows = []
     t0 = time.monotonic()
-    with Stack(StackOptions(), log=log) as stack:
+    with Stack(StackOptions(rt_priority=10), log=log) as stack:   # SCHED_FIFO where permitted
         with StackClient(stack.env, "ff_bench_e2e") as client:
             for sc in scales:
                 stack.set_true_params({"pc": model.pc * sc})

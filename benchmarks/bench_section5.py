@@ -37,6 +37,7 @@ from ff_planner.simulate import rest_position, simulate
 PCS = (0.19, 0.22, 0.25)
 PAPER = {"best_rms_rad": 0.002, "worst_rms_rad": 0.092, "controllers": 32}
 TF, QF = 1.0, 1.0
+RT_PRIORITY = 10              # SCHED_FIFO for the simulated drive + bridge scheduler where permitted
 GATE_S, ATTEMPTS = 3e-4, 3    # a run whose switch timing at the bridge spreads > 0.3 ms is repeated
 
 
@@ -104,7 +105,7 @@ def run_on_stack(ctrls: list[dict], log) -> dict:
 
     t0 = time.monotonic()
     failures = 0
-    with Stack(StackOptions(planner=False), log=log) as stack:
+    with Stack(StackOptions(planner=False, rt_priority=RT_PRIORITY), log=log) as stack:
         with StackClient(stack.env, "ff_bench_section5") as client:
             for pc in PCS:
                 stack.set_true_params({"pc": pc})

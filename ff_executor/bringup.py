@@ -72,6 +72,8 @@ class StackOptions:
     q0: Sequence[float] = ()                   # rad, initial arm position (default zeros)
     switch_interval: Optional[float] = 1e-4    # s, GIL switch interval of the sim driver and the
                                                # bridge (ff_executor.timed); None = Python's 5 ms
+    rt_priority: int = 0                       # 1..99: SCHED_FIFO for the sim driver process and the
+                                               # bridge's scheduler thread (root/CAP_SYS_NICE); 0 = off
     timing_nice: Optional[int] = -10           # nice value for the sim driver and the bridge (the
                                                # timing-critical end); None = leave as is
 
@@ -200,26 +202,39 @@ class Stack:
             module = "ff_executor.timed"
         proc = start_module(name, module, list(args), self.env, str(self.run_dir))
         self.procs.append(proc)
-        if timing and self.options.timing_nice is not None:
+        if timing and (self.options.timing_nice is not None or self.options.rt_priority):
             self._renice.append(proc)
             self._apply_nice(proc)
         return proc
 
     def _apply_nice(self, proc: NodeProcess) -> None:
         """Give every thread of ``proc`` the timing nice value (Linux nice is per thread;
-        threads inherit it from their creator, so this runs at start and again once up)."""
-        nice = int(self.options.timing_nice)
+        threads inherit it from their creator, so this runs at start and again once up); with
+        ``rt_priority`` the simulated driver's threads get SCHED_FIFO instead."""
         task_dir = f"/proc/{proc.pid}/task"
         tids = [int(t) for t in os.listdir(task_dir)] if os.path.isdir(task_dir) else [proc.pid]
-        try:
-            for tid in tids:
-                os.setpriority(os.PRIO_PROCESS, tid, nice)
-        except PermissionError as exc:
-            self.log(f"  note: cannot set nice {nice} on {proc.name} ({exc}); its timing may "
-                     "suffer on a busy machine")
-            self._renice.remove(proc)
-        except OSError:
-            pass
+        rt = int(self.options.rt_priority) if proc.name == "ff_sim_driver" else 0
+        nice = self.options.timing_nice
+        for tid in tids:
+            try:
+                if rt:
+                    os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(rt))
+                    continue
+            except PermissionError:
+                rt = 0
+                self.log(f"  note: SCHED_FIFO not permitted for {proc.name}; using nice instead")
+            except OSError:
+                continue
+            try:
+                if nice is not None:
+                    os.setpriority(os.PRIO_PROCESS, tid, int(nice))
+            except PermissionError as exc:
+                self.log(f"  note: cannot raise the priority of {proc.name} ({exc}); its timing "
+                         "may suffer on a busy machine")
+                self._renice.remove(proc)
+                return
+            except OSError:
+                continue
 
     def start(self) -> "Stack":
         o = self.options
@@ -244,7 +259,10 @@ class Stack:
             self._wait(p, lambda: self._has_service("/ff_sim_driver/reset"), "service ~/reset")
 
             bcfg = self.run_dir / "bridge.yaml"
-            bcfg.write_text(yaml.safe_dump(bridge_config(model, self.hub_url), sort_keys=False))
+            bdata = bridge_config(model, self.hub_url)
+            if o.rt_priority:
+                bdata["scheduler_rt_priority"] = int(o.rt_priority)
+            bcfg.write_text(yaml.safe_dump(bdata, sort_keys=False))
             bp = {"config_file": str(bcfg)}
             bp.update(o.bridge_overrides)
             pf = _params_file(self.run_dir / "bridge_params.yaml", "ff_hwbridge", bp)
@@ -371,6 +389,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default random 1..100)")
     ap.add_argument("--run-dir", default=None, help="logs + generated files (default: a temp folder)")
     ap.add_argument("--start-timeout", type=float, default=90.0, help="s per process")
+    ap.add_argument("--rt-priority", type=int, default=0, metavar="N",
+                    help="SCHED_FIFO priority 1..99 for the simulated driver and the bridge's "
+                         "scheduler thread (needs root/CAP_SYS_NICE; 0 = off, the default)")
     return ap
 
 
@@ -381,8 +402,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         opts = StackOptions(model=a.model, true_scale=_kv(a.true_scale, "--true-scale"),
                             true_params=_kv(a.true_param, "--true-param"), planner=not a.no_planner,
                             hub_port=a.hub_port, domain_id=a.domain_id, run_dir=a.run_dir,
-                            start_timeout=a.start_timeout)
+                            start_timeout=a.start_timeout, rt_priority=a.rt_priority)
         opts.true_friction()
+        if not 0 <= a.rt_priority <= 99:
+            raise ValueError(f"--rt-priority must be 0..99, got {a.rt_priority}")
     except (ParameterError, ValueError) as exc:
         print(f"ff-bringup: {exc}", file=sys.stderr)
         return 2

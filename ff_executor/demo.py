@@ -154,6 +154,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="us; a move whose switch timing at the bridge spreads more than this was "
                          "disturbed by the machine and is repeated (0 = accept every run)")
     ap.add_argument("--attempts", type=int, default=3, help="runs per motion at most (timing gate)")
+    ap.add_argument("--rt-priority", type=int, default=10, metavar="N",
+                    help="SCHED_FIFO priority of the simulated driver and the bridge's scheduler "
+                         "thread where permitted (else nice -10); 0 = normal scheduling")
     return ap
 
 
@@ -161,8 +164,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     a = build_parser().parse_args(argv)
     try:
         scale = _kv(a.true_scale, "--true-scale") if a.true_scale or a.true_param else {"pc": 1.2}
+        if not 0 <= a.rt_priority <= 99:
+            raise ValueError(f"--rt-priority must be 0..99, got {a.rt_priority}")
         opts = StackOptions(true_scale=scale, true_params=_kv(a.true_param, "--true-param"),
-                            run_dir=a.run_dir)
+                            run_dir=a.run_dir, rt_priority=a.rt_priority)
         true = opts.true_friction()
     except (ParameterError, ValueError) as exc:
         print(f"ff-demo: {exc}", file=sys.stderr)

@@ -17,7 +17,9 @@ from ff_executor.demo import MOTIONS, run_motions
 
 @pytest.fixture(scope="module")
 def stack_client(tmp_path_factory):
-    stack = Stack(StackOptions(true_scale={"pc": 1.2},
+    # SCHED_FIFO 10 for the simulated drive and the bridge's scheduler thread where permitted
+    # (else nice -10, else plain): the test runs on shared CI machines
+    stack = Stack(StackOptions(true_scale={"pc": 1.2}, rt_priority=10,
                                run_dir=str(tmp_path_factory.mktemp("e2e"))), log=lambda s: None)
     stack.start()
     client = StackClient(stack.env, "ff_e2e_test")
