@@ -301,11 +301,17 @@ def plan_robust_1dof(request: PlanRequest, progress: Progress = None,
             block, warm_block = warm_block, None
         else:                            # seeded random starts, drawn chunk by chunk
             m = min(CHUNK, total - drawn)
-            # even chunks: the spread tuned on the paper's task; odd chunks: a wide one, which
-            # finds plans sooner for longer or slower moves
+            # even chunks: the spread tuned on the paper's task, signs as below; odd chunks:
+            # a wide, unconstrained one, which finds plans sooner for longer or slower moves
             wide = (drawn // CHUNK) % 2 == 1
             s_c = WIDE_SPREAD * prob.i_max if wide else spread
             block = rng.uniform(-s_c, s_c, (m, n))
+            if not wide and n >= 2 and prob.goal != prob.q0:
+                # robust motions first move away from the goal (paper section 4.1.2) and brake
+                # at the end: the first and last currents oppose the move on these chunks
+                d = 1.0 if prob.goal > prob.q0 else -1.0
+                block[:, 0] = -d * np.abs(block[:, 0])
+                block[:, -1] = -d * np.abs(block[:, -1])
             drawn += m
         done, st, it, f, kk = prob.run(block, stop_first=not sampled)
         tried += done
