@@ -18,6 +18,9 @@ What it does, per the suite's CANopen contract (CiA 301/402):
   arrival (event-driven TPDOs, types 254/255, are not produced: the contract uses SYNC); heartbeat producer per 0x1017; EMCY (0x080+id) with error register 0x1001 and the
   pre-defined error field 0x1003 on a fault; fault reset by a rising controlword bit 7
   (EMCY "error reset" 0x0000 sent).
+- Heartbeat consumer 0x1016:01-04 ((node id << 16) | ms): once a consumed heartbeat has been
+  seen, silence longer than its time is a fault (EMCY 0x8130 heartbeat error, FAULT, 0 A), so a
+  dead master stops the drive as on the real EPOS.
 - Every received setpoint is recorded with its arrival time (``time.monotonic_ns`` and wall clock
   ``time.time_ns``), so benchmarks can compare the time a setpoint was due with when it applied.
 - Fault injection: stop heartbeat, raise EMCY, stop answering SDO, delay / drop frames.
@@ -46,7 +49,7 @@ import struct
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Callable, Optional
 
 import canopen
@@ -57,6 +60,7 @@ from canopen.sdo import SdoAbortedError
 from ff_hwbridge import cia402
 from ff_hwbridge.cia402 import Command, State
 
+_NUMBER_TYPES = od.NUMBER_TYPES
 FAMILIES = ("epos4", "epos2")
 CURRENT_MODE = {"epos4": 10, "epos2": -3}
 VALID_MODES = {"epos4": {0, 1, 3, 6, 8, 9, 10}, "epos2": {0, -3, -2, -1, 1, 3, 6, 7}}
@@ -211,6 +215,9 @@ def build_object_dictionary(cfg: DriveConfig) -> ObjectDictionary:
     add(_var("Manufacturer device name", 0x1008, 0, od.VISIBLE_STRING, "const",
              f"{fam.upper()} (simulated)"))
     add(_var("COB-ID EMCY", 0x1014, 0, U32, "rw", 0x80 + nid))
+    add(_record("Consumer heartbeat time", 0x1016,
+                [(f"Consumer heartbeat time {i}", i, U32, "rw", 0, False) for i in range(1, 5)],
+                array=True))
     add(_var("Producer heartbeat time", 0x1017, 0, U16, "rw", 0))
     add(_record("Identity object", 0x1018, [
         ("Vendor-ID", 1, U32, "ro", MAXON_VENDOR_ID, False),
@@ -489,6 +496,11 @@ class SimEpos:
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
         self._link: Optional[_Link] = None
+        self._consumers: dict[int, float] = {}        # node id -> timeout s (0x1016)
+        self._hb_seen: dict[int, float] = {}
+        self._hb_tripped: set[int] = set()
+        self._consumer_stop = threading.Event()
+        self._consumer_thread: Optional[threading.Thread] = None
         self._reset_application()
 
     # -- state ------------------------------------------------------------------------------
@@ -589,12 +601,14 @@ class SimEpos:
     def boot(self) -> None:
         """Power-on: boot-up frame, PRE-OPERATIONAL, heartbeat per 0x1017."""
         self._reload_pdos()
+        self._configure_consumers()
         self.node.nmt.send_command(0x81)     # INITIALISING -> boot-up frame
         self.node.nmt.send_command(0x80)     # PRE-OPERATIONAL, starts heartbeat if 0x1017 > 0
 
     def close(self) -> None:
         """Stop heartbeat and timers and leave the network (the network itself stays open)."""
         self.node.nmt.stop_heartbeat()
+        self._consumer_stop.set()
         if self._link is not None:
             self._link.close()
             self._link = None
@@ -655,7 +669,7 @@ class SimEpos:
 
     def _on_write(self, index: int, subindex: int, od: ODVariable, data: bytes) -> None:
         """Validate writes before they are stored (raise SdoAbortedError to refuse)."""
-        value = od.decode_raw(data) if od.data_type in objectdictionary_numbers else None
+        value = od.decode_raw(data) if od.data_type in _NUMBER_TYPES else None
         if 0x1400 <= index <= 0x15FF or 0x1800 <= index <= 0x19FF:
             self._check_comm_write(index, subindex, value)
         elif 0x1600 <= index <= 0x17FF or 0x1A00 <= index <= 0x1BFF:
@@ -716,6 +730,8 @@ class SimEpos:
             self._reload_pdos(("rpdo", (index & 0x1FF) + 1))
         elif 0x1800 <= index <= 0x1BFF:
             self._reload_pdos(("tpdo", (index & 0x1FF) + 1))
+        elif index == 0x1016:
+            self._configure_consumers()
         elif index == 0x1003 and subindex == 0:
             for s in range(1, 9):
                 self.node.data_store.get(0x1003, {}).pop(s, None)
@@ -869,6 +885,48 @@ class SimEpos:
             del self.node.data_store[idx]
         self.boot()
 
+    # -- heartbeat consumer ---------------------------------------------------------------------
+    def _configure_consumers(self) -> None:
+        """(Re)read 0x1016 and watch the heartbeats it names."""
+        wanted: dict[int, float] = {}
+        for sub in range(1, 5):
+            v = self._raw(0x1016, sub)
+            nid, ms = (v >> 16) & 0x7F, v & 0xFFFF
+            if nid and ms and nid != self.node_id:
+                wanted[nid] = ms / 1000.0
+        if self._link is not None:
+            for nid in set(self._consumers) - set(wanted):
+                self._link.unsubscribe(0x700 + nid, self._on_consumed_heartbeat)
+            for nid in set(wanted) - set(self._consumers):
+                self._link.subscribe(0x700 + nid, self._on_consumed_heartbeat)
+        self._consumers = wanted
+        for nid in list(self._hb_seen):
+            if nid not in wanted:
+                del self._hb_seen[nid]
+        if wanted and (self._consumer_thread is None or not self._consumer_thread.is_alive()):
+            self._consumer_stop.clear()
+            self._consumer_thread = threading.Thread(target=self._watch_consumers, daemon=True,
+                                                     name=f"epos{self.node_id}-hb-consumer")
+            self._consumer_thread.start()
+
+    def _on_consumed_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        nid = can_id - 0x700
+        self._hb_seen[nid] = time.monotonic()
+        self._hb_tripped.discard(nid)
+
+    def _watch_consumers(self) -> None:
+        while not self._consumer_stop.wait(0.002):
+            if not self._consumers:
+                return
+            if self.node.nmt.state not in ("PRE-OPERATIONAL", "OPERATIONAL"):
+                continue
+            now = time.monotonic()
+            for nid, limit in list(self._consumers.items()):
+                seen = self._hb_seen.get(nid)
+                if seen is not None and now - seen > limit and nid not in self._hb_tripped:
+                    self._hb_tripped.add(nid)
+                    self.raise_emcy(0x8130, data=bytes([nid]))   # heartbeat error
+
     # -- faults -------------------------------------------------------------------------------
     @staticmethod
     def error_register_for(code: int) -> int:
@@ -957,4 +1015,3 @@ class SimEpos:
             self._log.clear()
 
 
-objectdictionary_numbers = od.NUMBER_TYPES

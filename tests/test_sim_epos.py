@@ -380,3 +380,24 @@ def test_bad_settings_are_refused():
         d.set_delay(1, "up")
     with pytest.raises(SimConfigError, match="EMCY code"):
         d.raise_emcy(0x10)
+
+
+def test_heartbeat_consumer_faults_on_a_silent_master(rig):
+    rig.configure_contract_pdos()
+    rig.node.sdo[0x1016][1].raw = (127 << 16) | 100      # consume node 127's heartbeat, 100 ms
+    task = rig.net_m.send_periodic(0x77F, [0x05], 0.005)
+    try:
+        rig.enable()
+        rig.rpdo(0x0F, 500)
+        assert wait_for(lambda: rig.drive.applied_current == pytest.approx(1.5))
+        time.sleep(0.1)
+        assert rig.drive.state is State.OPERATION_ENABLED  # heartbeats keep coming
+    finally:
+        task.stop()
+    assert wait_for(lambda: rig.drive.state is State.FAULT)
+    assert time.monotonic() - rig.drive._hb_seen[127] >= 0.1     # not before the timeout
+    assert rig.drive.applied_current == 0.0
+    assert wait_for(lambda: any(d[:2] == b"\x30\x81" for d in rig.seen(0x81)))   # EMCY 0x8130
+    rig.node.sdo[0x1016][1].raw = 0                       # consumer off, then fault reset
+    rig.rpdo(0x80)
+    assert wait_for(lambda: rig.drive.state is State.SWITCH_ON_DISABLED)
