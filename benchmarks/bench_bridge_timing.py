@@ -127,6 +127,8 @@ def main() -> int:
         arrivals = [(wall, raw) for _, wall, raw, _ in log if wall >= t0 - 1_000_000]
         err_ns, j = [], 0
         for wall, raw in arrivals:
+            if raw == 0:                 # not a streamed value (enable / safe state / refresh)
+                continue
             while j < n and raws[j] != raw:
                 j += 1
             if j >= n:
