@@ -207,3 +207,21 @@ def multistart(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals, i_max, start
         if stop_first and st == OK:
             return s + 1
     return ns
+
+
+@njit(cache=True, nogil=True)
+def sampled_terms(J, c, pvals, scales, times, cur, tf, q0, goal, W):
+    """Rest-position errors e (S,) at friction pvals·scales[s] and their Jacobian G (S, N)
+    w.r.t. the currents (robust-sampled objective, one compiled call)."""
+    n = cur.shape[0]
+    m = scales.shape[0]
+    e = np.empty(m)
+    G = np.empty((m, n))
+    pw = np.zeros(NP)
+    for s in range(m):
+        hd_sim(J, c, pvals[0] * scales[s, 0], pvals[1] * scales[s, 1], pvals[2] * scales[s, 2],
+               times, cur, tf, q0, True, pw, W)
+        e[s] = W[Q_, 0] - goal
+        for j in range(n):
+            G[s, j] = W[Q_, 4 + j]
+    return e, G

@@ -39,6 +39,7 @@ Progress = Optional[Callable[[dict], None]]
 STOP_MARGIN = 1e-3      # s: the arm must be at rest this long before tf (nominal parameters)
 MIN_KINK = 1e-3         # relative parameter change to the nearest non-smooth point (0.1 %)
 CHUNK = 16              # starts per compiled call (the time budget is checked between calls)
+SAMPLED_CANDIDATES = 4  # robust-sampled: robust plans collected, each refined by SLSQP
 # LM settings per number of uncertain parameters, tuned on 3000 seeded starts of the 0 -> 1 rad,
 # 1 s task (CPU time per robust plan: k = 1 ~55-90 us, k = 3 ~450 us); "spread" = random starts
 # uniform in ±spread·i_max.
@@ -286,7 +287,7 @@ def plan_robust_1dof(request: PlanRequest, progress: Progress = None,
         warm_block = np.clip(init, -prob.i_max, prob.i_max).reshape(1, n)
     warm = warm_block is not None
     sampled = request.objective == "robust-sampled"
-    want = 4 if sampled else 1          # robust candidates to collect
+    want = SAMPLED_CANDIDATES if sampled else 1     # robust candidates to collect
     found: list[np.ndarray] = []
     best_f, best_I = math.inf, None
     tried = iters = 0
@@ -393,17 +394,9 @@ def _result(request, prob, currents, success, message, tried, iters, warm, t0, s
 def _sampled_terms(prob: _Problem, I: np.ndarray, scales: np.ndarray):
     """Rest-position errors at the sampled parameters and their Jacobian w.r.t. I."""
     p = prob.params
-    m = scales.shape[0]
-    e = np.empty(m)
-    G = np.empty((m, prob.n))
-    pw = np.zeros(NP)
-    W = prob.W
-    for s in range(m):
-        pv, pc, pt = prob.pvals * scales[s]
-        hd_sim(p.J, p.n * p.kt, pv, pc, pt, prob.times, I, prob.tf, prob.q0, True, pw, W)
-        e[s] = W[Q_, 0] - prob.goal
-        G[s] = W[Q_, 4:4 + prob.n]
-    return e, G
+    return _lm1d.sampled_terms(p.J, p.n * p.kt, prob.pvals, np.ascontiguousarray(scales),
+                               prob.times, np.ascontiguousarray(I, dtype=float), prob.tf,
+                               prob.q0, prob.goal, prob.W)
 
 
 def _constraints(prob: _Problem, I: np.ndarray, with_derivs: bool):
@@ -438,13 +431,27 @@ def _refine_sampled(prob: _Problem, I0: np.ndarray, scales: np.ndarray, with_der
         e, G = _sampled_terms(prob, I, scales)
         return float(e @ e / m), 2.0 * (G.T @ e) / m
 
-    cons = [{"type": "eq", "fun": lambda I: _constraints(prob, I, with_derivs)[0],
-             "jac": lambda I: _constraints(prob, I, with_derivs)[1]},
-            {"type": "ineq", "fun": lambda I: np.array([_constraints(prob, I, with_derivs)[2]]),
-             "jac": lambda I: _constraints(prob, I, with_derivs)[3].reshape(1, -1)}]
+    memo: dict = {}
+
+    def con(I):
+        key = I.tobytes()
+        if key not in memo:
+            memo.clear()
+            memo[key] = _constraints(prob, np.ascontiguousarray(I, dtype=float), with_derivs)
+        return memo[key]
+
+    cons = [{"type": "eq", "fun": lambda I: con(I)[0], "jac": lambda I: con(I)[1]},
+            {"type": "ineq", "fun": lambda I: np.array([con(I)[2]]),
+             "jac": lambda I: con(I)[3].reshape(1, -1)}]
     bounds = [(-prob.i_max, prob.i_max)] * prob.n
+    deadline = time.perf_counter() + budget
+
+    def stop_at_deadline(xk):
+        if time.perf_counter() > deadline:
+            raise StopIteration     # SLSQP returns its current iterate
+
     res = minimize(fun, I0, jac=True, method="SLSQP", bounds=bounds, constraints=cons,
-                   options={"maxiter": 200, "ftol": 1e-14})
+                   options={"maxiter": 200, "ftol": 1e-12}, callback=stop_at_deadline)
     return np.asarray(res.x, float), float(math.sqrt(max(res.fun, 0.0)))
 
 
@@ -455,7 +462,6 @@ def _rms(prob: _Problem, I: np.ndarray, scales: np.ndarray) -> float:
 
 def _finish_sampled(request, prob, found, best_I, tried, iters, warm, t0, stats, out_of_time):
     scales = sample_scales(request.uncertain)
-    remaining = max(0.0, request.time_budget - (time.perf_counter() - t0))
     with_derivs = bool(found)
     cands = found if found else ([best_I] if best_I is not None else [])
     best, best_rms = None, math.inf
@@ -472,7 +478,8 @@ def _finish_sampled(request, prob, found, best_I, tried, iters, warm, t0, stats,
         if time.perf_counter() - t0 > request.time_budget:
             break
         try:
-            I1, _ = _refine_sampled(prob, I0.copy(), scales, with_derivs, remaining)
+            left = request.time_budget - (time.perf_counter() - t0)
+            I1, _ = _refine_sampled(prob, I0.copy(), scales, with_derivs, left)
         except (ValueError, ArithmeticError):
             continue
         rms1 = _rms(prob, I1, scales)
