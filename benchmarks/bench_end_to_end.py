@@ -62,6 +62,7 @@ def main(argv=None) -> int:
                                  "setpoints_sent": m["setpoints_sent"],
                                  "feedback_messages": m["feedback_messages"],
                                  "feedback_gap_max_s": m["feedback_gap_max_s"],
+                                 "feedback_rate_hz": m["feedback_rate_hz"],
                                  "plan_time_s": m["plan_time_s"]})
     table = {}
     for r in rows:

@@ -297,7 +297,7 @@ class Stack:
                     over = _params_file(self.run_dir / "executor_overrides.yaml", "ff_executor",
                                         dict(o.executor_overrides))
                     args += ["--params-file", str(over)]
-                p = self._start("ff_executor", "ff_executor.node", args)
+                p = self._start("ff_executor", "ff_executor.node", args, timing=True)
                 self._wait(p, lambda: self._has_service("/ff_executor/execute/_action/send_goal"),
                            "action ~/execute")
         except BaseException:

@@ -42,7 +42,8 @@ class MoveOutcome:
     status: int
     result: object                 # ExecuteProfile.Result
     feedback: int
-    feedback_period_max: float     # s, longest gap between feedback messages
+    feedback_period_max: float     # s, longest gap between feedback messages (as received here)
+    feedback_rate: float           # Hz, messages / time between the first and the last
     start_time: float              # s, ROS clock, when the first setpoint took effect (planned)
     truth: Recording
     joints: Recording
@@ -223,6 +224,7 @@ class StackClient:
                     delays.append((self._applied[key] - stamp) / NS)
                 prev = cur
         gaps = np.diff(fb_times) if len(fb_times) > 1 else np.array([np.inf])
+        rate = (len(fb_times) - 1) / (fb_times[-1] - fb_times[0]) if len(fb_times) > 1 else 0.0
         rest = lt[1] if lt is not None else None
-        return MoveOutcome(res.status, res.result, len(fb_times), float(gaps.max()),
+        return MoveOutcome(res.status, res.result, len(fb_times), float(gaps.max()), float(rate),
                            t_goal, truth, joints, rest, delays)

@@ -87,6 +87,7 @@ def run_motions(client, qf: float = 1.0, tf: float = 1.0, motions=MOTIONS, log=p
                                "max": r.switch_error_max},
             "switch_spread_s": mv.switch_spread, "timing_ok": runs[-1]["timing_ok"], "runs": runs,
             "feedback_messages": mv.feedback, "feedback_gap_max_s": mv.feedback_period_max,
+            "feedback_rate_hz": mv.feedback_rate,
             "_profile": resp.profile, "_outcome": mv,
         }
     return out
