@@ -3,7 +3,7 @@
 Unknowns: the N step currents I (A), box |I| ≤ i_max (projected steps). Equations (all in rad):
 
     r_0     = wq · (q(tf) − q_goal)
-    r_i     = ∂q(tf)/∂p_i · p_i     for each uncertain p_i (scaled derivative)
+    r_i     = ∂q(tf)/∂p_i · s_i     for each uncertain p_i (s_i = |p_i|, a default if p_i = 0)
     r_pen   = w · max(0, |q̇(tf − coast)| − v_bound)   (one-sided rest condition)
 
 v_bound is the coast-entry speed from which zero current stops the arm a margin before tf, so

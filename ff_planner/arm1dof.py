@@ -288,6 +288,22 @@ def advance(params: Arm1DofParams, q: float, qd: float, current: float,
 
 
 FRICTION = ("pv", "pc", "pt")
+#: scale used for a friction parameter whose nominal value is 0 (table 2 magnitudes): relative
+#: changes of zero are meaningless, so robustness to it is judged per this absolute amount
+ZERO_SCALE = {"pv": 0.05, "pc": 0.19, "pt": 0.22}
+
+
+def friction_scale(params: Arm1DofParams, uncertain: Sequence[str] = FRICTION) -> np.ndarray:
+    """(3,) scales of pv, pc, pt: |p| (or ZERO_SCALE when p = 0) for uncertain ones, else 0.
+
+    Derivatives times these scales are "rad per 100 % change"; the kink radius is in the same
+    relative units."""
+    out = np.zeros(3)
+    for i, k in enumerate(FRICTION):
+        if k in uncertain:
+            v = abs(float(getattr(params, k)))
+            out[i] = v if v > 0.0 else ZERO_SCALE[k]
+    return out
 
 
 @dataclass
@@ -331,7 +347,7 @@ def derivatives(params: Arm1DofParams, profile: CurrentProfile, q0: float, *,
     n = cur.shape[0]
     W = workspace(n)
     J, c, pv, pc, pt = _args(params)
-    pw = np.array([getattr(params, k) if k in uncertain else 0.0 for k in FRICTION])
+    pw = friction_scale(params, uncertain)
     kink, tf_radius = hd_sim(J, c, pv, pc, pt, times, cur, profile.tf, float(q0), bool(to_rest),
                              pw, W)
     base = 4 + n

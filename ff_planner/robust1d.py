@@ -30,7 +30,7 @@ import numpy as np
 
 from . import _lm1d
 from ._deriv1d import NP, Q_, VC_, hd_sim, workspace
-from .arm1dof import FRICTION, batch_core, derivatives
+from .arm1dof import FRICTION, batch_core, derivatives, friction_scale
 from .params import Arm1DofParams
 from .profile import CurrentProfile, PlanRequest, PlanResult, PlanningError
 
@@ -162,10 +162,11 @@ def verify(params: Arm1DofParams, profile: CurrentProfile, q0: float, qf: float,
     sw = _Sweep(params, profile, q0)
     i0 = sw.add()
     idx = {}
+    scale = friction_scale(params, uncertain)        # |p|, or a default where p = 0
     for k in uncertain:
         p0 = sw.base[k]
-        h = 1e-6 * abs(p0) if p0 != 0.0 else 1e-9
-        hf = 1e-3 * abs(p0) if p0 != 0.0 else 1e-6
+        h = 1e-6 * scale[FRICTION.index(k)]
+        hf = 1e-3 * scale[FRICTION.index(k)]
         idx[k] = (h, sw.add(**{k: p0 + h}), sw.add(**{k: p0 - h}), hf, sw.add(**{k: p0 + hf}))
     fplan = _queue_finite_change(sw, uncertain)
     q, v = sw.run()
@@ -199,7 +200,9 @@ class _Problem:
         self.q0 = float(request.q0[0])
         self.goal = float(request.qf[0])
         self.umask = np.array([k in request.uncertain for k in FRICTION])
-        self.pvals = np.array([params.pv, params.pc, params.pt], dtype=float)
+        self.pvals = np.array([params.pv, params.pc, params.pt], dtype=float)   # values
+        # scales of the derivative rows (|p|, or a default where p = 0), zero if not uncertain
+        self.pscale = friction_scale(params, [k for k in FRICTION if k in request.uncertain])
         self.i_max = float(params.i_max)
         self.vb = stop_speed_bound(params, self.coast)
         self.W = workspace(n)
@@ -210,7 +213,7 @@ class _Problem:
     def args(self):
         p = self.params
         return (p.J, p.n * p.kt, p.pv, p.pc, p.pt, self.times, self.tf, self.q0, self.goal,
-                self.umask, self.pvals, self.i_max)
+                self.umask, self.pscale, self.i_max)
 
     def run(self, starts: np.ndarray, stop_first: bool):
         s = self.settings
@@ -403,7 +406,7 @@ def _constraints(prob: _Problem, I: np.ndarray, with_derivs: bool):
     """Equalities [q(tf) − qf, scaled ∂q/∂p_i] and inequality vb − |v_coast| with Jacobians."""
     p = prob.params
     W = prob.W
-    pw = np.where(prob.umask, prob.pvals, 0.0)
+    pw = prob.pscale
     hd_sim(p.J, p.n * p.kt, p.pv, p.pc, p.pt, prob.times, I, prob.tf, prob.q0, False, pw, W)
     n = prob.n
     eq = [W[Q_, 0] - prob.goal]
@@ -412,8 +415,8 @@ def _constraints(prob: _Problem, I: np.ndarray, with_derivs: bool):
         base = 4 + n
         for i in range(NP):
             if prob.umask[i]:
-                eq.append(W[Q_, 1 + i] * prob.pvals[i])
-                jeq.append(W[Q_, base + i * n: base + (i + 1) * n] * prob.pvals[i])
+                eq.append(W[Q_, 1 + i] * prob.pscale[i])
+                jeq.append(W[Q_, base + i * n: base + (i + 1) * n] * prob.pscale[i])
     vc = W[VC_, 0]
     ineq = prob.vb * 0.98 - abs(vc)
     jin = -np.sign(vc) * W[VC_, 4:4 + n]

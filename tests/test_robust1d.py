@@ -121,3 +121,11 @@ def test_progress_reports_and_smallest_steps():
     assert r is not None and r.profile.n_steps == 5
     assert [e["steps"] for e in evidence] == [4, 5] and not evidence[0]["robust"]
     assert seen and {"starts_done", "robust_found", "best"} <= set(seen[0])
+
+
+def test_zero_nominal_parameter_still_counts():
+    """Table 1 has pv = 0: its derivative row must not vanish by scaling with p = 0."""
+    r = plan_robust_1dof(PlanRequest(params=preset("table1"), uncertain=("pv", "pc"), steps=5,
+                                     starts=2000, seed=0))
+    assert r.success and r.robust
+    assert abs(r.sensitivities["pv"]) <= 1e-6 and abs(r.sensitivities["pc"]) <= 1e-6
