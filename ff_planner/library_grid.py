@@ -348,16 +348,18 @@ def continuation_tree(grid: Grid, n_roots: int = 1) -> None:
     mst = mst.maximum(mst.T).tolil()
     adj = [list(r) for r in mst.rows]
 
-    def bfs(src: int) -> tuple[list[int], list[int]]:
+    def bfs(*srcs: int) -> tuple[list[int], list[int]]:
+        """Multi-source BFS over the MST: parent (-1 at a source, -2 unreached) and depth."""
         par, dep = [-2] * n, [0] * n
-        par[src] = -1
-        order, q = [src], deque([src])
+        q = deque()
+        for src in srcs:
+            par[src] = -1
+            q.append(src)
         while q:
             u = q.popleft()
             for v in sorted(adj[u]):
                 if par[v] == -2:
                     par[v], dep[v] = u, dep[u] + 1
-                    order.append(v)
                     q.append(v)
         return par, dep
 
@@ -374,25 +376,20 @@ def continuation_tree(grid: Grid, n_roots: int = 1) -> None:
         path = [b]
         while par[path[-1]] != -1:
             path.append(par[path[-1]])
-        centre = path[len(path) // 2]
-        par, dep = bfs(centre)
-        comp_roots = [centre]
-        if n_roots > 1 and len(comp) > n_roots:   # farthest-point extra roots, cut from their parents
-            chosen = [centre]
+        comp_roots = [path[len(path) // 2]]          # the tree's centre
+        if n_roots > 1 and len(comp) > n_roots:
+            # more roots (cold starts): greedily the node farthest (in tree hops) from the chosen
+            # roots' centre-of-subtree, i.e. the one a multi-source BFS reaches last
             for _ in range(n_roots - 1):
-                far = max(comp, key=lambda i: (min(np.linalg.norm(pts[i] - pts[c]) for c in chosen), -i))
-                chosen.append(far)
-            comp_roots = chosen
-            cut = set(chosen)
-            for r in chosen[1:]:
-                par[r] = -1
-            # re-derive depths along the cut tree
-            dep = [0] * n
-            for i in comp:
-                d, u = 0, i
-                while par[u] != -1:
-                    u, d = par[u], d + 1
-                dep[i] = d
+                _, d = bfs(*comp_roots)
+                far = max(comp, key=lambda i: (d[i], -i))
+                # place the new root halfway from its nearest root to the far node
+                p_, _ = bfs(*comp_roots)
+                chain = [far]
+                while p_[chain[-1]] != -1:
+                    chain.append(p_[chain[-1]])
+                comp_roots.append(chain[len(chain) // 2])
+        par, dep = bfs(*comp_roots)
         for i in comp:
             seen[i] = True
             t = grid.tasks[reps[i]]

@@ -17,7 +17,7 @@ import pytest
 from ff_planner.library import MotionLibrary
 from ff_planner.library_build import build_library, plan_for_library, start_local_cluster
 from ff_planner.library_cli import main as cli_main
-from ff_planner.library_grid import GridError, expand, load_grid, parse_grid
+from ff_planner.library_grid import GridError, continuation_tree, expand, load_grid, parse_grid
 from ff_planner.profile import PlanRequest
 
 # 1-DOF, Coulomb uncertainty (k = 1, N = 3): robust plans exist almost everywhere and are fast.
@@ -70,6 +70,17 @@ def test_grid_axes_ranges_and_twins():
             assert pos[p] < pos[i]
             d = np.abs(grid.tasks[i].coords - grid.tasks[p].coords)
             assert np.count_nonzero(d > 1e-9) == 1 and (np.isclose(d.max(), 0.25) or np.isclose(d.max(), 0.1))
+
+
+def test_more_roots_still_cover_every_motion_once():
+    grid = expand(parse_grid({**GRID, "qf": {"start": 0.5, "stop": 1.5, "step": 0.1}, "tf": [0.9, 1.0, 1.1]}))
+    depth1 = max(grid.tasks[i].depth for i in grid.reps)
+    continuation_tree(grid, n_roots=3)
+    order = grid.order()
+    assert len(grid.roots) == 3 and sorted(order) == sorted(grid.reps)
+    pos = {i: k for k, i in enumerate(order)}
+    assert all(pos[grid.tasks[i].parent] < pos[i] for i in grid.reps if grid.tasks[i].parent >= 0)
+    assert max(grid.tasks[i].depth for i in grid.reps) < depth1
 
 
 def test_grid_scara2_and_errors(tmp_path):
