@@ -72,6 +72,7 @@ class StackOptions:
     q0: Sequence[float] = ()                   # rad, initial arm position (default zeros)
     switch_interval: Optional[float] = 1e-4    # s, GIL switch interval of the sim driver and the
                                                # bridge (ff_executor.timed); None = Python's 5 ms
+    separate_hub: bool = False                 # CAN hub in its own process (else the sim driver hosts it)
     rt_priority: int = 0                       # 1..99: SCHED_FIFO for the sim driver process and the
                                                # bridge's scheduler thread (root/CAP_SYS_NICE); 0 = off
     timing_nice: Optional[int] = -10           # nice value for the sim driver and the bridge (the
@@ -213,7 +214,7 @@ class Stack:
         ``rt_priority`` the simulated driver's threads get SCHED_FIFO instead."""
         task_dir = f"/proc/{proc.pid}/task"
         tids = [int(t) for t in os.listdir(task_dir)] if os.path.isdir(task_dir) else [proc.pid]
-        rt = int(self.options.rt_priority) if proc.name == "ff_sim_driver" else 0
+        rt = int(self.options.rt_priority) if proc.name in ("ff_sim_driver", "ff_can_hub") else 0
         nice = self.options.timing_nice
         for tid in tids:
             try:
@@ -246,7 +247,12 @@ class Stack:
                  f"(loopback only), CAN hub {self.hub_url}")
         self.log(f"  simulated arm: {model}, true friction differs from the model by {true or 'nothing'}")
         try:
-            sim = {"model": model, "host_hub": True, "hub_port": self.hub_port,
+            if o.separate_hub:
+                p = self._start("ff_can_hub", "ff_hwbridge.can_hub", ["--port", str(self.hub_port)],
+                                timing=True)
+                self._wait(p, lambda: "CAN hub on" in p.output(), "serving on 127.0.0.1")
+            sim = {"model": model, "host_hub": not o.separate_hub, "hub_port": self.hub_port,
+                   "bus.interface": "remote", "bus.channel": self.hub_url,
                    "node_ids": list(range(1, nj + 1)), "q0": q0, "counts_per_rev": COUNTS_PER_REV,
                    "nominal_current": NOMINAL_CURRENT, "ground_truth_rate": 100.0,
                    # arm1dof.advance is exact for any step; the SCARA integrates numerically

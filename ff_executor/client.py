@@ -49,6 +49,7 @@ class MoveOutcome:
     joints: Recording
     rest_truth: Optional[np.ndarray]   # rad, ground-truth position once settled
     switch_delays: list = field(default_factory=list)   # s, bridge-applied − stamp per switch
+    profile_start: Optional[float] = None     # s, ROS clock: stamp of the move's first setpoint
 
     @property
     def switch_spread(self) -> float:
@@ -212,12 +213,20 @@ class StackClient:
             time.sleep(cancel_after)
             self._wait(handle.cancel_goal_async(), 10.0, "cancel")
         res = self._wait(res_future, timeout, "execute")
-        time.sleep(0.1)
+        t_result = self.now()
+        end = time.monotonic() + 2.0        # a ground-truth sample taken after the result, at rest
+        while time.monotonic() < end:
+            with self._lock:
+                lt = self.last_truth
+            if lt is not None and lt[0] >= t_result and np.all(np.abs(lt[2]) <= 1e-3):
+                break
+            time.sleep(0.01)
         with self._lock:
             truth, joints = self._truth, self._joints
             self._truth = self._joints = None
             lt = self.last_truth
             delays, prev = [], None
+            first = min((v[0] for v in self._stamps.values()), default=None)
             for key in sorted(self._stamps, key=lambda k: self._stamps[k][0]):
                 stamp, cur = self._stamps[key]
                 if cur != prev and key in self._applied:
@@ -227,4 +236,5 @@ class StackClient:
         rate = (len(fb_times) - 1) / (fb_times[-1] - fb_times[0]) if len(fb_times) > 1 else 0.0
         rest = lt[1] if lt is not None else None
         return MoveOutcome(res.status, res.result, len(fb_times), float(gaps.max()), float(rate),
-                           t_goal, truth, joints, rest, delays)
+                           t_goal, truth, joints, rest, delays,
+                           None if first is None else first / NS)

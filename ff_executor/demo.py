@@ -105,7 +105,7 @@ def plot(summary: dict, path: str, title: str) -> None:
         mv, prof = s["_outcome"], s["_profile"]
         t, q, _, _ = mv.truth.arrays()
         tj, _, _, eff = mv.joints.arrays()
-        t_start = _start_of(mv, t, q)
+        t_start = mv.profile_start if mv.profile_start is not None else _start_of(mv, t, q)
         c = colours.get(label, None)
         name = f"{label} ({s['objective']}): error {s['error_truth'] * 1e3:+.2f} mrad"
         if t.size:
@@ -118,7 +118,9 @@ def plot(summary: dict, path: str, title: str) -> None:
             ax2.plot(tj - t_start, eff[:, 0], color=c, alpha=0.4, lw=0.8, label=f"{label}: measured")
     ax1.axhline(1.0, color="k", lw=0.6, ls="--")
     ax1.set_ylabel("position (rad), ground truth")
-    ax1.set_xlim(-0.1, 1.6)
+    ends = [s["_outcome"].truth.t[-1] - (s["_outcome"].profile_start or 0.0)
+            for s in summary.values() if s["_outcome"].truth.t and s["_outcome"].profile_start]
+    ax1.set_xlim(-0.1, max(ends) if ends else 1.5)
     ax1.legend(loc="lower right", fontsize=8)
     ax1.set_title(title, fontsize=10)
     ax2.set_ylabel("motor current (A)")
@@ -199,7 +201,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     rob, base = summary["robust"], summary["baseline"]
     ratio = abs(base["error_truth"]) / max(abs(rob["error_truth"]), 1e-12)
     print(f"\nbaseline misses by {ratio:.0f}x the robust motion's error")
-    title = (f"0 -> {a.qf} rad in {a.tf} s, simulated arm friction {true} vs model table 2; "
+    title = (f"0 -> {a.qf:g} rad in {a.tf:g} s on the simulated stack; true friction "
+             + ", ".join(f"{k} = {v:.4g}" for k, v in true.items())
+             + " (planner's model: paper table 2)\n"
              f"robust {rob['error_truth'] * 1e3:+.2f} mrad, baseline {base['error_truth'] * 1e3:+.1f} mrad")
     plot(summary, a.plot, title)
     print(f"plot: {a.plot}")
