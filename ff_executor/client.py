@@ -136,7 +136,9 @@ class StackClient:
         return self.node.get_clock().now().nanoseconds / NS
 
     def _on_js(self, msg, which: str) -> None:
-        t = self.now()
+        # the publisher's stamp (when the sample was taken); the receive time only if unstamped
+        stamp = msg.header.stamp.sec * NS + msg.header.stamp.nanosec
+        t = stamp / NS if stamp else self.now()
         q = list(msg.position)
         qd = list(msg.velocity) if len(msg.velocity) == len(q) else [0.0] * len(q)
         eff = list(msg.effort) if len(msg.effort) == len(q) else [float("nan")] * len(q)

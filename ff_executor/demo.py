@@ -125,7 +125,7 @@ def plot(summary: dict, path: str, title: str) -> None:
     ax1.set_title(title, fontsize=10)
     ax2.set_ylabel("motor current (A)")
     ax2.set_xlabel("time since the profile started (s)")
-    ax2.legend(loc="upper right", fontsize=7, ncol=2)
+    ax2.legend(loc="lower left", fontsize=7, ncol=2)
     fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
