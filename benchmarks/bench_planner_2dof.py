@@ -24,6 +24,9 @@ def main() -> None:
     ap.add_argument("--tasks", type=int, default=5)
     ap.add_argument("--budget", type=float, default=60.0)
     ap.add_argument("--moving-budget", type=float, default=15.0)
+    ap.add_argument("--moving-search", type=float, default=0.0,
+                    help="seconds of derivative-robust search on the first link-2-moving task "
+                         "(evidence for issue 4's open question; 0 = skip)")
     ap.add_argument("--objective", default="robust-derivative",
                     choices=("robust-derivative", "robust-sampled"))
     args = ap.parse_args()
@@ -108,6 +111,13 @@ def main() -> None:
         out["random_tasks"].append(row)
         print(json.dumps({"progress": f"task {q0.tolist()}->{qf.tolist()}", "wall_s": wall,
                           "ok": res.success}), flush=True)
+    if args.moving_search > 0:
+        from ff_planner._robust2d_sampled import derivative_search
+
+        mv = [(q0, qf) for q0, qf in tasks if qf[1] != q0[1]]
+        if mv:
+            out["moving_derivative_search"] = derivative_search(
+                P, mv[0][0], mv[0][1], 1.0, 8, args.moving_search)
     print(json.dumps(out, indent=1, default=float))
 
 
