@@ -14,7 +14,6 @@ Units: rad, A, s.
 """
 from __future__ import annotations
 
-import math
 import time
 from typing import Callable, Optional
 

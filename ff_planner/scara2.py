@@ -22,18 +22,19 @@ restarted exactly at every event: a sliding joint's velocity reaching zero (it t
 reverses, decided by a consistent mode selection over both joints) and a stuck joint's holding
 torque reaching its limit (breakaway). Events are located by bracketed secant iteration on
 the RK4 step length, then polished by chord-Newton steps in complex arithmetic, so the event time
-is a smooth function of the inputs. Everything runs in complex arithmetic (decisions on real parts), which gives complex-step derivatives — exact to rounding —
-of the final state with respect to friction parameters and currents. Accuracy: 4th order in the
-substep; at 1 ms the final state of the section 4.2 task agrees with 0.125 ms to ~1e-10 rad
-(tests/test_scara2.py); while a joint is stuck it stays exactly at rest and the other joint's
-motion is the exact 1-DOF solution up to RK4's truncation of exp(−pv/J·h) (~1e-20).
+is a smooth function of the inputs. Everything runs in complex arithmetic (decisions on real
+parts), which gives complex-step derivatives — exact to rounding — of the final state with
+respect to friction parameters and currents. Accuracy (tests/test_scara2.py): 4th order in the
+substep; at 1 ms a profile with 5 stick/reverse events agrees with 0.125 ms to < 1e-9; while a
+joint is stuck it stays exactly at rest and the other joint matches the exact 1-DOF solution
+(``arm1dof``) to 1e-12, derivatives included.
 
 Units: rad, rad/s, A, Nm, s. No rclpy here.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Optional, Sequence
 
 import numpy as np
