@@ -289,7 +289,8 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
 
     Returns success with the plan, or NO_ROBUST_PLAN / TIME_BUDGET_EXHAUSTED with the best plan
     found labelled ``best_effort``. ``progress`` gets dicts like {"stage": "joint1",
-    "starts_done": 12, "best": 3e-4, "elapsed": 0.4}.
+    "starts_done": 12, "best": 3e-4, "elapsed": 0.4}. ``request.starts`` bounds the number of
+    continuations (the costly step); joint-1 starts are cheap and run within the time budget.
     """
     t_start = time.perf_counter()
     request.validate()
@@ -321,7 +322,9 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
     cprob = _compiled_joint1(p1, q0, qf, request, N, names1)
     found = False
     turn = 0
-    while starts < request.starts and time.perf_counter() < deadline and not found:
+    # request.starts bounds the expensive part, the continuations from joint-1 robust solutions
+    # (each a "start" of the 2-DOF search); cheap joint-1 starts run until the time budget
+    while candidates < request.starts and time.perf_counter() < deadline and not found:
         turn += 1
         # alternate two sources of joint-1 robust solutions: robust1d's compiled exact-Jacobian
         # LM (16 fast starts, full current range) and a scipy start (slower, but its solutions
@@ -330,7 +333,7 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
                                   or (JOINT1_SOURCE == "both" and turn % 2 == 0)):
             from . import _lm1d
 
-            m = int(min(CHUNK, request.starts - starts))
+            m = CHUNK
             block = rng.uniform(-p1.i_max, p1.i_max, (m, N))
             try:
                 done, st, it, f, _ = cprob.run(block, stop_first=False)
@@ -353,7 +356,7 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
                       "candidates": candidates + len(xs),
                       "elapsed": time.perf_counter() - t_start})
         for x in xs:
-            if time.perf_counter() >= deadline:
+            if time.perf_counter() >= deadline or candidates >= request.starts:
                 break
             candidates += 1
             # continuation along the solution set (4 spare dimensions at N = 8) until motor 2 can
@@ -388,8 +391,9 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
     if best is None:
         code = "TIME_BUDGET_EXHAUSTED" if time.perf_counter() >= deadline else "NO_ROBUST_PLAN"
         return _result(request, p, message=(
-            f"no robust plan with N = {N} steps per joint after {starts} starts "
-            f"(best joint-1 residual {best_cost:.3g}); try more starts, more steps or a longer tf"),
+            f"no robust plan with N = {N} steps per joint after {starts} joint-1 starts and "
+            f"{candidates} continuations (best joint-1 residual {best_cost:.3g}); try a larger "
+            f"time budget, more starts, more steps or a longer tf"),
             error_code=code, starts_tried=starts, iterations=iters, solve_time=elapsed)
     (ok_flag, _), profile, sim, sens, frac = best
     robust = ok_flag == 0
