@@ -64,12 +64,42 @@ class MoveOutcome:
         return self.status == GoalStatus.STATUS_SUCCEEDED and bool(self.result.success)
 
 
+def _safe_action_client_class():
+    """rclpy's ActionClient registers a request's future only after sending it; a response taken
+    by another executor thread in between is dropped ("Ignoring unexpected goal response") and
+    the caller waits forever. Serialise the two paths with one lock."""
+    from rclpy.action import ActionClient
+
+    class SafeActionClient(ActionClient):
+        def __init__(self, *args, **kwargs) -> None:
+            self._ff_lock = threading.RLock()
+            super().__init__(*args, **kwargs)
+
+        def send_goal_async(self, *args, **kwargs):
+            with self._ff_lock:
+                return super().send_goal_async(*args, **kwargs)
+
+        def _cancel_goal_async(self, *args, **kwargs):
+            with self._ff_lock:
+                return super()._cancel_goal_async(*args, **kwargs)
+
+        def _get_result_async(self, *args, **kwargs):
+            with self._ff_lock:
+                return super()._get_result_async(*args, **kwargs)
+
+        async def execute(self, taken_data):
+            with self._ff_lock:   # wait until a request in flight has registered its future
+                pass
+            return await super().execute(taken_data)
+
+    return SafeActionClient
+
+
 class StackClient:
     """rclpy node + executor thread in this process; apply the stack's env before creating it."""
 
     def __init__(self, env: Mapping[str, str], name: str = "ff_client") -> None:
         import rclpy
-        from rclpy.action import ActionClient
         from rclpy.executors import MultiThreadedExecutor
         from rclpy.node import Node
         from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -86,7 +116,7 @@ class StackClient:
         self.node = Node(name, context=self.ctx)
         self.plan_client = self.node.create_client(PlanTrajectory, "/ff_planner/plan")
         self.reset_client = self.node.create_client(Trigger, "/ff_sim_driver/reset")
-        self.action = ActionClient(self.node, ExecuteProfile, "/ff_executor/execute")
+        self.action = _safe_action_client_class()(self.node, ExecuteProfile, "/ff_executor/execute")
         qos = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
         self._lock = threading.Lock()
         self._truth: Optional[Recording] = None

@@ -15,7 +15,6 @@ import rclpy
 from action_msgs.msg import GoalStatus
 from lifecycle_msgs.msg import State
 from lifecycle_msgs.srv import GetState
-from rclpy.action import ActionClient
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -24,6 +23,7 @@ from sensor_msgs.msg import JointState
 from ff_msgs.action import ExecuteProfile
 from ff_msgs.msg import CurrentSetpoint
 from ff_msgs_py.convert import ns_to_time, profile_to_msg, setpoint_to_tuple
+from ff_executor.client import _safe_action_client_class
 from ff_msgs_py.launch import start_module, wait_for_line
 from ff_planner.arm1dof import advance
 from ff_planner.params import default_params
@@ -137,7 +137,7 @@ def stack(ros_env, tmp_path_factory):
     spin.start()
     try:
         assert wait_for_line(proc, "ff_executor ready", 30), proc.output()
-        client = ActionClient(client_node, ExecuteProfile, "/ff_executor/execute")
+        client = _safe_action_client_class()(client_node, ExecuteProfile, "/ff_executor/execute")
         assert client.wait_for_server(timeout_sec=15), "action server not discovered"
         yield bridge, client, proc
     finally:
