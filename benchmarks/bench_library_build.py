@@ -65,7 +65,10 @@ def _warm_workers(client) -> float:
 def _build(client, grid_data: dict, continuation: bool, path: Path) -> dict:
     rep = build_library(expand(parse_grid(grid_data)), path, client=client, continuation=continuation,
                         progress=False)
+    w = max(1, rep.workers)
     return {"continuation": continuation, "wall_s": rep.wall_time, "tasks_per_minute": rep.tasks_per_minute,
+            # sum of task times / (workers × wall): how busy Dask kept the workers (1 = always)
+            "worker_busy_fraction": rep.solve_time / (w * rep.wall_time) if rep.wall_time > 0 else None,
             "distinct_tasks": rep.distinct_solved, "task_time_sum_s": rep.solve_time,
             "solved": rep.solved, "infeasible": rep.infeasible, "failed": rep.failed,
             "solved_how": dict(rep.how), "loadavg_1min": os.getloadavg()[0]}
