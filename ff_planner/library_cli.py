@@ -4,6 +4,11 @@
                      [--no-continuation] [--roots R] [--dashboard] [--json]
     ff-library show --library PATH [--grid GRID.yaml] [--png map.png] [--limit N] [--json]
 
+The library is the planner node's motion library (``ff_planner.library``, SQLite): point the node's
+``library_path`` at the same file, with the same model preset/overrides (rows of other parameters
+are invisible to it). With ``--scheduler`` the workers of that cluster must have this suite
+installed (same version); they only compute, this command writes the file.
+
 Exit codes: 0 done (infeasible tasks are an answer, not an error); 1 some tasks failed (re-run to
 retry them); 2 bad input (one line on stderr saying what to change).
 """
