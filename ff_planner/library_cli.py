@@ -224,7 +224,7 @@ def cmd_show(a: argparse.Namespace) -> int:
 
 
 def parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(prog="ff-library", description=__doc__.split("\n\n")[0],
+    ap = argparse.ArgumentParser(prog="ff-library", description=__doc__.replace("``", ""),
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = ap.add_subparsers(dest="cmd", required=True)
     b = sub.add_parser("build", help="solve every task of a grid into a motion library (Dask)")
