@@ -56,7 +56,8 @@ def _copy(W, o, x):
         W[o, k] = W[x, k]
 
 
-@njit("void(float64[:, ::1], int64, int64, int64, float64, float64, float64)", cache=True, nogil=True)
+@njit("void(float64[:, ::1], int64, int64, int64, float64, float64, float64)",
+      cache=True, nogil=True)
 def _lin(W, o, x, y, al, be, ga):
     """o = al·x + be·y + ga."""
     for k in range(W.shape[1]):
@@ -81,7 +82,8 @@ def _mul(W, o, x, y, n):
     W[o, 0] = x0 * y0
 
 
-@njit("void(float64[:, ::1], int64, int64, float64, float64, float64, int64)", cache=True, nogil=True)
+@njit("void(float64[:, ::1], int64, int64, float64, float64, float64, int64)",
+      cache=True, nogil=True)
 def _uni(W, o, x, g0, g1, g2, n):
     """o = g(x) given g, g', g'' at x's value (o may alias x)."""
     base = 4 + n
@@ -149,7 +151,11 @@ def _radius_of(W, r, pw, margin):
     return abs(margin) / s
 
 
-@njit("float64(float64[:, ::1], int64, int64, float64, float64, float64, float64, float64, float64[::1], float64, boolean, boolean)", cache=True, nogil=True)
+_PHASE_SIG = ("float64(float64[:, ::1], int64, int64, float64, float64, float64, float64, float64, "
+              "float64[::1], float64, boolean, boolean)")
+
+
+@njit(_PHASE_SIG, cache=True, nogil=True)
 def _phase(W, n, j, c, J, torque, t_start, t_end, pw, kink, rest_phase, track_end):
     """Advance the Taylor state (TIME, Q, V) under constant torque from t_start until t_end.
 

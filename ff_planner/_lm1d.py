@@ -27,7 +27,13 @@ from ._deriv1d import NP, Q_, VC_, hd_sim
 OK, NO_CONVERGENCE, ABANDONED, KINK, BAD_START = 0, 1, 2, 3, 4
 
 
-@njit("Tuple((boolean, float64, float64, float64, float64))(float64, float64, float64, float64, float64, float64[::1], float64, float64, float64, float64[::1], float64[::1], float64[::1], float64[:, ::1], float64, float64, float64, int64, float64[::1], float64[:, ::1])", cache=True, nogil=True)
+_RESIDUAL_SIG = ("Tuple((boolean, float64, float64, float64, float64))(float64, float64, float64, "
+                 "float64, float64, float64[::1], float64, float64, float64, float64[::1], "
+                 "float64[::1], float64[::1], float64[:, ::1], float64, float64, float64, int64, "
+                 "float64[::1], float64[:, ::1])")
+
+
+@njit(_RESIDUAL_SIG, cache=True, nogil=True)
 def residual(J, c, pv, pc, pt, times, tf, q0, goal, pw, pvals, cur, W, vb, wpen, wq,
              pen_mode, r, Jm):
     """Fill r (m,) and Jm (m, N).

@@ -55,7 +55,12 @@ def _cross_time(v: float, a: float, b: float) -> float:
     return -x * psi_value(z)
 
 
-@njit("Tuple((float64, float64, float64, int64, int64))(float64, float64, float64, float64, float64, float64, float64, float64, float64, float64[:, ::1], int64, float64[:, ::1], int64, int64)", cache=True, nogil=True)
+_PHASE_SIG = ("Tuple((float64, float64, float64, int64, int64))(float64, float64, float64, "
+              "float64, float64, float64, float64, float64, float64, float64[:, ::1], int64, "
+              "float64[:, ::1], int64, int64)")
+
+
+@njit(_PHASE_SIG, cache=True, nogil=True)
 def _phase(t, q, v, torque, t_end, J, a, pc, pt, seg, nseg, ev, nev, rest_kind):
     """Advance the state under constant ``torque`` from t to t_end (may be inf).
 

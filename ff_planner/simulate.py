@@ -1,4 +1,4 @@
-"""One entry point to simulate any model: ``simulate`` and ``rest_position`` dispatch on params.model.
+"""One entry point to simulate any model: ``simulate``/``rest_position`` dispatch on params.model.
 
 arm1dof → ``ff_planner.arm1dof`` (exact, event-based, compiled); scara2 → ``ff_planner.scara2``
 (``simulate_scara2`` returning the same SimResult). Units: rad, rad/s, A, s.

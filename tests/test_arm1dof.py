@@ -1,4 +1,4 @@
-"""The exact 1-DOF simulator against closed forms, an independent fine-step integrator, and itself."""
+"""The exact 1-DOF simulator against closed forms, an independent fine-step integrator, itself."""
 from __future__ import annotations
 
 import math
