@@ -140,6 +140,23 @@ def test_serial_build_continues_from_neighbours_and_resumes(serial_library):
         assert _content(lib) == before
 
 
+def test_an_interrupted_build_resumes_to_the_same_library(tmp_path, serial_library):
+    serial_path, _ = serial_library
+    grid = expand(parse_grid(GRID))
+    path = tmp_path / "lib.sqlite"
+
+    def stop(i, rec, n=[0]):
+        n[0] += 1
+        if n[0] == 4:
+            raise KeyboardInterrupt   # the client dies after storing 4 distinct motions
+    with pytest.raises(KeyboardInterrupt):
+        build_library(grid, path, serial=True, progress=False, on_result=stop)
+    rep = build_library(grid, path, serial=True, progress=False)
+    assert rep.stored_before >= 4 and rep.distinct_solved == len(grid.reps) - 4
+    with MotionLibrary(path) as a, MotionLibrary(serial_path) as b:
+        assert _content(a) == _content(b)
+
+
 def test_dask_build_with_a_worker_killed_mid_run_matches_serial(tmp_path, serial_library, capsys):
     """2 worker processes on 127.0.0.1; SIGKILL one while it plans; every task stored exactly once
     and identical to the serial build."""
