@@ -125,22 +125,27 @@ def main() -> int:
             log = json.load(fh)["setpoints"]["1"]
         # match arrivals to the stream: in order, by raw value
         arrivals = [(wall, raw) for _, wall, raw, _ in log if wall >= t0 - 1_000_000]
-        err_ns, j = [], 0
+        err_ns, j, repeats = [], 0, 0
         for wall, raw in arrivals:
-            if raw == 0:                 # not a streamed value (enable / safe state / refresh)
+            if raw == 0:                 # not a streamed value (enable / safe state)
                 continue
-            while j < n and raws[j] != raw:
-                j += 1
-            if j >= n:
-                break
-            err_ns.append(wall - int(stamps[j]))
-            j += 1
+            if j > 0 and raw == raws[j - 1] and (j >= n or raw != raws[j]):
+                repeats += 1             # the master's RPDO refresh repeating the last value
+                continue
+            k = j
+            while k < n and k < j + 52 and raws[k] != raw:   # skip lost ones (pattern: 52)
+                k += 1
+            if k >= n or raws[k] != raw:
+                continue
+            err_ns.append(wall - int(stamps[k]))
+            j = k + 1
         err = np.asarray(err_ns, dtype=float) / 1000.0
         received = len(err_ns)
         out = {
             "benchmark": "bridge_timing", "rate_hz": a.rate, "duration_s": a.duration,
             "sync_period_s": a.sync_period, "transport": "python-can-remote hub on 127.0.0.1",
             "sent": int(bridge.count), "received_by_drive": received, "lost": int(n - received),
+            "repeated_by_refresh": repeats,
             "switch_error_us": {"p50": float(np.percentile(err, 50)), "p99": float(np.percentile(err, 99)),
                                 "max": float(err.max()), "min": float(err.min())} if received else None,
             "bridge_send_error_us": {"p50": bridge.p50_us, "p99": bridge.p99_us, "max": bridge.max_us},
