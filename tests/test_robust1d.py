@@ -129,3 +129,10 @@ def test_zero_nominal_parameter_still_counts():
                                      starts=2000, seed=0))
     assert r.success and r.robust
     assert abs(r.sensitivities["pv"]) <= 1e-6 and abs(r.sensitivities["pc"]) <= 1e-6
+
+
+def test_same_seed_same_plan():
+    a = plan_robust_1dof(PlanRequest(starts=500, seed=7))
+    b = plan_robust_1dof(PlanRequest(starts=500, seed=7))
+    assert a.success and np.array_equal(a.profile.currents, b.profile.currents)
+    assert a.starts_tried == b.starts_tried
