@@ -6,7 +6,9 @@
   |I| ≤ i_max, such that q(tf) = qf, the arm is at rest at tf, and every ∂q(tf)/∂p_i = 0 for the
   uncertain friction parameters. Seeded multistart of a compiled Levenberg–Marquardt solver with
   exact Jacobians (``_lm1d``); the first start that meets the tolerances with true derivatives is
-  verified and returned. A plan within 0.1 % (relative parameter change) of a non-smooth point
+  verified and returned. Starts are drawn 16 at a time: alternately from a narrow box (±0.2·i_max
+  for k ≥ 2, ±0.3·i_max for k = 1) with the first and last currents opposing the move (robust
+  motions first move away from the goal, paper 4.1.2), and from a wide box (±0.8·i_max). A plan within 0.1 % (relative parameter change) of a non-smooth point
   (zero crossing at a switch time, breakaway edge) is refused: its one-sided derivatives differ.
 - objective "robust-sampled" (section 6.2): among robust plans, the one — refined by SLSQP along
   the robust set — with the least RMS error of the REST position over sampled parameter values
