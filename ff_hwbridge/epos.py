@@ -6,7 +6,8 @@ One :class:`EposMaster` drives a group of joints (one EPOS each) on one python-c
                   one RemoteNode per joint (object dictionary built in code, ``epos_od.py``),
                   heartbeat / EMCY / TPDO listeners.
 - ``configure()`` per drive: NMT reset communication + wait for boot-up, SDO configuration
-                  (0x6060 mode: EPOS4 10 = CST, EPOS2 -3 = current mode; 0x1017 heartbeat;
+                  (0x6040 = 0 disable voltage first; 0x6060 mode: EPOS4 10 = CST, EPOS2 -3 =
+                  current mode; 0x1017 heartbeat; optional 0x1016 consumer of a master heartbeat;
                   motor data read/limit write), PDO mapping (RPDO1 controlword + setpoint, type
                   255; TPDO1 statusword + position, TPDO2 velocity + current, type 1), NMT start;
                   then the SYNC producer and the monitor thread (heartbeat timeout, TPDO
@@ -17,10 +18,14 @@ One :class:`EposMaster` drives a group of joints (one EPOS each) on one python-c
                   separate, optional blocking helper.
 - ``command_currents(amps)`` sends one RPDO per joint; every command goes through the
                   :class:`~ff_hwbridge.safety.SafetyGuard` (clamp, latch) and is clamped again in
-                  raw drive units.
-- Faults (EMCY, drive in Fault, heartbeat loss, TPDO silence, unexpected boot-up, setpoint
-                  watchdog) latch the safe state: zero current, quick stop (or disable voltage),
-                  reason kept until ``fault_reset()``.
+                  raw drive units. ``prepare_currents`` + ``send_prepared`` split it so that a
+                  scheduler does the work before a stamp and only sends at it.
+- RPDOs are not acknowledged: while a drive's state differs from its target the controlword is
+                  repeated every 5 ms, and every RPDO is refreshed at least every 50 ms.
+- Faults (EMCY, drive in Fault, heartbeat loss, TPDO silence, boot-up or NMT state other than
+                  OPERATIONAL in the heartbeat, setpoint watchdog) latch the safe state: zero
+                  current, quick stop (or disable voltage), reason kept until ``fault_reset()``
+                  (which sets up a rebooted node again).
 
 canopen's BaseNode402 is not used (it blocks waiting for statuswords).
 
