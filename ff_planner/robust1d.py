@@ -94,89 +94,76 @@ def sample_scales(uncertain: Sequence[str], levels: Sequence[float] = (0.1, 0.2)
     return np.array(rows) if rows else np.ones((1, NP))
 
 
-class _Sweep:
-    """Final states of one profile at many friction settings in one compiled call (verification
-    runs ~40 simulations; building parameter objects for each would dominate a 0.1 ms plan)."""
-
-    def __init__(self, params: Arm1DofParams, profile: CurrentProfile, q0: float):
-        self.base = {"pv": float(params.pv), "pc": float(params.pc), "pt": float(params.pt)}
-        self.J, self.c = float(params.J), float(params.n * params.kt)
-        self.times = np.ascontiguousarray(profile.step_times, dtype=float)
-        self.cur = np.ascontiguousarray(profile.currents[:, 0], dtype=float)
-        self.tf, self.q0 = float(profile.tf), float(q0)
-        self.rows: list = []
-        self.rest: list = []
-
-    def add(self, to_rest: bool = False, **friction: float) -> int:
-        """Queue a setting; returns its index into the arrays of ``run``."""
-        p = dict(self.base, **friction)
-        self.rows.append((p["pv"], p["pc"], p["pt"]))
-        self.rest.append(bool(to_rest))
-        return len(self.rows) - 1
-
-    def run(self) -> tuple[np.ndarray, np.ndarray]:
-        return batch_core(self.J, self.c, np.array(self.rows, dtype=float),
-                          np.array(self.rest, dtype=np.bool_), self.times, self.cur, self.tf,
-                          self.q0)
-
-
 CHANGES = (-0.4, -0.1, 0.1, 0.4)
-
-
-def _queue_finite_change(sw: _Sweep, uncertain: Sequence[str], changes=CHANGES) -> list:
-    groups = [(u, [u]) for u in uncertain] + ([("all", list(uncertain))] if len(uncertain) > 1
-                                               else [])
-    plan = []
-    for name, keys in groups:
-        for ch in changes:
-            fr = {k: sw.base[k] * (1.0 + ch) for k in keys}
-            plan.append((name, ch, sw.add(False, **fr), sw.add(True, **fr)))
-    return plan
-
-
-def _collect_finite_change(plan: list, q: np.ndarray, v: np.ndarray, qf: float) -> dict:
-    """rest_error is None where the arm never stops (negative viscous friction outruns
-    Coulomb friction at that speed)."""
-    out: dict = {}
-    for name, ch, i_tf, i_rest in plan:
-        rest = float(q[i_rest] - qf)
-        out.setdefault(name, {})[f"{ch * 100:+.0f}%"] = {
-            "rest_error": rest if math.isfinite(rest) else None,
-            "tf_error": float(q[i_tf] - qf), "qd_tf": float(v[i_tf])}
-    return out
 
 
 def finite_change(params: Arm1DofParams, profile: CurrentProfile, q0: float, qf: float,
                   uncertain: Sequence[str], changes: Sequence[float] = CHANGES) -> dict:
     """Errors (rad) of the rest position and of q(tf), and q̇(tf), when friction parameters are
-    off by finite relative ``changes`` — one at a time and all uncertain ones together."""
-    sw = _Sweep(params, profile, q0)
-    plan = _queue_finite_change(sw, uncertain, changes)
-    q, v = sw.run()
-    return _collect_finite_change(plan, q, v, qf)
+    off by finite relative ``changes`` — one at a time and all uncertain ones together.
+    rest_error is None where the arm never stops (negative viscous friction outrunning
+    Coulomb friction at that speed)."""
+    return verify(params, profile, q0, qf, uncertain, changes=changes)["finite_change"]
+
+
+def _sweep_rows(params: Arm1DofParams, uncertain: Sequence[str], changes: Sequence[float]):
+    """Friction rows (M, 3) and rest flags (M,) for one verification sweep, with the layout:
+    row 0 nominal; per uncertain p: +h, −h (central, 1e-6 of its scale), +hf (0.1 % forward);
+    then per group (each p, and all together) and change: (at tf, to rest) pairs."""
+    base = np.array([params.pv, params.pc, params.pt], dtype=float)
+    scale = friction_scale(params, uncertain)        # |p|, or a default where p = 0
+    idx = [FRICTION.index(k) for k in uncertain]
+    rows = [base]
+    for i in idx:
+        for step in (1e-6, -1e-6, 1e-3):
+            r = base.copy()
+            r[i] += step * scale[i]
+            rows.append(r)
+    groups = [[i] for i in idx] + ([idx] if len(idx) > 1 else [])
+    for g in groups:
+        for ch in changes:
+            r = base.copy()
+            r[g] *= 1.0 + ch
+            rows.append(r)
+            rows.append(r)
+    rest = np.zeros(len(rows), dtype=np.bool_)
+    rest[1 + 3 * len(idx) + 1::2] = True
+    return np.array(rows), rest, scale, groups
 
 
 def verify(params: Arm1DofParams, profile: CurrentProfile, q0: float, qf: float,
-           uncertain: Sequence[str], tol: float = 1e-6) -> dict:
+           uncertain: Sequence[str], tol: float = 1e-6, changes: Sequence[float] = CHANGES
+           ) -> dict:
     """Judge a plan by true derivatives: exact, central differences (1e-6 relative) and the
-    paper's 0.1 % forward quotient; the kink radius; goal and rest at tf; finite changes."""
+    paper's 0.1 % forward quotient; the kink radius; goal and rest at tf; finite changes
+    (rest position and q(tf) errors at ``changes``, one parameter at a time and all together).
+    All simulations run in one compiled call."""
+    uncertain = list(uncertain)
     d = derivatives(params, profile, q0, uncertain=uncertain)
-    sw = _Sweep(params, profile, q0)
-    i0 = sw.add()
-    idx = {}
-    scale = friction_scale(params, uncertain)        # |p|, or a default where p = 0
-    for k in uncertain:
-        p0 = sw.base[k]
-        h = 1e-6 * scale[FRICTION.index(k)]
-        hf = 1e-3 * scale[FRICTION.index(k)]
-        idx[k] = (h, sw.add(**{k: p0 + h}), sw.add(**{k: p0 - h}), hf, sw.add(**{k: p0 + hf}))
-    fplan = _queue_finite_change(sw, uncertain)
-    q, v = sw.run()
-    q_tf, v_tf = float(q[i0]), float(v[i0])
-    central = {k: float((q[ip] - q[im]) / (2 * h)) for k, (h, ip, im, _, _) in idx.items()}
-    forward = {k: float((q[ifw] - q_tf) / hf) for k, (_, _, _, hf, ifw) in idx.items()}
+    rows, rest, scale, groups = _sweep_rows(params, uncertain, changes)
+    q, v = batch_core(float(params.J), float(params.n * params.kt), rows, rest,
+                      np.ascontiguousarray(profile.step_times, dtype=float),
+                      np.ascontiguousarray(profile.currents[:, 0], dtype=float),
+                      float(profile.tf), float(q0))
+    q_tf, v_tf = float(q[0]), float(v[0])
+    central, forward = {}, {}
+    for m, k in enumerate(uncertain):
+        sc = scale[FRICTION.index(k)]
+        central[k] = float((q[1 + 3 * m] - q[2 + 3 * m]) / (2e-6 * sc))
+        forward[k] = float((q[3 + 3 * m] - q_tf) / (1e-3 * sc))
+    fc: dict = {}
+    j = 1 + 3 * len(uncertain)
+    for g in groups:
+        name = FRICTION[g[0]] if len(g) == 1 else "all"
+        row = {}
+        for ch in changes:
+            q_rest = float(q[j + 1] - qf)
+            row[f"{ch * 100:+.0f}%"] = {"rest_error": q_rest if math.isfinite(q_rest) else None,
+                                        "tf_error": float(q[j] - qf), "qd_tf": float(v[j])}
+            j += 2
+        fc[name] = row
     exact = {k: d.dq_dp[k] for k in uncertain}
-    worst = max([abs(v) for v in exact.values()] + [abs(v) for v in central.values()] + [0.0])
+    worst = max([abs(x) for x in exact.values()] + [abs(x) for x in central.values()] + [0.0])
     at_goal = abs(q_tf - qf) <= tol
     at_rest = v_tf == 0.0
     within = bool(np.all(np.abs(profile.currents) <= params.i_max + 1e-12))
@@ -185,8 +172,7 @@ def verify(params: Arm1DofParams, profile: CurrentProfile, q0: float, qf: float,
             "qd_exact": {k: d.dqd_dp[k] for k in uncertain}, "max_abs_derivative": worst,
             "kink_radius": d.kink_radius, "tf_radius": d.tf_radius, "t_stop": d.t_stop,
             "q_tf": q_tf, "qd_tf": v_tf, "at_goal": at_goal, "at_rest": at_rest,
-            "within_limits": within,
-            "finite_change": _collect_finite_change(fplan, q, v, qf)}
+            "within_limits": within, "finite_change": fc}
 
 
 class _Problem:
