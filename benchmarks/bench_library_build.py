@@ -6,6 +6,8 @@
    Cluster start-up and worker warm-up (imports, JIT caches) are excluded and reported apart;
    the clusters are started together and their builds alternate, round after round, so that a
    change in machine load hits every setting alike.
+   The scaling grid is built with and without continuation, so it gives a second continuation
+   figure (robust-sampled).
 2. Continuation vs cold multistart on the same 1-DOF grid (robust-derivative, k = 3, N = 5,
    189 tasks) on one worker: wall time, task time, and how many tasks each solved. Runs are
    interleaved and repeated; the best of each is kept, and the per-round ratios are listed.
@@ -145,6 +147,13 @@ def main(argv=None) -> int:
                                    if c["task_time_sum_s"] > 0 else None),
         "extra_tasks_solved": c["solved"] - cold["solved"],
         "continuation": {k: c[k] for k in keys}, "cold_multistart": {k: cold[k] for k in keys}})
+    # the scaling grid (robust-sampled) was also built with and without continuation on w1
+    sc, scold = _best(runs[("s", w1, True)]), _best(runs[("s", w1, False)])
+    out["scaling"]["continuation_vs_cold"] = {
+        "workers": w1, "wall_speedup_best": scold["wall_s"] / sc["wall_s"] if sc["wall_s"] > 0 else None,
+        "wall_speedup_per_round": [b["wall_s"] / x["wall_s"] for x, b in
+                                   zip(runs[("s", w1, True)], runs[("s", w1, False)]) if x["wall_s"] > 0],
+        "extra_tasks_solved": sc["solved"] - scold["solved"]}
     out["loadavg_after"] = list(os.getloadavg())
     print(json.dumps(out, indent=2))
     return 0
