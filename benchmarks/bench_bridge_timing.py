@@ -79,7 +79,8 @@ def main() -> int:
             "joints": [{"name": "joint1", "node_id": 1, "family": "epos4", "current_limit": 10.0,
                         "units": {"nominal_current": NOMINAL, "torque_constant": 0.0267,
                                   "counts_per_rev": 2048, "gear_ratio": 54.0}}],
-            "sync_period": a.sync_period, "heartbeat_producer_ms": 20, "heartbeat_timeout": 0.2,
+            "sync_period": a.sync_period, "heartbeat_producer_ms": 20, "heartbeat_timeout": 1.0,
+            "feedback_timeout": 1.0,     # this measures streaming; a stalled sim must not end it
             "setpoint_timeout": 1.0, "spin_margin": a.spin_margin})
         master = EposMaster(cfg)
         master.connect()
