@@ -114,20 +114,31 @@ def _dispatch(request: PlanRequest):
     return fn
 
 
-def plan(request: PlanRequest, progress: Progress = None) -> PlanResult:
+def plan(request: PlanRequest, progress: Progress = None,
+         initial_currents: Optional[np.ndarray] = None) -> PlanResult:
     """Plan a rest-to-rest feedforward current profile.
 
     Raises PlanningError (with ``.code``) for bad input or an unreachable goal. Otherwise returns a
     PlanResult; when no plan met the tolerances it is the best plan found, labelled
     ``best_effort=True`` with error_code NO_ROBUST_PLAN (or TIME_BUDGET_EXHAUSTED when the time
     budget ran out first). The inner planners honour ``request.time_budget``; the facade labels a
-    result that came back late.
+    result that came back late. ``initial_currents`` (A, N x joints) warm-starts the search from a
+    known plan instead of a multistart; WarmStartUnavailable if the model's planner cannot.
     """
     t0 = time.perf_counter()
     _validate(request)
     bound = check_reachable(request)
     fn = _dispatch(request)
-    result = fn(request, progress)
+    if initial_currents is None:
+        result = fn(request, progress)
+    else:   # warm start (motion library, continuation): one start from these currents (A)
+        import inspect
+
+        if "initial_currents" not in inspect.signature(fn).parameters:
+            from .library import WarmStartUnavailable
+
+            raise WarmStartUnavailable(f"{fn.__module__}.{fn.__name__} takes no initial_currents")
+        result = fn(request, progress, initial_currents=np.asarray(initial_currents, dtype=float))
     elapsed = time.perf_counter() - t0
     result.extra = dict(result.extra or {})
     result.extra.setdefault("reach_bound", bound.tolist())
