@@ -172,10 +172,16 @@ def cmd_build(a: argparse.Namespace) -> int:
         raise GridError("--dashboard only applies to the LocalCluster this command starts")
     client = cluster = None
     if a.dashboard:
+        import importlib.util
+
         from .library_build import start_local_cluster
 
         cluster, client = start_local_cluster(a.workers, dashboard=True)
-        print(f"ff-library: dashboard at {cluster.dashboard_link}", file=sys.stderr)
+        if importlib.util.find_spec("bokeh") is None:
+            print("ff-library: the Dask dashboard needs bokeh (pip install bokeh); building without it",
+                  file=sys.stderr)
+        else:
+            print(f"ff-library: dashboard at {cluster.dashboard_link}", file=sys.stderr)
     try:
         rep = build_library(grid, a.library, workers=a.workers, scheduler=a.scheduler, client=client,
                             serial=a.serial, continuation=not a.no_continuation, roots=a.roots,
@@ -239,7 +245,7 @@ def parser() -> argparse.ArgumentParser:
     b.add_argument("--local-starts", type=int, default=16,
                    help="continuation: starts from the neighbour's currents and perturbations of them")
     b.add_argument("--roots", type=int, default=1, help="cold-started subtrees (more early parallelism)")
-    b.add_argument("--dashboard", action="store_true", help="LocalCluster dashboard on 127.0.0.1")
+    b.add_argument("--dashboard", action="store_true", help="LocalCluster dashboard on 127.0.0.1 (needs bokeh)")
     b.add_argument("--plan-entry", default="ff_planner.library_build:plan_for_library",
                    help="plan function 'module:function' (advanced)")
     b.add_argument("--quiet", action="store_true", help="no progress bar")
