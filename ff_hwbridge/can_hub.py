@@ -9,8 +9,9 @@ It is for tests and demos: a product on socketcan / pcan / kvaser needs none of 
 
 ``open_bus(config)`` opens any python-can bus from a config dict (interface, channel, bitrate,
 other keyword arguments) and, for the ``remote`` interface, installs the periodic-sender
-workaround: python-can-remote's own cyclic task breaks when its data changes (canopen changes
-heartbeat frames on every NMT state change), python-can's generic thread-based sender works.
+workaround (python-can-remote's own cyclic task breaks when its data changes; canopen changes
+heartbeat frames on every NMT state change; python-can's generic thread-based sender works) and
+serialises sends from several threads onto the one websocket.
 """
 from __future__ import annotations
 
@@ -155,6 +156,15 @@ def open_bus(config: Mapping[str, Any]) -> can.BusABC:
         raise CanConfigError(f"cannot open CAN bus {cfg}: {exc}") from exc
     if cfg["interface"] == "remote":
         bus._send_periodic_internal = types.MethodType(can.BusABC._send_periodic_internal, bus)
+        # One websocket per bus, written by several threads (periodic tasks, canopen, user
+        # code): serialise the writes so frames never interleave on the socket.
+        send, lock = bus.send, threading.Lock()
+
+        def locked_send(msg: can.Message, timeout: Optional[float] = None) -> None:
+            with lock:
+                send(msg, timeout)
+
+        bus.send = locked_send
     return bus
 
 

@@ -368,6 +368,7 @@ class _Link:
                  seed: Optional[int] = None) -> None:
         self.network, self.faults, self.node_id = network, faults, node_id
         self.stats = LinkStats()
+        self.rx_by_id: dict[int, int] = {}        # frames seen per COB-ID (diagnostics)
         self.rx_mono_ns = 0
         self.rx_wall_ns = 0
         self._wrappers: dict[tuple[int, Any], Callable] = {}
@@ -399,6 +400,7 @@ class _Link:
         def wrapper(cid: int, data: bytearray, timestamp: float, _cb=callback) -> None:
             mono, wall = time.monotonic_ns(), time.time_ns()
             self.stats.rx_frames += 1
+            self.rx_by_id[cid] = self.rx_by_id.get(cid, 0) + 1
             f = self.faults
             if f.sdo_silent and cid == 0x600 + self.node_id:
                 return

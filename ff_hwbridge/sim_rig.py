@@ -9,7 +9,8 @@ line, for tests that inject faults into a running process), and on SIGINT/SIGTER
 (or the command ``quit``) writes the setpoint arrival log as JSON to ``--record``. Commands:
 ``emcy NODE CODE`` · ``heartbeat NODE on|off`` · ``sdo NODE on|off`` · ``delay NODE MS [rx|tx|both]``
 · ``drop NODE FRACTION [rx|tx|both]`` · ``dropnext NODE N [rx|tx|both]`` · ``clear NODE`` ·
-``reset Q0...`` · ``state`` (prints ``state q=... qd=... i=...``) · ``quit``.
+``reset Q0...`` · ``state`` (prints ``state q=... qd=... i=...``) · ``info NODE`` (drive state,
+faults, heartbeat consumer, frame counts) · ``quit``.
 """
 from __future__ import annotations
 
@@ -148,6 +149,13 @@ def run_command(rig: SimRig, line: str) -> str:
             d.drop_next(int(args[1]), *(args[2:3] or ["rx"]))
         elif cmd == "clear":
             d.clear_injected_faults()
+        elif cmd == "info":
+            now = __import__("time").monotonic()
+            return (f"info node={d.node_id} nmt={d.nmt_state} state={d.state.value!r} "
+                    f"fault=0x{d.fault_code:04X} i={d.applied_current} "
+                    f"consumers={d._consumers} hb_age={ {k: round(now - v, 4) for k, v in d._hb_seen.items()} } "
+                    f"faults={vars(d.faults)} link={vars(d.link_stats)} "
+                    f"rx_by_id={ {hex(k): v for k, v in d._link.rx_by_id.items()} if d._link else None}")
         else:
             return f"error unknown command {cmd!r}"
         return f"ok {cmd}"
