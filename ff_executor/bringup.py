@@ -17,6 +17,15 @@ previous one, checked in the ROS graph, not by sleeping):
 Stopping (Ctrl-C, SIGTERM, or any child dying): every child gets SIGINT, then SIGTERM, then
 SIGKILL, by PID, in reverse start order — the executor first, so a running move ends with a zero
 current. The :class:`Stack` class does the same for the demo, tests and benchmarks.
+
+Timing (the end nearest the bus decides when a current switches; 1 ms ≈ 0.04 rad at 10 A): the sim
+driver, the bridge and the executor run through ``ff_executor.timed`` (0.1 ms GIL switch
+interval) at nice −10 where permitted; ``--rt-priority N`` puts the simulated drive under
+SCHED_FIFO N and asks the bridge for a SCHED_FIFO scheduler thread (root / CAP_SYS_NICE; off by
+default here, the demo, tests and benchmarks use 10 where permitted). Generated for each run in
+the run folder: the sim driver's and bridge's parameter files and the bridge config (remote bus on
+the hub, 10 ms SYNC, 50 ms heartbeat with a 1 s timeout: lenient for shared machines; a bridge
+that fails its enable sequence is restarted once).
 """
 from __future__ import annotations
 
