@@ -1,7 +1,9 @@
 """Shared fixtures: a per-run loopback-only ROS environment for this test process and its children."""
 from __future__ import annotations
 
+import itertools
 import os
+import random
 import tempfile
 
 import pytest
@@ -9,15 +11,37 @@ import pytest
 from ff_msgs_py.launch import apply_ros_environment, ros_environment
 
 
-@pytest.fixture(scope="session")
+_DOMAINS = itertools.count(random.randint(0, 99))
+
+
+@pytest.fixture(scope="module")
 def ros_env() -> dict[str, str]:
-    """Environment for child processes; also applied to this process (rclpy in tests)."""
+    """Environment for child processes; also applied to this process (rclpy in tests).
+
+    Each test module gets its own ROS_DOMAIN_ID (and log folder): nodes and DDS participants left
+    over by one module can then never answer, or crowd the discovery ports of, the next.
+    """
     log_dir = tempfile.mkdtemp(prefix="ff-test-roslog-")
-    env = ros_environment(log_dir=log_dir)
+    env = ros_environment(domain_id=1 + next(_DOMAINS) % 100, log_dir=log_dir)
     repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     env["PYTHONPATH"] = os.pathsep.join(p for p in (repo, env.get("PYTHONPATH", "")) if p)
     apply_ros_environment(env)
     return env
+
+
+_ROS_VARS = ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_DOMAIN_ID", "ROS_LOG_DIR")
+
+
+@pytest.fixture(autouse=True)
+def _restore_ros_settings():
+    """A test (e.g. a bring-up stack) may point this process at its own ROS domain: undo that."""
+    saved = {k: os.environ.get(k) for k in _ROS_VARS}
+    yield
+    for k, v in saved.items():
+        if v is None:
+            os.environ.pop(k, None)
+        else:
+            os.environ[k] = v
 
 
 @pytest.fixture
@@ -26,6 +50,7 @@ def rclpy_node(ros_env):
     import rclpy
     from rclpy.node import Node
 
+    apply_ros_environment(ros_env)
     ctx = rclpy.Context()
     rclpy.init(context=ctx)
     node = Node("ff_test_client", context=ctx)
