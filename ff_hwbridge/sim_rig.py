@@ -19,6 +19,7 @@ import json
 import signal
 import sys
 import threading
+import time
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Optional, Sequence
 
@@ -150,7 +151,7 @@ def run_command(rig: SimRig, line: str) -> str:
         elif cmd == "clear":
             d.clear_injected_faults()
         elif cmd == "info":
-            now = __import__("time").monotonic()
+            now = time.monotonic()
             return (f"info node={d.node_id} nmt={d.nmt_state} state={d.state.value!r} "
                     f"fault=0x{d.fault_code:04X} i={d.applied_current} "
                     f"consumers={d._consumers} hb_age={ {k: round(now - v, 4) for k, v in d._hb_seen.items()} } "
