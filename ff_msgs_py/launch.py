@@ -81,6 +81,13 @@ class NodeProcess:
         return self.popen.returncode if self.popen.returncode is not None else -9
 
 
+def _default_sigint() -> None:
+    """In the child before exec: SIGINT back to default. A non-interactive shell starts background
+    jobs with SIGINT ignored, and an ignored signal survives exec: the node would then never see
+    Ctrl-C / our stop() and only end on SIGTERM after a timeout."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def start_module(name: str, module: str, args: Sequence[str], env: Mapping[str, str],
                  log_dir: Optional[str] = None) -> NodeProcess:
     """Run ``python -m module args`` as a child with ``env``; stdout+stderr to a log file."""
@@ -89,7 +96,8 @@ def start_module(name: str, module: str, args: Sequence[str], env: Mapping[str, 
     log_path = folder / f"{name}.out"
     log = open(log_path, "w", buffering=1)
     popen = subprocess.Popen([sys.executable, "-u", "-m", module, *args], env=dict(env),
-                             stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL)
+                             stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+                             preexec_fn=_default_sigint)
     return NodeProcess(name, popen, log_path, log)
 
 
