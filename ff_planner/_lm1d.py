@@ -21,7 +21,8 @@ import math
 import numpy as np
 from numba import njit
 
-from ._deriv1d import NP, Q_, VC_, hd_sim
+from ._deriv1d import N_ROWS, NP, Q_, TSTOP_, V_, VC_, hd_sim
+from .arm1dof import sim_core
 
 # status codes of one start
 OK, NO_CONVERGENCE, ABANDONED, KINK, BAD_START = 0, 1, 2, 3, 4
@@ -231,3 +232,123 @@ def sampled_terms(J, c, pvals, scales, times, cur, tf, q0, goal, W):
         for j in range(n):
             G[s, j] = W[Q_, 4 + j]
     return e, G
+
+
+@njit(cache=True, nogil=True)
+def sweep_size(k, n_changes):
+    """Simulations in one verification sweep for k uncertain parameters (see ``verify_core``)."""
+    groups = k + (1 if k > 1 else 0)
+    return 1 + 3 * k + 2 * n_changes * groups
+
+
+@njit(cache=True, nogil=True)
+def verify_core(J, c, pv, pc, pt, times, cur, tf, q0, pscale, changes, W, out):
+    """Everything the verification of a plan needs, in one compiled call; fills ``out``.
+
+    pscale (3,): |p_i| (a default where p_i = 0) for uncertain parameters, 0 for the others.
+    Layout of out: [0] kink radius, [1] tf radius, [2] t_stop (s), [3:6] exact ∂q(tf)/∂p,
+    [6:9] exact ∂q̇(tf)/∂p (pv, pc, pt), [9] max |current| (A), then M = sweep_size(k, C) final
+    positions and M final velocities of the sweep: row 0 nominal; per uncertain p (order pv, pc,
+    pt): p + h, p − h (h = 1e-6·scale, central), p + 1e-3·scale (the paper's 0.1 % forward
+    quotient); then per group (each uncertain p alone, then all together when k > 1) and per
+    change ch: (q(tf), rest position) with the group's parameters times (1 + ch).
+    """
+    kink, tf_radius = hd_sim(J, c, pv, pc, pt, times, cur, tf, q0, False, pscale, W)
+    out[0] = kink
+    out[1] = tf_radius
+    out[2] = W[TSTOP_, 0]
+    for i in range(NP):
+        out[3 + i] = W[Q_, 1 + i]
+        out[6 + i] = W[V_, 1 + i]
+    amax = 0.0
+    for j in range(cur.shape[0]):
+        amax = max(amax, abs(cur[j]))
+    out[9] = amax
+    k = 0
+    for i in range(NP):
+        if pscale[i] != 0.0:
+            k += 1
+    nc = changes.shape[0]
+    m = sweep_size(k, nc)
+    seg = np.empty((0, 7))
+    ev = np.empty((0, 3))
+    base = np.array([pv, pc, pt])
+    p = base.copy()
+    oq = 10
+    ov = 10 + m
+    row = 0
+    q, v, _, _ = sim_core(J, c, pv, pc, pt, times, cur, tf, q0, 0.0, False, seg, ev)
+    out[oq + row] = q
+    out[ov + row] = v
+    row += 1
+    for i in range(NP):
+        if pscale[i] == 0.0:
+            continue
+        for step in (1e-6, -1e-6, 1e-3):
+            p[:] = base
+            p[i] += step * pscale[i]
+            q, v, _, _ = sim_core(J, c, p[0], p[1], p[2], times, cur, tf, q0, 0.0, False, seg,
+                                  ev)
+            out[oq + row] = q
+            out[ov + row] = v
+            row += 1
+    for g in range(NP + 1):
+        if g < NP and pscale[g] == 0.0:
+            continue
+        if g == NP and k <= 1:
+            continue
+        for ci in range(nc):
+            p[:] = base
+            for i in range(NP):
+                if (g == NP and pscale[i] != 0.0) or i == g:
+                    p[i] *= 1.0 + changes[ci]
+            for rest in (False, True):
+                q, v, _, _ = sim_core(J, c, p[0], p[1], p[2], times, cur, tf, q0, 0.0, rest,
+                                      seg, ev)
+                out[oq + row] = q
+                out[ov + row] = v
+                row += 1
+
+
+@njit(cache=True, nogil=True)
+def draw_starts(seed_key, spread, direction, starts):
+    """Fill ``starts`` (m, N) uniformly in ±spread (A), seeded by ``seed_key`` (uint32; numba's
+    per-thread generator is re-seeded, so a chunk depends on its key only). direction ≠ 0 (the
+    sign of the move): the first and last currents oppose the move."""
+    np.random.seed(seed_key)
+    m, n = starts.shape
+    for s in range(m):
+        for j in range(n):
+            starts[s, j] = np.random.uniform(-spread, spread)
+        if direction != 0.0 and n >= 2:
+            starts[s, 0] = -direction * abs(starts[s, 0])
+            starts[s, n - 1] = -direction * abs(starts[s, n - 1])
+
+
+@njit(cache=True, nogil=True)
+def plan_chunk(J, c, pv, pc, pt, times, tf, q0, goal, umask, pscale, i_max, vb, cfg, seed_key,
+               spread, direction, draw, stop_first, changes, starts, st, it, f, kk, counts,
+               ver_out):
+    """One chunk of the robust-derivative multistart, compiled end to end: draw the starts
+    (when ``draw``), run LM from each (``starts`` becomes the end points), and — when
+    ``stop_first`` and a start succeeded — verify that plan (``verify_core`` into ver_out).
+
+    cfg: [wpen, wq, lam0, tol_q, tol_d, min_kink, max_iter, abandon_iter, abandon_norm,
+    max_reject, lam_down, lam_up]. counts (5,) accumulates the status codes.
+    Returns (starts run, verified: ver_out holds the verification of starts[done − 1]).
+    """
+    if draw:
+        draw_starts(seed_key, spread, direction, starts)
+    n = starts.shape[1]
+    W = np.zeros((N_ROWS, 4 + 4 * n))
+    done = multistart(J, c, pv, pc, pt, times, tf, q0, goal, umask, pscale, i_max, starts, W,
+                      vb, cfg[0], cfg[1], cfg[2], cfg[3], cfg[4], cfg[5], int(cfg[6]),
+                      int(cfg[7]), cfg[8], int(cfg[9]), cfg[10], cfg[11], stop_first, st, it, f,
+                      kk)
+    for s in range(done):
+        counts[st[s]] += 1
+    if stop_first and done > 0 and st[done - 1] == OK:
+        verify_core(J, c, pv, pc, pt, times, starts[done - 1], tf, q0, pscale, changes, W,
+                    ver_out)
+        return done, True
+    return done, False

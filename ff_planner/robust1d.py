@@ -23,6 +23,7 @@ q(tf) at ±10 % and ±40 % per parameter and all together ("finite_change"), and
 """
 from __future__ import annotations
 
+import functools
 import itertools
 import math
 import time
@@ -32,7 +33,7 @@ import numpy as np
 
 from . import _lm1d
 from ._deriv1d import NP, Q_, VC_, hd_sim, workspace
-from .arm1dof import FRICTION, batch_core, derivatives, friction_scale
+from .arm1dof import FRICTION, friction_scale
 from .params import Arm1DofParams
 from .profile import CurrentProfile, PlanRequest, PlanResult, PlanningError
 
@@ -53,7 +54,10 @@ LM_SETTINGS = {
 }
 
 
-WIDE_SPREAD = 0.8   # every other chunk of random starts uses ±0.8·i_max
+WIDE_SPREAD = 0.8   # unconstrained chunks of random starts use ±0.8·i_max
+#: spreads of successive chunks of random starts (cycled): None = the tuned spread with the
+#: first and last currents opposing the move; a number = unconstrained ±that·i_max
+SPREAD_CYCLE: tuple = (None, WIDE_SPREAD)
 
 
 def lm_settings(k: int) -> dict:
@@ -106,73 +110,87 @@ def finite_change(params: Arm1DofParams, profile: CurrentProfile, q0: float, qf:
     return verify(params, profile, q0, qf, uncertain, changes=changes)["finite_change"]
 
 
-def _sweep_rows(params: Arm1DofParams, uncertain: Sequence[str], changes: Sequence[float]):
-    """Friction rows (M, 3) and rest flags (M,) for one verification sweep, with the layout:
-    row 0 nominal; per uncertain p: +h, −h (central, 1e-6 of its scale), +hf (0.1 % forward);
-    then per group (each p, and all together) and change: (at tf, to rest) pairs."""
-    base = np.array([params.pv, params.pc, params.pt], dtype=float)
-    scale = friction_scale(params, uncertain)        # |p|, or a default where p = 0
-    idx = [FRICTION.index(k) for k in uncertain]
-    rows = [base]
-    for i in idx:
-        for step in (1e-6, -1e-6, 1e-3):
-            r = base.copy()
-            r[i] += step * scale[i]
-            rows.append(r)
-    groups = [[i] for i in idx] + ([idx] if len(idx) > 1 else [])
-    for g in groups:
+def _changes_array(changes: Sequence[float]) -> np.ndarray:
+    return np.ascontiguousarray(changes, dtype=float)
+
+
+_CHANGES_ARR = _changes_array(CHANGES)
+
+
+def _verification(out: np.ndarray, pscale: np.ndarray, qf: float, tol: float, i_max: float,
+                  changes: Sequence[float]) -> dict:
+    """The verification dict from ``_lm1d.verify_core``'s output (layout documented there)."""
+    o = out.tolist()
+    kink, tf_radius, t_stop = o[0], o[1], o[2]
+    idx = [i for i in range(3) if pscale[i] != 0.0]
+    k = len(idx)
+    m = 1 + 3 * k + 2 * len(changes) * (k + (1 if k > 1 else 0))
+    q = o[10:10 + m]
+    v = o[10 + m:10 + 2 * m]
+    q_tf, v_tf = q[0], v[0]
+    exact, qd_exact, central, forward = {}, {}, {}, {}
+    for r, i in enumerate(idx):
+        name, sc = FRICTION[i], float(pscale[i])
+        exact[name] = o[3 + i]
+        qd_exact[name] = o[6 + i]
+        central[name] = (q[1 + 3 * r] - q[2 + 3 * r]) / (2e-6 * sc)
+        forward[name] = (q[3 + 3 * r] - q_tf) / (1e-3 * sc)
+    fc: dict = {}
+    j = 1 + 3 * k
+    for name in [FRICTION[i] for i in idx] + (["all"] if k > 1 else []):
+        row = {}
         for ch in changes:
-            r = base.copy()
-            r[g] *= 1.0 + ch
-            rows.append(r)
-            rows.append(r)
-    rest = np.zeros(len(rows), dtype=np.bool_)
-    rest[1 + 3 * len(idx) + 1::2] = True
-    return np.array(rows), rest, scale, groups
+            q_rest = q[j + 1] - qf
+            row[f"{ch * 100:+.0f}%"] = {"rest_error": q_rest if math.isfinite(q_rest) else None,
+                                        "tf_error": q[j] - qf, "qd_tf": v[j]}
+            j += 2
+        fc[name] = row
+    worst = max([abs(x) for x in exact.values()] + [abs(x) for x in central.values()] + [0.0])
+    at_goal = abs(q_tf - qf) <= tol
+    at_rest = v_tf == 0.0
+    within = o[9] <= i_max + 1e-12
+    smooth = kink >= MIN_KINK
+    robust = bool(worst <= tol and smooth and at_goal and at_rest and within)
+    return {"robust": robust, "exact": exact, "central": central, "forward_0.1%": forward,
+            "qd_exact": qd_exact, "max_abs_derivative": worst, "kink_radius": kink,
+            "tf_radius": tf_radius, "t_stop": t_stop, "q_tf": q_tf, "qd_tf": v_tf,
+            "at_goal": at_goal, "at_rest": at_rest, "within_limits": within,
+            "finite_change": fc}
+
+
+def _verify_out(params: Arm1DofParams, times: np.ndarray, cur: np.ndarray, tf: float,
+                q0: float, pscale: np.ndarray, changes: np.ndarray) -> np.ndarray:
+    k = int(np.count_nonzero(pscale))
+    out = np.empty(10 + 2 * int(_lm1d.sweep_size(k, changes.shape[0])))
+    _lm1d.verify_core(float(params.J), float(params.n * params.kt), float(params.pv),
+                      float(params.pc), float(params.pt), times, cur, float(tf), float(q0),
+                      pscale, changes, workspace(cur.shape[0]), out)
+    return out
 
 
 def verify(params: Arm1DofParams, profile: CurrentProfile, q0: float, qf: float,
            uncertain: Sequence[str], tol: float = 1e-6, changes: Sequence[float] = CHANGES
            ) -> dict:
     """Judge a plan by true derivatives: exact, central differences (1e-6 relative) and the
-    paper's 0.1 % forward quotient; the kink radius; goal and rest at tf; finite changes
-    (rest position and q(tf) errors at ``changes``, one parameter at a time and all together).
-    All simulations run in one compiled call."""
-    uncertain = list(uncertain)
-    d = derivatives(params, profile, q0, uncertain=uncertain)
-    rows, rest, scale, groups = _sweep_rows(params, uncertain, changes)
-    q, v = batch_core(float(params.J), float(params.n * params.kt), rows, rest,
-                      np.ascontiguousarray(profile.step_times, dtype=float),
-                      np.ascontiguousarray(profile.currents[:, 0], dtype=float),
-                      float(profile.tf), float(q0))
-    q_tf, v_tf = float(q[0]), float(v[0])
-    central, forward = {}, {}
-    for m, k in enumerate(uncertain):
-        sc = scale[FRICTION.index(k)]
-        central[k] = float((q[1 + 3 * m] - q[2 + 3 * m]) / (2e-6 * sc))
-        forward[k] = float((q[3 + 3 * m] - q_tf) / (1e-3 * sc))
-    fc: dict = {}
-    j = 1 + 3 * len(uncertain)
-    for g in groups:
-        name = FRICTION[g[0]] if len(g) == 1 else "all"
-        row = {}
-        for ch in changes:
-            q_rest = float(q[j + 1] - qf)
-            row[f"{ch * 100:+.0f}%"] = {"rest_error": q_rest if math.isfinite(q_rest) else None,
-                                        "tf_error": float(q[j] - qf), "qd_tf": float(v[j])}
-            j += 2
-        fc[name] = row
-    exact = {k: d.dq_dp[k] for k in uncertain}
-    worst = max([abs(x) for x in exact.values()] + [abs(x) for x in central.values()] + [0.0])
-    at_goal = abs(q_tf - qf) <= tol
-    at_rest = v_tf == 0.0
-    within = bool(np.all(np.abs(profile.currents) <= params.i_max + 1e-12))
-    robust = bool(worst <= tol and d.smooth and at_goal and at_rest and within)
-    return {"robust": robust, "exact": exact, "central": central, "forward_0.1%": forward,
-            "qd_exact": {k: d.dqd_dp[k] for k in uncertain}, "max_abs_derivative": worst,
-            "kink_radius": d.kink_radius, "tf_radius": d.tf_radius, "t_stop": d.t_stop,
-            "q_tf": q_tf, "qd_tf": v_tf, "at_goal": at_goal, "at_rest": at_rest,
-            "within_limits": within, "finite_change": fc}
+    paper's 0.1 % forward quotient; the kink radius; goal and rest at tf; |I| ≤ i_max; finite
+    changes (rest position and q(tf) errors at ``changes``, one parameter at a time and all
+    together). Everything runs in one compiled call (``_lm1d.verify_core``)."""
+    bad = [u for u in uncertain if u not in FRICTION]
+    if bad:
+        raise ValueError(f"unknown friction parameter(s) {bad}; choose from {FRICTION}")
+    pscale = friction_scale(params, list(uncertain))
+    ch = _changes_array(changes)
+    out = _verify_out(params, np.ascontiguousarray(profile.step_times, dtype=float),
+                      np.ascontiguousarray(profile.currents[:, 0], dtype=float), profile.tf,
+                      q0, pscale, ch)
+    return _verification(out, pscale, float(qf), float(tol), float(params.i_max), list(changes))
+
+
+_CFG_KEYS = ("wpen", "wq", "lam0", "tol_q", "tol_d", "min_kink", "max_iter", "abandon_iter",
+             "abandon_norm", "max_reject", "lam_down", "lam_up")
+#: LM settings overriding lm_settings(k) for given (warm) starts: more patience — a warm start
+#: is often close to a solution but not yet inside the basin the tuned abandonment assumes
+WARM_SETTINGS = dict(max_iter=100, abandon_iter=100, max_reject=10)
 
 
 class _Problem:
@@ -184,26 +202,37 @@ class _Problem:
         self.n = n
         self.tf = float(request.tf)
         self.coast = float(request.coast)
-        self.times = step_times(self.tf, self.coast, n, grid)
+        self.times = _step_times_cached(self.tf, self.coast, n, grid)
         self.q0 = float(request.q0[0])
         self.goal = float(request.qf[0])
-        self.umask = np.array([k in request.uncertain for k in FRICTION])
+        unc = [k for k in FRICTION if k in request.uncertain]
+        self.umask = np.array([k in unc for k in FRICTION])
         self.pvals = np.array([params.pv, params.pc, params.pt], dtype=float)   # values
         # scales of the derivative rows (|p|, or a default where p = 0), zero if not uncertain
-        self.pscale = friction_scale(params, [k for k in FRICTION if k in request.uncertain])
+        self.pscale = friction_scale(params, unc)
         self.i_max = float(params.i_max)
         self.vb = stop_speed_bound(params, self.coast)
         self.W = workspace(n)
         self.tol_q = 0.1 * float(request.tol)
         self.tol_d = 0.1 * float(request.tol)
-        self.settings = lm_settings(int(self.umask.sum()))
+        self.settings = lm_settings(len(unc))
+        self.phys = (float(params.J), float(params.n * params.kt), float(params.pv),
+                     float(params.pc), float(params.pt))
 
     def args(self):
         p = self.params
         return (p.J, p.n * p.kt, p.pv, p.pc, p.pt, self.times, self.tf, self.q0, self.goal,
                 self.umask, self.pscale, self.i_max)
 
+    def cfg(self, **override) -> np.ndarray:
+        """The LM settings as the float array ``_lm1d.plan_chunk`` takes."""
+        s = dict(self.settings, tol_q=self.tol_q, tol_d=self.tol_d, min_kink=MIN_KINK)
+        s.update(override)
+        return np.array([float(s[k]) for k in _CFG_KEYS])
+
     def run(self, starts: np.ndarray, stop_first: bool):
+        """LM from each row of ``starts`` (modified in place into the end points); returns
+        (starts run, status, iterations, |r|², kink radius) — see ``solve_block``."""
         s = self.settings
         m = starts.shape[0]
         st = np.zeros(m, np.int64)
@@ -216,9 +245,61 @@ class _Problem:
                                 s["lam_down"], s["lam_up"], stop_first, st, it, f, kk)
         return done, st, it, f, kk
 
+    def chunk(self, block: np.ndarray, cfg: np.ndarray, stop_first: bool, counts: np.ndarray,
+              ver_out: np.ndarray, draw: bool = False, seed_key: int = 0, spread: float = 0.0,
+              direction: float = 0.0):
+        """One compiled call: (draw the starts,) LM from each, verify the first success."""
+        m = block.shape[0]
+        st = np.zeros(m, np.int64)
+        it = np.zeros(m, np.int64)
+        f = np.full(m, np.inf)
+        kk = np.zeros(m)
+        done, verified = _lm1d.plan_chunk(
+            *self.phys, self.times, self.tf, self.q0, self.goal, self.umask, self.pscale,
+            self.i_max, self.vb, cfg, seed_key, spread, direction, draw, stop_first,
+            _CHANGES_ARR, block, st, it, f, kk, counts, ver_out)
+        return done, verified, st, it, f
+
     def profile(self, currents: np.ndarray) -> CurrentProfile:
         return CurrentProfile(self.times.copy(), np.asarray(currents, float).reshape(-1, 1),
                               self.tf, self.coast)
+
+
+def solve_block(params: Arm1DofParams, q0: float, qf: float, tf: float, uncertain: Sequence[str],
+                starts: np.ndarray, *, coast: float = 0.05, tol: float = 1e-6,
+                stop_first: bool = False) -> list[dict]:
+    """Public, stable entry to the compiled robust-derivative LM (e.g. for a joint of a
+    multi-joint arm): run LM from each row of ``starts`` (M, N) A, equal steps on
+    [0, tf − coast], for the 1-DOF arm ``params`` moving q0 → qf (rad) in tf s.
+
+    Returns one dict per start run (all M, or up to the first success with ``stop_first``):
+    {"currents": end point (N,) A, "ok": bool (goal, zero true derivatives, rest in the coast,
+    away from kinks, per the solver's tolerances 0.1·tol), "status": "ok" | "no_convergence" |
+    "abandoned" | "kink" | "bad_start", "iterations", "residual2" (|r|²), "kink_radius"}.
+    A result with ok=True is the solver's claim; ``verify`` judges a plan independently.
+    """
+    starts = np.array(starts, dtype=float, ndmin=2)
+    if starts.ndim != 2 or not np.all(np.isfinite(starts)):
+        raise PlanningError("starts must be a finite (M, N) array of currents (A)")
+    req = PlanRequest(model="arm1dof", q0=(float(q0),), qf=(float(qf),), tf=float(tf),
+                      uncertain=tuple(uncertain), steps=starts.shape[1], coast=float(coast),
+                      params=params, tol=float(tol), starts=max(1, starts.shape[0]))
+    req.validate()
+    prob = _Problem(req, params, starts.shape[1])
+    block = np.ascontiguousarray(np.clip(starts, -prob.i_max, prob.i_max))
+    done, st, it, f, kk = prob.run(block, stop_first)
+    return [{"currents": block[s].copy(), "ok": bool(st[s] == _lm1d.OK),
+             "status": STATUS_NAMES[int(st[s])], "iterations": int(it[s]),
+             "residual2": float(f[s]), "kink_radius": float(kk[s])} for s in range(done)]
+
+
+STATUS_NAMES = {_lm1d.OK: "ok", _lm1d.NO_CONVERGENCE: "no_convergence",
+                _lm1d.ABANDONED: "abandoned", _lm1d.KINK: "kink", _lm1d.BAD_START: "bad_start"}
+
+
+@functools.lru_cache(maxsize=256)
+def _step_times_cached(tf: float, coast: float, n: int, grid: Optional[float]) -> np.ndarray:
+    return step_times(tf, coast, n, grid)     # shared: callers must not modify it
 
 
 def step_times(tf: float, coast: float, n: int, grid: Optional[float] = None) -> np.ndarray:
@@ -254,10 +335,14 @@ def _check_request(request: PlanRequest) -> Arm1DofParams:
 
 def plan_robust_1dof(request: PlanRequest, progress: Progress = None,
                      initial_currents: Optional[np.ndarray] = None,
-                     grid: Optional[float] = None) -> PlanResult:
+                     grid: Optional[float] = None, *, warm_only: bool = False) -> PlanResult:
     """Plan a robust rest-to-rest move of the 1-DOF arm; see the module docstring.
 
-    initial_currents: (N,) A, a warm start tried first (e.g. a motion-library neighbour).
+    initial_currents: (N,) or (N, 1) A (one start), or (M, N) (M starts): warm start(s) tried first (e.g. a motion-library
+    neighbour), each with more patience than a random start (``WARM_SETTINGS``: no early
+    abandonment, up to 100 iterations). They count towards ``request.starts``: seeded random
+    starts fill the rest, none with ``warm_only``. ``starts_tried`` = starts actually run
+    (warm ones included); ``extra["warm_starts_ok"]`` says how many given starts converged.
     grid: put the switch times on this grid (s), e.g. 1e-3 for a 1 kHz drive (also read from
     ``request.grid`` when the request has that field).
     """
@@ -267,48 +352,58 @@ def plan_robust_1dof(request: PlanRequest, progress: Progress = None,
     if grid is None:
         grid = getattr(request, "grid", None)
     prob = _Problem(request, params, n, grid)
-    rng = np.random.default_rng(request.seed)
-    spread = prob.settings["spread"] * prob.i_max
-    total = int(request.starts)
     warm_block = None
     if initial_currents is not None:
-        init = np.asarray(initial_currents, dtype=float).reshape(-1)
-        if init.shape != (n,) or not np.all(np.isfinite(init)):
-            raise PlanningError(f"initial_currents needs {n} finite values, got {init.size}")
-        warm_block = np.clip(init, -prob.i_max, prob.i_max).reshape(1, n)
+        init = np.array(initial_currents, dtype=float, ndmin=2)
+        if init.shape == (n, 1):        # a profile's (N, 1) current column: one start
+            init = init.reshape(1, n)
+        if init.ndim != 2 or init.shape[1] != n or init.shape[0] < 1 \
+                or not np.all(np.isfinite(init)):
+            raise PlanningError(f"initial_currents needs rows of {n} finite values (A), got "
+                                f"shape {np.shape(initial_currents)}")
+        warm_block = np.ascontiguousarray(np.clip(init, -prob.i_max, prob.i_max))
+    elif warm_only:
+        raise PlanningError("warm_only needs initial_currents")
     warm = warm_block is not None
+    n_warm = 0 if warm_block is None else warm_block.shape[0]
+    total = 0 if warm_only else max(0, int(request.starts) - n_warm)
     sampled = request.objective == "robust-sampled"
     want = SAMPLED_CANDIDATES if sampled else 1     # robust candidates to collect
+    stop_first = not sampled
     found: list[np.ndarray] = []
     best_f, best_I = math.inf, None
-    tried = iters = 0
+    tried = iters = warm_ok = 0
     counts = np.zeros(5, np.int64)
+    ver_out = np.empty(10 + 2 * int(_lm1d.sweep_size(int(prob.umask.sum()),
+                                                     _CHANGES_ARR.shape[0])))
+    verified = False
     out_of_time = False
-    drawn = 0
+    drawn = chunk = 0
+    cfg = prob.cfg()
+    direction = 0.0 if prob.goal == prob.q0 else (1.0 if prob.goal > prob.q0 else -1.0)
+    seed = int(request.seed)
     while drawn < total or warm_block is not None:
         if time.perf_counter() - t0 > request.time_budget:
             out_of_time = True
             break
-        if warm_block is not None:       # the warm start runs alone, first
+        if warm_block is not None:       # the warm starts run alone, first, with patience
             block, warm_block = warm_block, None
-        else:                            # seeded random starts, drawn chunk by chunk
+            done, verified, st, it, f = prob.chunk(block, prob.cfg(**WARM_SETTINGS),
+                                                   stop_first, counts, ver_out)
+            warm_ok = int(np.count_nonzero(st[:done] == _lm1d.OK))
+        else:                            # seeded random starts, drawn chunk by chunk (compiled)
             m = min(CHUNK, total - drawn)
-            # even chunks: the spread tuned on the paper's task, signs as below; odd chunks:
-            # a wide, unconstrained one, which finds plans sooner for longer or slower moves
-            wide = (drawn // CHUNK) % 2 == 1
-            s_c = WIDE_SPREAD * prob.i_max if wide else spread
-            block = rng.uniform(-s_c, s_c, (m, n))
-            if not wide and n >= 2 and prob.goal != prob.q0:
-                # robust motions first move away from the goal (paper section 4.1.2) and brake
-                # at the end: the first and last currents oppose the move on these chunks
-                d = 1.0 if prob.goal > prob.q0 else -1.0
-                block[:, 0] = -d * np.abs(block[:, 0])
-                block[:, -1] = -d * np.abs(block[:, -1])
+            frac, oppose = chunk_spread(prob.settings, chunk)
+            block = np.empty((m, n))
+            done, verified, st, it, f = prob.chunk(
+                block, cfg, stop_first, counts, ver_out, True, _seed_key(seed, chunk),
+                frac * prob.i_max, direction if oppose else 0.0)
             drawn += m
-        done, st, it, f, kk = prob.run(block, stop_first=not sampled)
+            chunk += 1
         tried += done
         iters += int(it[:done].sum())
-        counts += np.bincount(st[:done], minlength=5)
+        if verified:                     # robust-derivative: the first success, verified
+            break
         for s in range(done):
             if st[s] == _lm1d.OK:
                 found.append(block[s].copy())
@@ -323,13 +418,33 @@ def plan_robust_1dof(request: PlanRequest, progress: Progress = None,
              "starts_unconverged": int(counts[_lm1d.NO_CONVERGENCE]),
              "starts_at_kink": int(counts[_lm1d.KINK]), "n_steps": n,
              "stop_speed_bound": prob.vb, "search_time_s": time.perf_counter() - t0}
-
+    if warm:
+        stats.update(warm_starts=n_warm, warm_starts_ok=warm_ok)
+    if verified:
+        if progress is not None:
+            progress({"starts_done": tried, "robust_found": 1, "best": 0.0})
+        return _result(request, prob, block[done - 1].copy(), True, "", tried, iters, warm, t0,
+                       stats, ver_out=ver_out)
     if sampled:
         return _finish_sampled(request, prob, found, best_I, tried, iters, warm, t0, stats,
                                out_of_time)
     if found:
         return _result(request, prob, found[0], True, "", tried, iters, warm, t0, stats)
     return _no_plan(request, prob, best_I, tried, iters, warm, t0, stats, out_of_time)
+
+
+def _seed_key(seed: int, chunk: int) -> int:
+    """The uint32 seed of random-start chunk ``chunk`` for request seed ``seed``."""
+    return (seed * 1_000_003 + chunk * 7919 + 0x5EED) & 0xFFFFFFFF
+
+
+def chunk_spread(settings: dict, chunk: int) -> tuple[float, bool]:
+    """(spread as a fraction of i_max, oppose) for random-start chunk ``chunk``: the cycle
+    ``SPREAD_CYCLE``, None standing for the tuned ``settings["spread"]`` with the first and last
+    currents opposing the move (robust motions first move away from the goal and brake at the
+    end, paper 4.1.2); a number for an unconstrained uniform chunk of that spread."""
+    c = SPREAD_CYCLE[chunk % len(SPREAD_CYCLE)]
+    return (float(settings["spread"]), True) if c is None else (float(c), False)
 
 
 def _no_plan(request, prob, best_I, tried, iters, warm, t0, stats, out_of_time) -> PlanResult:
@@ -353,11 +468,18 @@ def _no_plan(request, prob, best_I, tried, iters, warm, t0, stats, out_of_time) 
 
 
 def _result(request, prob, currents, success, message, tried, iters, warm, t0, stats,
-            code="OK", extra=None) -> PlanResult:
+            code="OK", extra=None, ver_out=None) -> PlanResult:
+    """The PlanResult of ``currents``, judged by the verification (computed here unless the
+    compiled search already verified exactly these currents: ``ver_out``)."""
     prof = prob.profile(currents)
-    uncertain = list(request.uncertain)
-    check = verify(prob.params, prof, prob.q0, prob.goal, uncertain, request.tol)
-    robust = check["robust"]
+    if ver_out is None:
+        ver_out = _verify_out(prob.params, prob.times, np.ascontiguousarray(currents, float),
+                              prob.tf, prob.q0, prob.pscale, _CHANGES_ARR)
+    check = _verification(ver_out, prob.pscale, prob.goal, float(request.tol), prob.i_max,
+                          CHANGES)
+    robust = check.pop("robust")
+    fc = check.pop("finite_change")
+    check["robust"] = robust
     if success and not robust:    # the compiled solver's claim did not survive verification
         success, code = False, "NO_ROBUST_PLAN"
         message = "best plan failed the true-derivative verification"
@@ -365,20 +487,19 @@ def _result(request, prob, currents, success, message, tried, iters, warm, t0, s
         message = (f"truly robust plan: max |dq(tf)/dp| = {check['max_abs_derivative']:.1e} "
                    f"(exact and central differences), |q(tf) - qf| = "
                    f"{abs(check['q_tf'] - prob.goal):.1e} rad, at rest at tf")
-    ex = dict(stats)
-    ex.update(verification={k: v for k, v in check.items() if k != "finite_change"},
-              finite_change=check["finite_change"])
+    ex = stats
+    ex["verification"] = check
+    ex["finite_change"] = fc
     if extra:
         ex.update(extra)
     q_tf, v_tf = check["q_tf"], check["qd_tf"]
-    res = PlanResult(
+    return PlanResult(
         success=bool(success), message=message, profile=prof, model="arm1dof",
         params=prob.params, q0=np.array([prob.q0]), qf=np.array([prob.goal]),
-        uncertain=uncertain, objective=request.objective, q_final=np.array([q_tf]),
-        qd_final=np.array([v_tf]), sensitivities=dict(check["exact"]), robust=bool(robust),
-        error_code=code, best_effort=not success, starts_tried=tried, iterations=iters,
-        solve_time=time.perf_counter() - t0, warm_start=warm, extra=ex)
-    return res
+        uncertain=list(request.uncertain), objective=request.objective,
+        q_final=np.array([q_tf]), qd_final=np.array([v_tf]), sensitivities=dict(check["exact"]),
+        robust=bool(robust), error_code=code, best_effort=not success, starts_tried=tried,
+        iterations=iters, solve_time=time.perf_counter() - t0, warm_start=warm, extra=ex)
 
 
 # --- robust-sampled -----------------------------------------------------------------------------
