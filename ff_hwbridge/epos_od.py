@@ -1,128 +1,265 @@
-"""The part of a Maxon EPOS4 / EPOS2 object dictionary the suite uses, built in code.
+"""One definition of the Maxon EPOS4 / EPOS2 objects the suite uses, built in code.
 
 Written from the CiA 301/402 object definitions and maxon's documented object list (DESIGN.md);
-no EDS is copied. The master (``epos.py``) uses it for its RemoteNodes; a simulated drive can use
-it for a LocalNode (``build_object_dictionary(family, units=...)`` fills the motor data).
+no EDS is copied. ``OBJECTS`` is the single table (index, subindex, type, access, default, unit,
+PDO-mappable) that both sides build from: the master (``epos.py``) for its RemoteNodes
+(``build_object_dictionary(family, node_id)``: the contract's objects), the simulated drive
+(``sim_epos.py``) for its LocalNode (``drive=True`` adds what only a drive serves: identity,
+error history, RxPDO 2-4 / TxPDO 3-4, quick stop option, further motor data). Motor data
+defaults come from ``MotorData`` (what a drive serves), e.g. ``MotorData.from_units(units)``.
 
-Objects: 0x1000 device type, 0x1001 error register, 0x1016:01 consumer heartbeat time
-((node id << 16) | ms), 0x1017 producer heartbeat (ms),
-0x1400/0x1600 RPDO1, 0x1800/0x1A00 TPDO1, 0x1801/0x1A01 TPDO2, 0x6040 controlword,
-0x6041 statusword, 0x6060/0x6061 modes of operation (+display), 0x6064 position actual (inc),
-0x606C velocity actual (rpm), 0x6076 motor rated torque (µNm), 0x6071 target torque (per mille),
-0x6077 torque actual (per mille), 0x3001 motor data (EPOS4, :01 nominal current mA, :02 output
-current limit mA, :05 torque constant µNm/A), 0x30D1 current actual values (EPOS4, :01 averaged,
-:02 actual, mA), 0x2030 current mode setting value (EPOS2, mA), 0x6078 current actual (EPOS2, mA),
-0x6410 motor data (EPOS2, :01 continuous current limit mA, :02 output current limit mA).
+Contract objects: 0x1000 device type, 0x1001 error register, 0x1016:01-04 consumer heartbeat
+time ((node id << 16) | ms), 0x1017 producer heartbeat (ms), 0x1400/0x1600 RPDO1,
+0x1800/0x1A00 TPDO1, 0x1801/0x1A01 TPDO2, 0x6040 controlword, 0x6041 statusword, 0x6060/0x6061
+modes of operation (+display), 0x6064 position actual (inc), 0x606C velocity actual (rpm),
+0x6076 motor rated torque (µNm), 0x6071 target torque (per mille), 0x6077 torque actual (per
+mille), 0x3001 motor data (EPOS4, :01 nominal current mA, :02 output current limit mA, :05 torque
+constant µNm/A), 0x30D1 current actual values (EPOS4, :01 averaged, :02 actual, mA), 0x2030
+current mode setting value (EPOS2, mA), 0x6078 current actual (EPOS2, mA), 0x6410 motor data
+(EPOS2, :01 continuous current limit mA, :02 output current limit mA). Units: see ``units.py``.
 """
 from __future__ import annotations
 
-from typing import Optional
+from dataclasses import dataclass
+from typing import Callable, Optional, Union
 
 from canopen.objectdictionary import (INTEGER8, INTEGER16, INTEGER32, UNSIGNED8, UNSIGNED16,
-                                      UNSIGNED32, ObjectDictionary, ODRecord, ODVariable)
+                                      UNSIGNED32, VISIBLE_STRING, ObjectDictionary, ODArray,
+                                      ODRecord, ODVariable)
 
-from .units import DriveUnits
+from .units import FAMILIES, DriveUnits
 
 # RPDO/TPDO numbers used (1-based, canopen's pdo map keys)
 RPDO_SETPOINT = 1
 TPDO_STATUS = 1
 TPDO_MOTION = 2
 
+MAXON_VENDOR_ID = 0x000000FB
+PDO_VALID_BIT = 1 << 31          # set = PDO disabled (CiA 301 "not valid")
 
-def _var(name: str, index: int, subindex: int, dtype: int, access: str = "rw",
-         default: int = 0, pdo: bool = False) -> ODVariable:
-    v = ODVariable(name, index, subindex)
-    v.data_type = dtype
-    v.access_type = access
-    v.default = default
-    v.pdo_mappable = pdo
+
+@dataclass(frozen=True)
+class MotorData:
+    """Motor data a drive serves, raw object values: mA, µNm/A (0x3001:05), µNm (0x6076)."""
+
+    nominal_current_ma: int = 0
+    output_current_limit_ma: int = 10000
+    torque_constant_raw: int = 0
+    rated_torque_raw: int = 0
+
+    @classmethod
+    def from_units(cls, units: DriveUnits, output_current_limit_ma: int = 10000) -> "MotorData":
+        """The objects of ``units`` (nominal current, kt, rated torque = kt x I_nominal)."""
+        return cls(units.nominal_current_ma, int(output_current_limit_ma),
+                   units.torque_constant_raw, units.rated_torque_raw)
+
+
+@dataclass(frozen=True)
+class _Ctx:
+    """What object defaults may depend on."""
+
+    family: str
+    node_id: int
+    motor: MotorData
+    quick_stop_option: int
+    device_name: str
+
+
+Default = Union[int, str, Callable[[_Ctx], Union[int, str]]]
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One (sub)object: subindex, name, CANopen data type, access, default, unit, PDO-mappable.
+
+    ``drive_only`` entries are served by a drive but not needed in the master's view."""
+
+    sub: int
+    name: str
+    dtype: int
+    access: str = "rw"
+    default: Default = 0
+    unit: str = ""
+    pdo: bool = False
+    drive_only: bool = False
+
+
+@dataclass(frozen=True)
+class ObjectSpec:
+    """One object: a variable (one Entry, sub 0), a record or an array (sub 0 added as the
+    highest sub-index). ``families``: the drive families that have it."""
+
+    index: int
+    name: str
+    entries: tuple[Entry, ...]
+    kind: str = "var"                     # 'var' | 'record' | 'array'
+    families: tuple[str, ...] = FAMILIES
+    drive_only: bool = False
+    sub0: Optional[Entry] = None          # default: highest sub-index (ro)
+
+
+def _v(index: int, name: str, dtype: int, access: str = "rw", default: Default = 0,
+       unit: str = "", pdo: bool = False, families: tuple[str, ...] = FAMILIES,
+       drive_only: bool = False) -> ObjectSpec:
+    return ObjectSpec(index, name, (Entry(0, name, dtype, access, default, unit, pdo),), "var",
+                      families, drive_only)
+
+
+def _pdo_objects() -> list[ObjectSpec]:
+    """RxPDO / TxPDO 1-4 communication and mapping objects (the contract uses RxPDO1 and
+    TxPDO1/2; the rest are drive-only). Defaults per maxon: RxPDO1 = controlword on 0x200+id,
+    TxPDO1 = statusword on 0x180+id, the others disabled (COB-ID bit 31) and empty."""
+    out = []
+    for n in range(4):
+        bit = 0 if n == 0 else PDO_VALID_BIT
+
+        def rcob(c: _Ctx, n: int = n, bit: int = bit) -> int:
+            return (0x200 + 0x100 * n + c.node_id) | bit
+
+        def tcob(c: _Ctx, n: int = n, bit: int = bit) -> int:
+            return (0x180 + 0x100 * n + c.node_id) | bit
+
+        entries = [Entry(i, f"Mapped object {i}", UNSIGNED32, "rw", 0) for i in range(1, 9)]
+        rmap = [Entry(1, "Mapped object 1", UNSIGNED32, "rw", 0x60400010)] if n == 0 else []
+        tmap = [Entry(1, "Mapped object 1", UNSIGNED32, "rw", 0x60410010)] if n == 0 else []
+        rx_only, tx_only = n > 0, n > 1
+        out += [
+            ObjectSpec(0x1400 + n, f"Receive PDO {n + 1} parameter", (
+                Entry(1, "COB-ID used by RxPDO", UNSIGNED32, "rw", rcob),
+                Entry(2, "Transmission type", UNSIGNED8, "rw", 255)), "record",
+                drive_only=rx_only),
+            ObjectSpec(0x1600 + n, f"Receive PDO {n + 1} mapping",
+                       tuple(rmap + entries[len(rmap):]), "record", drive_only=rx_only),
+            ObjectSpec(0x1800 + n, f"Transmit PDO {n + 1} parameter", (
+                Entry(1, "COB-ID used by TxPDO", UNSIGNED32, "rw", tcob),
+                Entry(2, "Transmission type", UNSIGNED8, "rw", 255),
+                Entry(3, "Inhibit time", UNSIGNED16, "rw", 0, "100 µs"),
+                Entry(5, "Event timer", UNSIGNED16, "rw", 0, "ms")), "record",
+                drive_only=tx_only),
+            ObjectSpec(0x1A00 + n, f"Transmit PDO {n + 1} mapping",
+                       tuple(tmap + entries[len(tmap):]), "record", drive_only=tx_only),
+        ]
+    return out
+
+
+E4, E2 = ("epos4",), ("epos2",)
+U8, U16, U32, I8, I16, I32 = UNSIGNED8, UNSIGNED16, UNSIGNED32, INTEGER8, INTEGER16, INTEGER32
+
+#: The EPOS objects, communication profile first. Defaults that depend on the drive are callables.
+OBJECTS: tuple[ObjectSpec, ...] = (
+    _v(0x1000, "Device type", U32, "ro", 0x00020192),
+    _v(0x1001, "Error register", U8, "ro", 0, pdo=True),
+    ObjectSpec(0x1003, "Pre-defined error field",
+               tuple(Entry(i, f"Standard error field {i}", U32, "ro", 0) for i in range(1, 9)),
+               "array", drive_only=True, sub0=Entry(0, "Highest sub-index supported", U8, "rw", 0)),
+    _v(0x1005, "COB-ID SYNC", U32, "rw", 0x80, drive_only=True),
+    _v(0x1008, "Manufacturer device name", VISIBLE_STRING, "const", lambda c: c.device_name,
+       drive_only=True),
+    _v(0x1014, "COB-ID EMCY", U32, "rw", lambda c: 0x80 + c.node_id, drive_only=True),
+    ObjectSpec(0x1016, "Consumer heartbeat time",       # (node id << 16) | time ms
+               tuple(Entry(i, f"Consumer heartbeat time {i}", U32, "rw", 0, "(id << 16) | ms")
+                     for i in range(1, 5)), "array"),
+    _v(0x1017, "Producer heartbeat time", U16, "rw", 0, "ms"),
+    ObjectSpec(0x1018, "Identity object", (
+        Entry(1, "Vendor-ID", U32, "ro", MAXON_VENDOR_ID),
+        Entry(2, "Product code", U32, "ro",
+              lambda c: 0x6050_0000 if c.family == "epos4" else 0x2000_0000),
+        Entry(3, "Revision number", U32, "ro", 0x0001_0000),
+        Entry(4, "Serial number", U32, "ro", lambda c: 0x5100_0000 + c.node_id)), "record",
+        drive_only=True),
+    *_pdo_objects(),
+    _v(0x6040, "Controlword", U16, "rw", 0, pdo=True),
+    _v(0x6041, "Statusword", U16, "ro", 0, pdo=True),
+    _v(0x605A, "Quick stop option code", I16, "rw", lambda c: c.quick_stop_option,
+       drive_only=True),
+    _v(0x6060, "Modes of operation", I8, "rw", 0, pdo=True),
+    _v(0x6061, "Modes of operation display", I8, "ro", 0, pdo=True),
+    _v(0x6064, "Position actual value", I32, "ro", 0, "increments (motor encoder)", pdo=True),
+    _v(0x606C, "Velocity actual value", I32, "ro", 0, "rpm (motor)", pdo=True),
+    # EPOS4: cyclic synchronous torque
+    _v(0x6071, "Target torque", I16, "rw", 0, "per mille of 0x6076", pdo=True, families=E4),
+    _v(0x6076, "Motor rated torque", U32, "rw", lambda c: c.motor.rated_torque_raw, "µNm",
+       families=E4),
+    _v(0x6077, "Torque actual value", I16, "ro", 0, "per mille of 0x6076", pdo=True,
+       families=E4),
+    ObjectSpec(0x3001, "Motor data", (
+        Entry(1, "Nominal current", U32, "rw", lambda c: c.motor.nominal_current_ma, "mA"),
+        Entry(2, "Output current limit", U32, "rw",
+              lambda c: c.motor.output_current_limit_ma, "mA"),
+        Entry(3, "Number of pole pairs", U8, "rw", 1, drive_only=True),
+        Entry(4, "Thermal time constant winding", U16, "rw", 400, "0.1 s", drive_only=True),
+        Entry(5, "Torque constant", U32, "rw", lambda c: c.motor.torque_constant_raw, "µNm/A")),
+        "record", families=E4),
+    ObjectSpec(0x30D1, "Current actual values", (
+        Entry(1, "Current actual value averaged", I32, "ro", 0, "mA", pdo=True),
+        Entry(2, "Current actual value", I32, "ro", 0, "mA", pdo=True)), "record", families=E4),
+    # EPOS2: current mode
+    _v(0x2030, "Current mode setting value", I16, "rw", 0, "mA", pdo=True, families=E2),
+    _v(0x2027, "Current actual value averaged", I16, "ro", 0, "mA", pdo=True, families=E2,
+       drive_only=True),
+    _v(0x6078, "Current actual value", I16, "ro", 0, "mA", pdo=True, families=E2),
+    ObjectSpec(0x6410, "Motor data", (
+        Entry(1, "Continuous current limit", U16, "rw", lambda c: c.motor.nominal_current_ma, "mA"),
+        Entry(2, "Output current limit", U16, "rw", lambda c: c.motor.output_current_limit_ma,
+              "mA"),
+        Entry(3, "Pole pair number", U8, "rw", 1, drive_only=True),
+        Entry(4, "Maximal speed in current mode", U32, "rw", 25000, "rpm", drive_only=True),
+        Entry(5, "Thermal time constant winding", U16, "rw", 400, "0.1 s", drive_only=True)),
+        "record", families=E2),
+)
+
+
+def _variable(index: int, e: Entry, ctx: _Ctx) -> ODVariable:
+    v = ODVariable(e.name, index, e.sub)
+    v.data_type, v.access_type, v.pdo_mappable = e.dtype, e.access, e.pdo
+    v.default = e.default(ctx) if callable(e.default) else e.default
+    v.unit = e.unit
     return v
-
-
-def _record(od: ObjectDictionary, name: str, index: int,
-            entries: list[tuple[int, str, int, str, int]]) -> ODRecord:
-    rec = ODRecord(name, index)
-    rec.add_member(_var("Highest sub-index supported", index, 0, UNSIGNED8, "ro",
-                        max(e[0] for e in entries)))
-    for sub, sname, dtype, access, default in entries:
-        rec.add_member(_var(sname, index, sub, dtype, access, default))
-    od.add_object(rec)
-    return rec
-
-
-def _pdo_comm(od: ObjectDictionary, name: str, index: int, cob_id: int, trans_type: int) -> None:
-    _record(od, name, index, [
-        (1, "COB-ID", UNSIGNED32, "rw", cob_id),
-        (2, "Transmission type", UNSIGNED8, "rw", trans_type),
-        (3, "Inhibit time", UNSIGNED16, "rw", 0),
-        (5, "Event timer", UNSIGNED16, "rw", 0),
-    ])
-
-
-def _pdo_map(od: ObjectDictionary, name: str, index: int, defaults: list[int]) -> None:
-    rec = ODRecord(name, index)
-    rec.add_member(_var("Number of mapped objects", index, 0, UNSIGNED8, "rw", len(defaults)))
-    for sub in range(1, 9):
-        rec.add_member(_var(f"Mapping entry {sub}", index, sub, UNSIGNED32, "rw",
-                            defaults[sub - 1] if sub <= len(defaults) else 0))
-    od.add_object(rec)
 
 
 def build_object_dictionary(family: str = "epos4", node_id: int = 1,
                             units: Optional[DriveUnits] = None,
-                            output_current_limit_ma: int = 10000) -> ObjectDictionary:
-    """The objects the suite uses for one drive of ``family`` ('epos4' | 'epos2').
+                            output_current_limit_ma: int = 10000, *,
+                            motor: Optional[MotorData] = None, drive: bool = False,
+                            quick_stop_option: int = 2,
+                            device_name: Optional[str] = None) -> ObjectDictionary:
+    """The object dictionary of one drive of ``family`` ('epos4' | 'epos2'), from ``OBJECTS``.
 
-    ``units`` (DriveUnits) fills the motor data defaults (what a simulated drive serves);
-    without it the motor data objects default to 0. PDO defaults follow maxon's (RxPDO1 =
-    controlword on 0x200+id, TxPDO1 = statusword on 0x180+id); the master remaps them.
+    ``drive=False``: the master's view (the contract's objects); ``drive=True``: also what only
+    a drive serves. Motor data defaults from ``motor`` (raw values), else from ``units`` (with
+    ``output_current_limit_ma``), else 0 (limit: ``output_current_limit_ma``).
     """
-    fam = family.lower()
-    if fam not in ("epos4", "epos2"):
+    fam = str(family).lower()
+    if fam not in FAMILIES:
         raise ValueError(f"family must be 'epos4' or 'epos2', got {family!r}")
+    if motor is None:
+        motor = (MotorData.from_units(units, output_current_limit_ma) if units is not None
+                 else MotorData(output_current_limit_ma=int(output_current_limit_ma)))
+    ctx = _Ctx(fam, int(node_id), motor, int(quick_stop_option),
+               device_name if device_name is not None else f"{fam.upper()}")
     od = ObjectDictionary()
     od.node_id = node_id
-    od.add_object(_var("Device type", 0x1000, 0, UNSIGNED32, "ro", 0x00020192))
-    od.add_object(_var("Error register", 0x1001, 0, UNSIGNED8, "ro", 0))
-    od.add_object(_var("Producer heartbeat time", 0x1017, 0, UNSIGNED16, "rw", 0))
-    _record(od, "Consumer heartbeat time", 0x1016, [
-        (1, "Consumer heartbeat time 1", UNSIGNED32, "rw", 0),    # (node id << 16) | time ms
-    ])
-    _pdo_comm(od, "Receive PDO 1 parameter", 0x1400, 0x200 + node_id, 255)
-    _pdo_map(od, "Receive PDO 1 mapping", 0x1600, [0x60400010])
-    _pdo_comm(od, "Transmit PDO 1 parameter", 0x1800, 0x180 + node_id, 255)
-    _pdo_map(od, "Transmit PDO 1 mapping", 0x1A00, [0x60410010])
-    _pdo_comm(od, "Transmit PDO 2 parameter", 0x1801, 0x280 + node_id, 255)
-    _pdo_map(od, "Transmit PDO 2 mapping", 0x1A01, [])
-    od.add_object(_var("Controlword", 0x6040, 0, UNSIGNED16, "rw", 0, pdo=True))
-    od.add_object(_var("Statusword", 0x6041, 0, UNSIGNED16, "ro", 0, pdo=True))
-    od.add_object(_var("Modes of operation", 0x6060, 0, INTEGER8, "rw", 0, pdo=True))
-    od.add_object(_var("Modes of operation display", 0x6061, 0, INTEGER8, "ro", 0, pdo=True))
-    od.add_object(_var("Position actual value", 0x6064, 0, INTEGER32, "ro", 0, pdo=True))
-    od.add_object(_var("Velocity actual value", 0x606C, 0, INTEGER32, "ro", 0, pdo=True))
-    nominal_ma = units.nominal_current_ma if units else 0
-    if fam == "epos4":
-        od.add_object(_var("Target torque", 0x6071, 0, INTEGER16, "rw", 0, pdo=True))
-        od.add_object(_var("Torque actual value", 0x6077, 0, INTEGER16, "ro", 0, pdo=True))
-        od.add_object(_var("Motor rated torque", 0x6076, 0, UNSIGNED32, "rw",
-                           units.rated_torque_raw if units else 0))
-        _record(od, "Motor data", 0x3001, [
-            (1, "Nominal current", UNSIGNED32, "rw", nominal_ma),
-            (2, "Output current limit", UNSIGNED32, "rw", int(output_current_limit_ma)),
-            (5, "Torque constant", UNSIGNED32, "rw", units.torque_constant_raw if units else 0),
-        ])
-        rec = ODRecord("Current actual values", 0x30D1)
-        rec.add_member(_var("Highest sub-index supported", 0x30D1, 0, UNSIGNED8, "ro", 2))
-        rec.add_member(_var("Current actual value averaged", 0x30D1, 1, INTEGER32, "ro", 0, pdo=True))
-        rec.add_member(_var("Current actual value", 0x30D1, 2, INTEGER32, "ro", 0, pdo=True))
-        od.add_object(rec)
-    else:
-        od.add_object(_var("Current mode setting value", 0x2030, 0, INTEGER16, "rw", 0, pdo=True))
-        od.add_object(_var("Current actual value", 0x6078, 0, INTEGER16, "ro", 0, pdo=True))
-        _record(od, "Motor data", 0x6410, [
-            (1, "Continuous current limit", UNSIGNED16, "rw", nominal_ma),
-            (2, "Output current limit", UNSIGNED16, "rw", int(output_current_limit_ma)),
-        ])
+    for spec in OBJECTS:
+        if fam not in spec.families or (spec.drive_only and not drive):
+            continue
+        entries = [e for e in spec.entries if drive or not e.drive_only]
+        if spec.kind == "var":
+            od.add_object(_variable(spec.index, entries[0], ctx))
+            continue
+        obj = ODArray(spec.name, spec.index) if spec.kind == "array" else ODRecord(spec.name, spec.index)
+        # sub 0: highest sub-index (for PDO mapping objects: the number of mapped objects)
+        mapping = 0x1600 <= spec.index <= 0x17FF or 0x1A00 <= spec.index <= 0x1BFF
+        if spec.sub0 is not None:
+            sub0 = spec.sub0
+        elif mapping:
+            n = sum(1 for e in entries if e.default)
+            sub0 = Entry(0, "Highest sub-index supported", U8, "rw", n)
+        else:
+            sub0 = Entry(0, "Highest sub-index supported", U8, "ro", max(e.sub for e in entries))
+        obj.add_member(_variable(spec.index, sub0, ctx))
+        for e in entries:
+            obj.add_member(_variable(spec.index, e, ctx))
+        od.add_object(obj)
     return od
 
 

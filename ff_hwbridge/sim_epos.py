@@ -54,11 +54,12 @@ from typing import Any, Callable, Optional
 
 import canopen
 from canopen import objectdictionary as od
-from canopen.objectdictionary import ObjectDictionary, ODArray, ODRecord, ODVariable
+from canopen.objectdictionary import ObjectDictionary, ODVariable
 from canopen.sdo import SdoAbortedError
 
-from ff_hwbridge import cia402
+from ff_hwbridge import cia402, epos_od
 from ff_hwbridge.cia402 import Command, State
+from ff_hwbridge.epos_od import MAXON_VENDOR_ID, PDO_VALID_BIT, MotorData  # noqa: F401 (re-export)
 
 _NUMBER_TYPES = od.NUMBER_TYPES
 FAMILIES = ("epos4", "epos2")
@@ -66,8 +67,6 @@ CURRENT_MODE = {"epos4": 10, "epos2": -3}
 VALID_MODES = {"epos4": {0, 1, 3, 6, 8, 9, 10}, "epos2": {0, -3, -2, -1, 1, 3, 6, 7}}
 SETPOINT_OBJ = {"epos4": (0x6071, 0), "epos2": (0x2030, 0)}
 CURRENT_OBJ = {"epos4": (0x30D1, 2), "epos2": (0x6078, 0)}
-MAXON_VENDOR_ID = 0x000000FB
-PDO_VALID_BIT = 1 << 31
 
 # SDO abort codes (CiA 301)
 ABORT_NOT_MAPPABLE = 0x06040041
@@ -180,106 +179,16 @@ class NullPlant:
 # ------------------------------------------------------------------------------------------------
 # Object dictionary
 # ------------------------------------------------------------------------------------------------
-def _var(name: str, index: int, sub: int, dtype: int, access: str = "rw", default: Any = 0,
-         mappable: bool = False) -> ODVariable:
-    v = ODVariable(name, index, sub)
-    v.data_type, v.access_type, v.default, v.pdo_mappable = dtype, access, default, mappable
-    return v
-
-
-def _record(name: str, index: int, members: list[tuple[str, int, int, str, Any, bool]],
-            array: bool = False) -> ODRecord:
-    rec = ODArray(name, index) if array else ODRecord(name, index)
-    highest = max(m[1] for m in members)
-    rec.add_member(_var("Highest sub-index supported", index, 0, od.UNSIGNED8, "ro", highest))
-    for mname, sub, dtype, access, default, mappable in members:
-        rec.add_member(_var(mname, index, sub, dtype, access, default, mappable))
-    return rec
-
-
 def build_object_dictionary(cfg: DriveConfig) -> ObjectDictionary:
-    """The drive's object dictionary: communication objects + the contract's 402/maxon objects."""
-    d = ObjectDictionary()
-    nid, fam = cfg.node_id, cfg.family
-    U8, U16, U32 = od.UNSIGNED8, od.UNSIGNED16, od.UNSIGNED32
-    I8, I16, I32 = od.INTEGER8, od.INTEGER16, od.INTEGER32
-    add = d.add_object
-    add(_var("Device type", 0x1000, 0, U32, "ro", 0x00020192))
-    add(_var("Error register", 0x1001, 0, U8, "ro", 0, True))
-    errs = _record("Pre-defined error field", 0x1003,
-                   [(f"Standard error field {i}", i, U32, "ro", 0, False) for i in range(1, 9)],
-                   array=True)
-    errs[0].access_type, errs[0].default = "rw", 0
-    add(errs)
-    add(_var("COB-ID SYNC", 0x1005, 0, U32, "rw", 0x80))
-    add(_var("Manufacturer device name", 0x1008, 0, od.VISIBLE_STRING, "const",
-             f"{fam.upper()} (simulated)"))
-    add(_var("COB-ID EMCY", 0x1014, 0, U32, "rw", 0x80 + nid))
-    add(_record("Consumer heartbeat time", 0x1016,
-                [(f"Consumer heartbeat time {i}", i, U32, "rw", 0, False) for i in range(1, 5)],
-                array=True))
-    add(_var("Producer heartbeat time", 0x1017, 0, U16, "rw", 0))
-    add(_record("Identity object", 0x1018, [
-        ("Vendor-ID", 1, U32, "ro", MAXON_VENDOR_ID, False),
-        ("Product code", 2, U32, "ro", 0x6050_0000 if fam == "epos4" else 0x2000_0000, False),
-        ("Revision number", 3, U32, "ro", 0x0001_0000, False),
-        ("Serial number", 4, U32, "ro", 0x5100_0000 + nid, False)]))
-    for n in range(4):
-        rcob = (0x200 + 0x100 * n + nid) | (0 if n == 0 else PDO_VALID_BIT)
-        tcob = (0x180 + 0x100 * n + nid) | (0 if n == 0 else PDO_VALID_BIT)
-        add(_record(f"Receive PDO {n + 1} parameter", 0x1400 + n, [
-            ("COB-ID used by RxPDO", 1, U32, "rw", rcob, False),
-            ("Transmission type", 2, U8, "rw", 255, False)]))
-        add(_record(f"Receive PDO {n + 1} mapping", 0x1600 + n,
-                    [(f"Mapped object {i}", i, U32, "rw", 0, False) for i in range(1, 9)]))
-        add(_record(f"Transmit PDO {n + 1} parameter", 0x1800 + n, [
-            ("COB-ID used by TxPDO", 1, U32, "rw", tcob, False),
-            ("Transmission type", 2, U8, "rw", 255, False),
-            ("Inhibit time", 3, U16, "rw", 0, False),
-            ("Event timer", 5, U16, "rw", 0, False)]))
-        add(_record(f"Transmit PDO {n + 1} mapping", 0x1A00 + n,
-                    [(f"Mapped object {i}", i, U32, "rw", 0, False) for i in range(1, 9)]))
-    # default maps (maxon): RxPDO1 = controlword, TxPDO1 = statusword
-    d[0x1600][0].default, d[0x1600][1].default = 1, 0x60400010
-    d[0x1A00][0].default, d[0x1A00][1].default = 1, 0x60410010
-    for n in range(4):
-        d[0x1600 + n][0].access_type = d[0x1A00 + n][0].access_type = "rw"  # number of entries
-        if n:
-            d[0x1600 + n][0].default = d[0x1A00 + n][0].default = 0
-
-    add(_var("Controlword", 0x6040, 0, U16, "rw", 0, True))
-    add(_var("Statusword", 0x6041, 0, U16, "ro", 0, True))
-    add(_var("Quick stop option code", 0x605A, 0, I16, "rw", cfg.quick_stop_option))
-    add(_var("Modes of operation", 0x6060, 0, I8, "rw", 0, True))
-    add(_var("Modes of operation display", 0x6061, 0, I8, "ro", 0, True))
-    add(_var("Position actual value", 0x6064, 0, I32, "ro", 0, True))
-    add(_var("Velocity actual value", 0x606C, 0, I32, "ro", 0, True))
-    ma = lambda a: int(round(a * 1000))  # noqa: E731  A -> mA
-    if fam == "epos4":
-        add(_var("Target torque", 0x6071, 0, I16, "rw", 0, True))
-        add(_var("Motor rated torque", 0x6076, 0, U32, "rw",
-                 int(round(cfg.nominal_current * cfg.torque_constant * 1e6))))
-        add(_var("Torque actual value", 0x6077, 0, I16, "ro", 0, True))
-        add(_record("Motor data", 0x3001, [
-            ("Nominal current", 1, U32, "rw", ma(cfg.nominal_current), False),
-            ("Output current limit", 2, U32, "rw", ma(cfg.current_limit), False),
-            ("Number of pole pairs", 3, U8, "rw", 1, False),
-            ("Thermal time constant winding", 4, U16, "rw", 400, False),
-            ("Torque constant", 5, U32, "rw", int(round(cfg.torque_constant * 1e6)), False)]))
-        add(_record("Current actual values", 0x30D1, [
-            ("Current actual value averaged", 1, I32, "ro", 0, True),
-            ("Current actual value", 2, I32, "ro", 0, True)]))
-    else:
-        add(_var("Current mode setting value", 0x2030, 0, I16, "rw", 0, True))
-        add(_var("Current actual value averaged", 0x2027, 0, I16, "ro", 0, True))
-        add(_var("Current actual value", 0x6078, 0, I16, "ro", 0, True))
-        add(_record("Motor data", 0x6410, [
-            ("Continuous current limit", 1, U16, "rw", ma(cfg.nominal_current), False),
-            ("Output current limit", 2, U16, "rw", ma(cfg.current_limit), False),
-            ("Pole pair number", 3, U8, "rw", 1, False),
-            ("Maximal speed in current mode", 4, U32, "rw", 25000, False),
-            ("Thermal time constant winding", 5, U16, "rw", 400, False)]))
-    return d
+    """The drive's object dictionary: ``epos_od.OBJECTS`` with the drive-only objects, motor data
+    from ``cfg`` (mA, µNm/A, µNm = nominal current x kt)."""
+    motor = MotorData(nominal_current_ma=int(round(cfg.nominal_current * 1000)),
+                      output_current_limit_ma=int(round(cfg.current_limit * 1000)),
+                      torque_constant_raw=int(round(cfg.torque_constant * 1e6)),
+                      rated_torque_raw=int(round(cfg.nominal_current * cfg.torque_constant * 1e6)))
+    return epos_od.build_object_dictionary(cfg.family, cfg.node_id, motor=motor, drive=True,
+                                           quick_stop_option=cfg.quick_stop_option,
+                                           device_name=f"{cfg.family.upper()} (simulated)")
 
 
 # ------------------------------------------------------------------------------------------------
