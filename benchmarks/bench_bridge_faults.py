@@ -17,28 +17,20 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import socket
-import subprocess
 import sys
 import time
 
 import numpy as np
 
 from ff_hwbridge.cia402 import State
-from ff_hwbridge.config import load_config
 from ff_hwbridge.epos import EposMaster
+from ff_hwbridge.rig_process import RigProcess, rig_master_config
 
 FAULTS = {
     "emcy": ("emcy 1 0x2310", "clear 1"),
     "heartbeat_stop": ("heartbeat 1 off", "heartbeat 1 on"),
     "drop_tx_frames": ("dropnext 1 200 tx", "clear 1"),
 }
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def main() -> int:
@@ -48,25 +40,13 @@ def main() -> int:
     ap.add_argument("--heartbeat-timeout", type=float, default=0.04)
     ap.add_argument("--sync-period", type=float, default=0.001)
     a = ap.parse_args()
-    port = _free_port()
-    sim = subprocess.Popen([sys.executable, "-u", "-m", "ff_hwbridge.sim_rig", "--host-hub", str(port),
-                            "--model", "arm1dof", "--node-ids", "1"],
-                           stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    sim = RigProcess(["--model", "arm1dof", "--node-ids", "1"])
     master = None
     try:
-        line = ""
-        end = time.monotonic() + 30
-        while "sim rig ready" not in line and time.monotonic() < end:
-            line = sim.stdout.readline()
-            if not line:
-                break
-        cfg = load_config({
-            "bus": {"interface": "remote", "channel": f"ws://127.0.0.1:{port}/"},
-            "joints": [{"name": "joint1", "node_id": 1, "family": "epos4", "current_limit": 10.0,
-                        "units": {"nominal_current": 3.0, "torque_constant": 0.0267,
-                                  "counts_per_rev": 2048, "gear_ratio": 54.0}}],
-            "sync_period": a.sync_period, "heartbeat_producer_ms": a.heartbeat_ms,
-            "heartbeat_timeout": a.heartbeat_timeout, "setpoint_timeout": 10.0, "sdo_timeout": 2.0})
+        cfg = rig_master_config(sim.url, "epos4", 10.0, sync_period=a.sync_period,
+                                heartbeat_producer_ms=a.heartbeat_ms,
+                                heartbeat_timeout=a.heartbeat_timeout, setpoint_timeout=10.0,
+                                sdo_timeout=2.0)
         master = EposMaster(cfg)
         master.connect()
         master.configure()
@@ -83,8 +63,7 @@ def main() -> int:
                 master.command_currents([0.1])
                 time.sleep(0.3)
                 t_inj = time.monotonic()
-                sim.stdin.write(inject + "\n")
-                sim.stdin.flush()
+                sim.send(inject)
                 while not master.latched and time.monotonic() - t_inj < 5.0:
                     time.sleep(0.0005)
                 if master.latched:
@@ -93,8 +72,7 @@ def main() -> int:
                     reasons.add(master.fault_reason.split(":")[0])
                     time.sleep(0.01)          # the latch is visible before its reaction is sent
                     zero_after += int(master.applied_currents()[0] == 0.0)
-                sim.stdin.write(clear + "\n")
-                sim.stdin.flush()
+                sim.send(clear)
                 time.sleep(0.2)
                 master.fault_reset()
                 recovered += int(master.wait_for_state(State.OPERATION_ENABLED, 3.0))
@@ -112,13 +90,7 @@ def main() -> int:
     finally:
         if master is not None:
             master.disconnect()
-        if sim.poll() is None:
-            try:
-                sim.stdin.write("quit\n")
-                sim.stdin.flush()
-                sim.wait(10)
-            except (OSError, subprocess.TimeoutExpired):
-                sim.kill()
+        sim.stop(10)
 
 
 if __name__ == "__main__":

@@ -15,6 +15,10 @@ Figures:
 - ``transport_us``: arrival at the drive − the master's send time (hub + simulated drive);
 - ``feedback``: TPDO statusword/position frames the master received vs SYNCs sent.
 
+Master-side options: ``--rt-priority`` (SCHED_FIFO of the scheduler thread), ``--switch-interval``
+(this process's thread switch interval), ``--spin-margin``, ``--prepare on|off`` (clamp + unit
+conversion before the stamp, as the bridge node does, or all at the stamp).
+
     .venv/bin/python benchmarks/bench_can_stream.py --duration 60 --rate 1000
 """
 from __future__ import annotations
@@ -23,7 +27,6 @@ import argparse
 import json
 import os
 import platform
-import socket
 import subprocess
 import sys
 import tempfile
@@ -32,15 +35,9 @@ import time
 import numpy as np
 
 from ff_hwbridge.cia402 import State
-from ff_hwbridge.config import load_config
 from ff_hwbridge.epos import EposMaster
+from ff_hwbridge.rig_process import RigProcess, free_port, rig_master_config
 from ff_hwbridge.scheduler import StampScheduler
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def pct(a: np.ndarray) -> dict[str, float]:
@@ -60,47 +57,44 @@ def main() -> int:
                     help="s, python thread switch interval in the simulator (sim_rig's default)")
     ap.add_argument("--sim-rt-priority", type=int, default=0,
                     help="run the simulator process under SCHED_FIFO at this priority (chrt -f)")
-    ap.add_argument("--master-rt-priority", type=int, default=0,
-                    help="SCHED_FIFO priority of the master's scheduler thread")
+    ap.add_argument("--rt-priority", "--master-rt-priority", dest="rt_priority", type=int,
+                    default=0, help="SCHED_FIFO priority of the master's scheduler thread (0 = off)")
+    ap.add_argument("--switch-interval", type=float, default=0.0,
+                    help="s, sys.setswitchinterval for this (master) process (0 = python's 5 ms)")
+    ap.add_argument("--spin-margin", type=float, default=None,
+                    help="s, scheduler busy-wait before each stamp (default: the config's)")
+    ap.add_argument("--prepare", default="on", choices=("on", "off"),
+                    help="on: clamp + convert each setpoint ahead of its stamp (scheduler prepare "
+                         "step, as the bridge node); off: all of it at the stamp")
     ap.add_argument("--hub", default="sim", choices=("sim", "process"),
                     help="host the hub in the simulator process (as ff_sim_driver does) or in "
                          "a process of its own")
     a = ap.parse_args()
+    if a.switch_interval > 0:
+        sys.setswitchinterval(a.switch_interval)
 
     port = free_port()
     url = f"ws://127.0.0.1:{port}/"
     record = os.path.join(tempfile.mkdtemp(prefix="ff-bench-can-"), "sim.json")
     hub = None
-    where = ["--host-hub", str(port)]
     if a.hub == "process":
         hub = subprocess.Popen([sys.executable, "-u", "-m", "ff_hwbridge.can_hub", "--port", str(port)],
                                stdout=subprocess.PIPE, text=True)
         hub.stdout.readline()
-        where = ["--bus-url", url]
     load_before = os.getloadavg()
     rt = ["chrt", "-f", str(a.sim_rt_priority)] if a.sim_rt_priority > 0 else []
-    sim = subprocess.Popen([*rt, sys.executable, "-u", "-m", "ff_hwbridge.sim_rig", *where,
-                            "--family", a.family, "--record", record,
-                            "--switch-interval", str(a.sim_switch_interval)],
-                           stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                           text=True)
+    sim = RigProcess(["--family", a.family, "--record", record,
+                      "--switch-interval", str(a.sim_switch_interval)],
+                     port=port, host_hub=a.hub == "sim", bus_url=url, prefix=rt)
     master = None
     try:
-        line = ""
-        end = time.monotonic() + 30
-        while "sim rig ready" not in line and time.monotonic() < end:
-            line = sim.stdout.readline()
-            if not line:
-                raise SystemExit(f"sim rig died: {sim.communicate()[0]}")
-        cfg = load_config({
-            "bus": {"interface": "remote", "channel": url},
-            "sync_period": a.sync_period, "heartbeat_producer_ms": 10,
-            # a timing benchmark, not a safety test: tolerate a loaded machine holding a process off
-            "heartbeat_timeout": 1.0, "feedback_timeout": 1.0,
-            "setpoint_timeout": 1.0,
-            "joints": [{"name": "joint1", "node_id": 1, "family": a.family, "current_limit": 10.0,
-                        "units": {"nominal_current": 3.0, "torque_constant": 0.0267,
-                                  "counts_per_rev": 2048, "gear_ratio": 54}}]})
+        settings = {"sync_period": a.sync_period, "heartbeat_producer_ms": 10,
+                    # a timing benchmark, not a safety test: tolerate a loaded machine holding
+                    # a process off
+                    "heartbeat_timeout": 1.0, "feedback_timeout": 1.0, "setpoint_timeout": 1.0}
+        if a.spin_margin is not None:
+            settings["spin_margin"] = a.spin_margin
+        cfg = rig_master_config(url, a.family, 10.0, **settings)
         master = EposMaster(cfg)
         master.connect()
         master.configure()
@@ -113,8 +107,13 @@ def main() -> int:
         # small alternating currents (±0.3 A pattern): unique-enough raw values, arm barely moves
         n = int(a.duration * a.rate)
         pattern = [(((k * 37) % 61) - 30) * 0.01 for k in range(n)]   # period 61, |I| <= 0.3 A
-        sched = StampScheduler(lambda stamp, amps: master.command_currents([amps]),
-                               spin_margin=cfg.spin_margin, rt_priority=a.master_rt_priority)
+        if a.prepare == "on":      # item k: prepared ahead, sent at the stamp
+            sched = StampScheduler(lambda stamp, prepared: master.send_prepared(prepared),
+                                   spin_margin=cfg.spin_margin, rt_priority=a.rt_priority,
+                                   prepare=lambda k: master.prepare_currents([pattern[k]]))
+        else:                      # item k: clamp, convert and send at the stamp
+            sched = StampScheduler(lambda stamp, k: master.command_currents([pattern[k]]),
+                                   spin_margin=cfg.spin_margin, rt_priority=a.rt_priority)
         sched.start()
         t0 = time.time_ns() + 500_000_000
         period = int(1e9 / a.rate)
@@ -124,7 +123,8 @@ def main() -> int:
         while submitted < n:                       # feed ~100 ms ahead, like the bridge node
             horizon = time.time_ns() + 100_000_000
             while submitted < n and stamps[submitted] < horizon:
-                sched.submit(stamps[submitted], pattern[submitted])
+                sched.submit(stamps[submitted], submitted)
+                master.note_setpoint(motion_running=True)
                 submitted += 1
             time.sleep(0.02)
         while sched.pending:
@@ -133,6 +133,7 @@ def main() -> int:
         tpdos, window = tpdo_count["n"] - sync0, time.monotonic() - tw0
         sent_stats = sched.stats().as_dict()
         sent_at = {stamp: sent for stamp, sent in sched.records}
+        rt_active = sched.rt_active
         sched.stop()
         latched = master.fault_reason
         master.disable()
@@ -140,12 +141,7 @@ def main() -> int:
     finally:
         if master is not None:
             master.disconnect()
-        try:
-            sim.stdin.write("quit\n")
-            sim.stdin.flush()
-            sim.wait(20)
-        except Exception:
-            sim.kill()
+        sim.stop(20)
         if hub is not None:
             hub.terminate()
             hub.wait(10)
@@ -177,7 +173,10 @@ def main() -> int:
                     "cpus": os.cpu_count(), "duration_s": a.duration, "rate_hz": a.rate,
                     "family": a.family, "transport": "python-can-remote hub on 127.0.0.1",
                     "hub_in": a.hub, "sim_switch_interval_s": a.sim_switch_interval or 0.005,
-                    "sim_rt_priority": a.sim_rt_priority, "master_rt_priority": a.master_rt_priority, "loadavg_1min_before_after": [load_before[0], os.getloadavg()[0]],
+                    "sim_rt_priority": a.sim_rt_priority, "master_rt_priority": a.rt_priority if rt_active else 0,
+                    "master_switch_interval_s": sys.getswitchinterval(),
+                    "spin_margin_s": cfg.spin_margin, "prepare_step": a.prepare == "on",
+                    "loadavg_1min_before_after": [load_before[0], os.getloadavg()[0]],
                     "setpoints_sent": n, "safe_state": latched}
     if start is None:
         result["error"] = "stream not found in the drive's arrival log"
