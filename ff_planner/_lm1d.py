@@ -128,10 +128,13 @@ def _lm_step(Jm, r, lam, A, y, delta):
 @njit(cache=True, nogil=True)
 def solve_start(J, c, pv, pc, pt, times, tf, q0, goal, pvals, i_max, I, W, vb, wpen, wq, lam0,
                 tol_q, tol_d, min_kink, max_iter, abandon_iter, abandon_norm, max_reject,
-                lam_down, lam_up, pw, r, Jm, r2, Jm2, A, y, delta, trial):
+                lam_down, lam_up, pw, r, Jm, r2, Jm2, A, y, delta, trial, Jf):
     """LM from the currents in I (modified in place). Returns (status, iterations, |r|², kink).
 
-    The rest condition is the one-sided penalty row (pen_mode 0). Work arrays are passed in.
+    The rest condition is the one-sided penalty row (pen_mode 0). Bounds: currents at ±i_max
+    whose step would leave the box are held there (their Jacobian columns dropped, the step
+    recomputed) — robust plans of long moves saturate the middle current. Work arrays are
+    passed in.
     """
     n = I.shape[0]
     ok, kink, dmax, qerr, vca = residual(J, c, pv, pc, pt, times, tf, q0, goal, pw, pvals, I,
@@ -152,6 +155,19 @@ def solve_start(J, c, pv, pc, pt, times, tf, q0, goal, pvals, i_max, I, W, vb, w
             if not _lm_step(Jm, r, lam, A, y, delta):
                 lam *= 10.0
                 continue
+            held = False
+            for j in range(n):
+                if (I[j] >= i_max and delta[j] > 0.0) or (I[j] <= -i_max and delta[j] < 0.0):
+                    held = True
+            if held:        # active bounds: solve for the free currents only
+                for j in range(n):
+                    out = (I[j] >= i_max and delta[j] > 0.0) or (I[j] <= -i_max
+                                                                 and delta[j] < 0.0)
+                    for a in range(Jm.shape[0]):
+                        Jf[a, j] = 0.0 if out else Jm[a, j]
+                if not _lm_step(Jf, r, lam, A, y, delta):
+                    lam *= 10.0
+                    continue
             for j in range(n):
                 x = I[j] + delta[j]
                 trial[j] = min(max(x, -i_max), i_max)
@@ -202,11 +218,12 @@ def multistart(J, c, pv, pc, pt, times, tf, q0, goal, umask, pvals, i_max, start
     y = np.empty(m)
     delta = np.empty(n)
     trial = np.empty(n)
+    Jf = np.empty((m, n))
     for s in range(ns):
         st, it, f, kink = solve_start(J, c, pv, pc, pt, times, tf, q0, goal, pvals, i_max,
                                       starts[s], W, vb, wpen, wq, lam0, tol_q, tol_d, min_kink,
                                       max_iter, abandon_iter, abandon_norm, max_reject, lam_down,
-                                      lam_up, pw, r, Jm, r2, Jm2, A, y, delta, trial)
+                                      lam_up, pw, r, Jm, r2, Jm2, A, y, delta, trial, Jf)
         out_status[s] = st
         out_iter[s] = it
         out_f[s] = f
@@ -311,10 +328,11 @@ def verify_core(J, c, pv, pc, pt, times, cur, tf, q0, pscale, changes, W, out):
 
 
 @njit(cache=True, nogil=True)
-def draw_starts(seed_key, spread, direction, starts):
+def draw_starts(seed_key, spread, direction, mid_lo, mid_hi, starts):
     """Fill ``starts`` (m, N) uniformly in ±spread (A), seeded by ``seed_key`` (uint32; numba's
     per-thread generator is re-seeded, so a chunk depends on its key only). direction ≠ 0 (the
-    sign of the move): the first and last currents oppose the move."""
+    sign of the move): the first and last currents oppose the move; and with mid_hi > 0 the
+    inner currents push the move, direction·U(mid_lo, mid_hi) A (long moves)."""
     np.random.seed(seed_key)
     m, n = starts.shape
     for s in range(m):
@@ -323,14 +341,17 @@ def draw_starts(seed_key, spread, direction, starts):
         if direction != 0.0 and n >= 2:
             starts[s, 0] = -direction * abs(starts[s, 0])
             starts[s, n - 1] = -direction * abs(starts[s, n - 1])
+            if mid_hi > 0.0:
+                for j in range(1, n - 1):
+                    starts[s, j] = direction * np.random.uniform(mid_lo, mid_hi)
 
 
 @njit(cache=True, nogil=True)
 def plan_chunk(J, c, pv, pc, pt, times, tf, q0, goal, umask, pscale, i_max, vb, cfg, seed_key,
-               spread, direction, draw, stop_first, changes, starts, st, it, f, kk, counts,
-               ver_out):
+               spread, direction, mid_lo, mid_hi, draw, stop_first, changes, starts, st, it, f,
+               kk, counts, ver_out):
     """One chunk of the robust-derivative multistart, compiled end to end: draw the starts
-    (when ``draw``), run LM from each (``starts`` becomes the end points), and — when
+    (when ``draw``: ``draw_starts``), run LM from each (``starts`` becomes the end points), and — when
     ``stop_first`` and a start succeeded — verify that plan (``verify_core`` into ver_out).
 
     cfg: [wpen, wq, lam0, tol_q, tol_d, min_kink, max_iter, abandon_iter, abandon_norm,
@@ -338,7 +359,7 @@ def plan_chunk(J, c, pv, pc, pt, times, tf, q0, goal, umask, pscale, i_max, vb, 
     Returns (starts run, verified: ver_out holds the verification of starts[done − 1]).
     """
     if draw:
-        draw_starts(seed_key, spread, direction, starts)
+        draw_starts(seed_key, spread, direction, mid_lo, mid_hi, starts)
     n = starts.shape[1]
     W = np.zeros((N_ROWS, 4 + 4 * n))
     done = multistart(J, c, pv, pc, pt, times, tf, q0, goal, umask, pscale, i_max, starts, W,

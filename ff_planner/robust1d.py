@@ -48,10 +48,18 @@ SAMPLED_CANDIDATES = 4  # robust-sampled: robust plans collected, each refined b
 # uniform in ±spread·i_max.
 LM_SETTINGS = {
     1: dict(wpen=0.1, wq=1.0, lam0=1e-2, max_iter=25, abandon_iter=3, abandon_norm=1e-2,
-            max_reject=3, lam_down=0.1, lam_up=5.0, spread=0.3),
+            max_reject=3, lam_down=0.1, lam_up=5.0, spread=0.3,
+            cycle=(None, ("far", 0.6, 0.5, 1.0), ("far", 0.8, 0.9, 1.0), 0.8)),
     3: dict(wpen=0.1, wq=3.0, lam0=1e-2, max_iter=25, abandon_iter=4, abandon_norm=1e-3,
-            max_reject=5, lam_down=0.1, lam_up=5.0, spread=0.2),
+            max_reject=5, lam_down=0.1, lam_up=5.0, spread=0.2, cycle=(None, 0.8)),
 }
+# k = 1 "cycle" (see chunk_spread): the tuned chunk first (the 0 -> 1 rad task is solved in it),
+# then two "far" chunks whose inner current pushes the move at 50-100 % / 90-100 % of i_max
+# (robust plans of long moves saturate it: the Fig. 6 thresholds of 1.8 rad pv, 2.3 rad pt,
+# 6 rad pc come out with 50 starts), then a wide unconstrained one. Chosen on 20 seeds of the
+# Fig. 6 sweep: pv robust to 1.75 rad and pc to 6.0 rad on every seed (the next grid points,
+# 2.0 / 6.25 rad, have no robust plan in 20000 starts), pt to 2.0-2.25 rad (2.25 rad needs tens
+# to hundreds of starts); mean starts for 0 -> 1 rad unchanged (3.8).
 
 
 WIDE_SPREAD = 0.8   # unconstrained chunks of random starts use ±0.8·i_max
@@ -247,7 +255,7 @@ class _Problem:
 
     def chunk(self, block: np.ndarray, cfg: np.ndarray, stop_first: bool, counts: np.ndarray,
               ver_out: np.ndarray, draw: bool = False, seed_key: int = 0, spread: float = 0.0,
-              direction: float = 0.0):
+              direction: float = 0.0, mid: tuple = (0.0, 0.0)):
         """One compiled call: (draw the starts,) LM from each, verify the first success."""
         m = block.shape[0]
         st = np.zeros(m, np.int64)
@@ -256,7 +264,8 @@ class _Problem:
         kk = np.zeros(m)
         done, verified = _lm1d.plan_chunk(
             *self.phys, self.times, self.tf, self.q0, self.goal, self.umask, self.pscale,
-            self.i_max, self.vb, cfg, seed_key, spread, direction, draw, stop_first,
+            self.i_max, self.vb, cfg, seed_key, spread, direction, float(mid[0]),
+            float(mid[1]), draw, stop_first,
             _CHANGES_ARR, block, st, it, f, kk, counts, ver_out)
         return done, verified, st, it, f
 
@@ -393,11 +402,12 @@ def plan_robust_1dof(request: PlanRequest, progress: Progress = None,
             warm_ok = int(np.count_nonzero(st[:done] == _lm1d.OK))
         else:                            # seeded random starts, drawn chunk by chunk (compiled)
             m = min(CHUNK, total - drawn)
-            frac, oppose = chunk_spread(prob.settings, chunk)
+            frac, oppose, mid = chunk_spread(prob.settings, chunk)
             block = np.empty((m, n))
             done, verified, st, it, f = prob.chunk(
                 block, cfg, stop_first, counts, ver_out, True, _seed_key(seed, chunk),
-                frac * prob.i_max, direction if oppose else 0.0)
+                frac * prob.i_max, direction if oppose else 0.0,
+                (mid[0] * prob.i_max, mid[1] * prob.i_max))
             drawn += m
             chunk += 1
         tried += done
@@ -438,13 +448,23 @@ def _seed_key(seed: int, chunk: int) -> int:
     return (seed * 1_000_003 + chunk * 7919 + 0x5EED) & 0xFFFFFFFF
 
 
-def chunk_spread(settings: dict, chunk: int) -> tuple[float, bool]:
-    """(spread as a fraction of i_max, oppose) for random-start chunk ``chunk``: the cycle
-    ``SPREAD_CYCLE``, None standing for the tuned ``settings["spread"]`` with the first and last
-    currents opposing the move (robust motions first move away from the goal and brake at the
-    end, paper 4.1.2); a number for an unconstrained uniform chunk of that spread."""
-    c = SPREAD_CYCLE[chunk % len(SPREAD_CYCLE)]
-    return (float(settings["spread"]), True) if c is None else (float(c), False)
+def chunk_spread(settings: dict, chunk: int) -> tuple[float, bool, tuple[float, float]]:
+    """How random-start chunk ``chunk`` is drawn: (spread as a fraction of i_max, oppose, (mid_lo,
+    mid_hi) fractions of i_max) from the cycle ``settings["cycle"]`` (default ``SPREAD_CYCLE``):
+
+    - None: the tuned ``settings["spread"]``, the first and last currents opposing the move
+      (robust motions first move away from the goal and brake at the end, paper 4.1.2);
+    - a number s: unconstrained, uniform in ±s·i_max;
+    - ("far", s, lo, hi): first and last currents opposing the move within s·i_max, the inner
+      ones pushing it with lo..hi·i_max — long moves, whose robust plans saturate the middle.
+    """
+    cycle = settings.get("cycle", SPREAD_CYCLE)
+    c = cycle[chunk % len(cycle)]
+    if c is None:
+        return float(settings["spread"]), True, (0.0, 0.0)
+    if isinstance(c, tuple):
+        return float(c[1]), True, (float(c[2]), float(c[3]))
+    return float(c), False, (0.0, 0.0)
 
 
 def _no_plan(request, prob, best_I, tried, iters, warm, t0, stats, out_of_time) -> PlanResult:
