@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import threading
 import time
-import uuid
 
 import pytest
 
 from ff_hwbridge.units import DriveUnits
+
+from canopen_helpers import unique_channel, waiter
 
 
 @pytest.fixture
@@ -22,7 +23,7 @@ def bridge(ros_env):
     from ff_hwbridge.bridge_node import BridgeNode
     from test_epos_master import MiniEpos
 
-    channel = f"ff-bridge-{uuid.uuid4().hex[:8]}"
+    channel = unique_channel("ff-bridge")
     drive = MiniEpos(channel, 1, DriveUnits(nominal_current=3.0))
     ctx = rclpy.Context()
     rclpy.init(context=ctx)
@@ -47,13 +48,7 @@ def bridge(ros_env):
         drive.close()
 
 
-def _wait(pred, timeout=3.0):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.005)
-    return pred()
+_wait = waiter(3.0, 0.005)
 
 
 def test_lifecycle_setpoints_faults_and_reset(bridge):
@@ -123,7 +118,7 @@ def test_configure_error_goes_to_error_processing(ros_env):
     try:
         node = BridgeNode(context=ctx, parameter_overrides=[
             Parameter("bus_interface", value="virtual"),
-            Parameter("bus_channel", value=f"ff-empty-{uuid.uuid4().hex[:8]}"),
+            Parameter("bus_channel", value=unique_channel("ff-empty")),
             Parameter("node_ids", value=[1, 2])])           # 2 ids for 1 joint name
         node.trigger_configure()
         assert node.master is None
@@ -169,7 +164,7 @@ def test_config_file_parameter_is_used(ros_env, tmp_path):
     from ff_hwbridge.bridge_node import BridgeNode
 
     cfg = tmp_path / "bridge.yaml"
-    cfg.write_text(f"bus: {{interface: virtual, channel: ff-none-{uuid.uuid4().hex[:8]}}}\n"
+    cfg.write_text(f"bus: {{interface: virtual, channel: {unique_channel('ff-none')}}}\n"
                    "boot_timeout: 0.2\n"
                    "joints:\n"
                    "  - {name: a, node_id: 5, family: epos2, current_limit: 2.0}\n"

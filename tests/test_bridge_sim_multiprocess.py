@@ -5,17 +5,16 @@ fault reset."""
 from __future__ import annotations
 
 import re
-import socket
-import subprocess
-import sys
 import tempfile
 import time
 
 import pytest
 
 from ff_hwbridge.cia402 import State
-from ff_hwbridge.config import load_config
 from ff_hwbridge.epos import EposError, EposMaster
+from ff_hwbridge.rig_process import RigProcess, rig_master_config
+
+from canopen_helpers import waiter
 
 HB_MS = 10
 # s; heartbeat / feedback loss is detectable only after this. Generous: this 2-core machine is
@@ -24,40 +23,14 @@ HB_TIMEOUT = 0.15
 SAFE_WITHIN = 0.05       # s
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-class SimProcess:
+class SimProcess(RigProcess):
     """``python -m ff_hwbridge.sim_rig --host-hub PORT`` with a stdin command channel."""
 
     def __init__(self, env):
-        self.errors = tempfile.TemporaryFile("w+")       # stderr (logs), apart from replies
-        self.port = free_port()
-        self.url = f"ws://127.0.0.1:{self.port}/"
-        self.p = subprocess.Popen([sys.executable, "-u", "-m", "ff_hwbridge.sim_rig",
-                                   "--host-hub", str(self.port), "--q0", "0.0"],
-                                  stdin=subprocess.PIPE, stdout=subprocess.PIPE,
-                                  stderr=self.errors, text=True, env=env)
-        end = time.monotonic() + 30
-        while time.monotonic() < end:
-            line = self.p.stdout.readline()
-            if "sim rig ready" in line:
-                return
-            if not line and self.p.poll() is not None:
-                break
-        raise RuntimeError(f"sim rig did not start: {self.stderr()}")
+        super().__init__(["--q0", "0.0"], env=env, stderr=tempfile.TemporaryFile("w+"))
 
     def stderr(self) -> str:
-        self.errors.seek(0)
-        return self.errors.read()
-
-    def cmd(self, line: str) -> str:
-        self.p.stdin.write(line + "\n")
-        self.p.stdin.flush()
-        return self.p.stdout.readline().strip()
+        return self.stderr_text()
 
     def currents(self) -> list[float]:
         reply = self.cmd("state")
@@ -65,15 +38,6 @@ class SimProcess:
 
     def q(self) -> float:
         return float(re.search(r"q=\[([^\],]*)", self.cmd("state")).group(1))
-
-    def stop(self) -> int:
-        try:
-            self.p.stdin.write("quit\n")
-            self.p.stdin.flush()
-            return self.p.wait(10)
-        except Exception:
-            self.p.kill()
-            return self.p.wait(5)
 
 
 @pytest.fixture(scope="module")
@@ -86,25 +50,15 @@ def sim(ros_env):
 
 
 def make_master(sim: SimProcess, **extra) -> EposMaster:
-    cfg = load_config({**extra,
-        "bus": {"interface": "remote", "channel": sim.url},
-        "heartbeat_producer_ms": HB_MS, "heartbeat_timeout": HB_TIMEOUT,
-        "feedback_timeout": HB_TIMEOUT, "setpoint_timeout": 0.5,
-        "joints": [{"name": "joint1", "node_id": 1, "family": "epos4", "current_limit": 5.0,
-                    "units": {"nominal_current": 3.0, "torque_constant": 0.0267,
-                              "counts_per_rev": 2048, "gear_ratio": 54}}]})
+    cfg = rig_master_config(sim.url, "epos4", 5.0, **{
+        **extra, "heartbeat_producer_ms": HB_MS, "heartbeat_timeout": HB_TIMEOUT,
+        "feedback_timeout": HB_TIMEOUT, "setpoint_timeout": 0.5})
     m = EposMaster(cfg)
     m.connect()
     return m
 
 
-def wait_for(pred, timeout=2.0):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.001)
-    return pred()
+wait_for = waiter(2.0, 0.001)
 
 
 @pytest.fixture

@@ -10,7 +10,6 @@ from __future__ import annotations
 import struct
 import threading
 import time
-import uuid
 
 import can
 import canopen
@@ -23,6 +22,8 @@ from ff_hwbridge.epos import EposError, EposMaster
 from ff_hwbridge.epos_od import build_object_dictionary
 from ff_hwbridge.units import DriveUnits
 
+from canopen_helpers import open_network, unique_channel, waiter
+
 FMT = {0x6040: "H", 0x6041: "H", 0x6071: "h", 0x2030: "h", 0x6064: "i", 0x606C: "i",
        0x30D1: "i", 0x6078: "h"}
 
@@ -34,9 +35,7 @@ class MiniEpos:
         self.units = units
         self.family = units.family
         self.bus = can.Bus(interface="virtual", channel=channel, receive_own_messages=False)
-        self.net = canopen.Network(self.bus)
-        self.net.NOTIFIER_CYCLE = 0.05
-        self.net.connect()
+        self.net = open_network(channel, bus=self.bus)
         self.node = canopen.LocalNode(node_id, build_object_dictionary(units.family, node_id, units))
         self.net.add_node(self.node)
         self.id = node_id
@@ -159,7 +158,7 @@ def _config(channel: str, family: str = "epos4", n: int = 1, **over):
 @pytest.fixture
 def rig(request):
     family, n = getattr(request, "param", ("epos4", 1))
-    channel = f"ff-test-{uuid.uuid4().hex[:8]}"
+    channel = unique_channel("ff-test")
     cfg = _config(channel, family, n)
     drives = [MiniEpos(channel, j.node_id, j.units) for j in cfg.joints]
     master = EposMaster(cfg)
@@ -170,13 +169,7 @@ def rig(request):
         d.close()
 
 
-def _wait(pred, timeout=2.0):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.002)
-    return pred()
+_wait = waiter(2.0)
 
 
 @pytest.mark.parametrize("rig", [("epos4", 1), ("epos2", 2)], indirect=True)
@@ -284,7 +277,7 @@ def test_setpoint_watchdog_and_feedback_loss(rig):
 
 
 def test_missing_node_gives_clear_error():
-    channel = f"ff-test-{uuid.uuid4().hex[:8]}"
+    channel = unique_channel("ff-test")
     master = EposMaster(_config(channel, boot_timeout=0.2))
     master.connect()
     try:
@@ -336,7 +329,7 @@ def test_lost_quick_stop_is_repeated_and_lost_setpoint_heals(rig):
 
 
 def test_master_heartbeat_is_produced_and_consumed_by_the_drive():
-    channel = f"ff-test-{uuid.uuid4().hex[:8]}"
+    channel = unique_channel("ff-test")
     cfg = _config(channel, master_heartbeat_ms=20)
     drive = MiniEpos(channel, 1, cfg.joints[0].units)
     seen = []

@@ -6,13 +6,14 @@ import math
 import struct
 import time
 
-import canopen
 import numpy as np
 import pytest
 
 from ff_hwbridge.sim_arm import SimArm
 from ff_hwbridge.sim_rig import RigConfig, SimRig
 from ff_hwbridge.sim_epos import SimConfigError
+
+from canopen_helpers import open_network
 from ff_planner import arm1dof, scara2
 from ff_planner.params import ParameterError, preset
 
@@ -115,9 +116,7 @@ def test_rig_drives_move_the_arm_and_report_it():
     """In-process: a master enables the drive, streams current, reads position by SYNC."""
     cfg = RigConfig(bus={"interface": "virtual", "channel": "test-sim-arm-rig"}, q0=(0.3,))
     with SimRig(cfg) as rig:
-        master = canopen.Network()
-        master.NOTIFIER_CYCLE = 0.05
-        master.connect(interface="virtual", channel="test-sim-arm-rig")
+        master = open_network("test-sim-arm-rig")
         tpdo = []
         master.subscribe(0x181, lambda i, d, t: tpdo.append(bytes(d)))
         try:
@@ -159,9 +158,7 @@ def test_scara_rig_two_drives_on_one_bus():
     cfg = RigConfig(model="scara2", node_ids=(1, 2), bus={"interface": "virtual", "channel": chan},
                     q0=(-0.5, 0.0))
     with SimRig(cfg) as rig:
-        master = canopen.Network()
-        master.NOTIFIER_CYCLE = 0.05
-        master.connect(interface="virtual", channel=chan)
+        master = open_network(chan)
         boots = []
         master.subscribe(0x701, lambda i, d, t: boots.append(1))
         master.subscribe(0x702, lambda i, d, t: boots.append(2))

@@ -2,7 +2,6 @@
 publishes ground truth, takes fault injection and true friction as runtime parameters, resets."""
 from __future__ import annotations
 
-import socket
 import time
 
 import canopen
@@ -15,11 +14,7 @@ from std_srvs.srv import Trigger
 from ff_hwbridge.sim_epos import DriveConfig, build_object_dictionary
 from ff_msgs_py.launch import start_module, wait_for_line
 
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+from canopen_helpers import free_port, open_network
 
 
 def call(node, client, request, timeout=10.0):
@@ -64,9 +59,7 @@ def test_sim_driver_node(ros_env, rclpy_node):
         assert list(got[-1].name) == ["joint1"] and list(got[-1].position) == [0.3]
 
         # the drive answers over the hosted hub
-        net = canopen.Network()
-        net.NOTIFIER_CYCLE = 0.05
-        net.connect(interface="remote", channel=f"ws://127.0.0.1:{port}/")
+        net = open_network(f"ws://127.0.0.1:{port}/", interface="remote")
         emcy = []
         net.subscribe(0x81, lambda i, d, t: emcy.append(bytes(d)))
         remote = net.add_node(1, build_object_dictionary(DriveConfig()))

@@ -13,16 +13,12 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 from ff_hwbridge.cia402 import State
 from ff_hwbridge.sim_epos import DriveConfig, SimConfigError, SimEpos, build_object_dictionary
 
+from canopen_helpers import open_network, waiter
+
 _chan = itertools.count()
 
 
-def wait_for(pred, timeout=3.0):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if pred():
-            return True
-        time.sleep(0.002)
-    return pred()
+wait_for = waiter(3.0)
 
 
 class Rig:
@@ -31,10 +27,7 @@ class Rig:
     def __init__(self, family="epos4", node_id=1, plant=None, **cfg):
         chan = f"test-sim-epos-{next(_chan)}"
         self.cfg = DriveConfig(node_id=node_id, family=family, **cfg)
-        self.net_s, self.net_m = canopen.Network(), canopen.Network()
-        for net in (self.net_s, self.net_m):
-            net.NOTIFIER_CYCLE = 0.05                      # quick disconnect
-            net.connect(interface="virtual", channel=chan)
+        self.net_s, self.net_m = open_network(chan), open_network(chan)
         self.frames: list[tuple[float, int, bytes]] = []
         self.net_m.notifier.add_listener(self)  # records every frame the master sees
         self.drive = SimEpos(self.cfg, plant)
