@@ -26,6 +26,9 @@ from .arm1dof import sim_core
 
 # status codes of one start
 OK, NO_CONVERGENCE, ABANDONED, KINK, BAD_START = 0, 1, 2, 3, 4
+# stall on the rest bound (see solve_start): |r|² below STALL_F with |v_c| within STALL_BAND·vb
+# of vb switches the rest row to an equality at STALL_INSIDE·vb
+STALL_F, STALL_BAND, STALL_INSIDE = 1e-4, 0.05, 0.999
 
 
 _RESIDUAL_SIG = ("Tuple((boolean, float64, float64, float64, float64))(float64, float64, float64, "
@@ -143,6 +146,8 @@ def solve_start(J, c, pv, pc, pt, times, tf, q0, goal, pvals, i_max, I, W, vb, w
         return BAD_START, 0, math.inf, kink
     f = _norm2(r)
     lam = lam0
+    pm = 0          # penalty mode of the rest row: one-sided, until a stall on its boundary
+    vbe = vb
     for it in range(max_iter):
         if qerr <= tol_q and dmax <= tol_d and vca <= vb:
             if kink >= min_kink:
@@ -172,7 +177,7 @@ def solve_start(J, c, pv, pc, pt, times, tf, q0, goal, pvals, i_max, I, W, vb, w
                 x = I[j] + delta[j]
                 trial[j] = min(max(x, -i_max), i_max)
             ok2, kink2, dmax2, qerr2, vca2 = residual(J, c, pv, pc, pt, times, tf, q0, goal,
-                                                      pw, pvals, trial, W, vb, wpen, wq, 0, r2,
+                                                      pw, pvals, trial, W, vbe, wpen, wq, pm, r2,
                                                       Jm2)
             f2 = _norm2(r2) if ok2 else math.inf
             if f2 < f:
@@ -187,6 +192,17 @@ def solve_start(J, c, pv, pc, pt, times, tf, q0, goal, pvals, i_max, I, W, vb, w
                 break
             lam *= lam_up
         if not accepted:
+            # a stall close to the rest bound (the one-sided row switching on and off across
+            # the solution, which then lies on |v_c| = vb): make the row an equality just
+            # inside the bound and go on; otherwise give up
+            if pm == 0 and f < STALL_F and abs(vca - vb) < STALL_BAND * vb:
+                pm = 1
+                vbe = STALL_INSIDE * vb
+                ok, kink, dmax, qerr, vca = residual(J, c, pv, pc, pt, times, tf, q0, goal, pw,
+                                                     pvals, I, W, vbe, wpen, wq, pm, r, Jm)
+                f = _norm2(r)
+                lam = lam0
+                continue
             return NO_CONVERGENCE, it, f, kink
     if qerr <= tol_q and dmax <= tol_d and vca <= vb:
         return (OK if kink >= min_kink else KINK), max_iter, f, kink
