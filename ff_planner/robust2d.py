@@ -331,19 +331,17 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
         # reach a held link 2 more often)
         if cprob is not None and (JOINT1_SOURCE == "compiled"
                                   or (JOINT1_SOURCE == "both" and turn % 2 == 0)):
-            from . import _lm1d
-
             m = CHUNK
             block = rng.uniform(-p1.i_max, p1.i_max, (m, N))
             try:
-                done, st, it, f, _ = cprob.run(block, stop_first=False)
+                ends = cprob(block)
             except Exception:  # robust1d changed under us: use the scipy path
                 cprob = None
                 continue
-            starts += int(done)
-            iters += int(it[:done].sum())
-            best_cost = min(best_cost, float(np.min(f[:done])))
-            xs = [block[i].copy() for i in range(done) if st[i] == _lm1d.OK]
+            starts += len(ends)
+            iters += sum(e["iterations"] for e in ends)
+            best_cost = min([best_cost] + [e["residual2"] for e in ends])
+            xs = [e["currents"] for e in ends if e["ok"]]
         else:                      # fallback: scipy least squares on arm1dof (FD Jacobians)
             starts += 1
             x, fun, nfev = prob.solve(rng.uniform(-0.8, 0.8, N) * p1.i_max)
@@ -448,14 +446,15 @@ JOINT1_SOURCE = "compiled"   # "compiled" (robust1d's LM), "scipy", or "both" (a
 
 
 def _compiled_joint1(p1: Arm1DofParams, q0, qf, request: PlanRequest, N: int, names1):
-    """robust1d's compiled solver set up for joint 1 (None if unavailable)."""
+    """robust1d's compiled solver for joint 1 (``robust1d.solve_block``): a callable taking an
+    (M, N) block of starts and returning the end points; None if unavailable."""
     try:
-        from . import robust1d
+        from functools import partial
 
-        req1 = PlanRequest(model="arm1dof", q0=(float(q0[0]),), qf=(float(qf[0]),),
-                           tf=request.tf, uncertain=tuple(names1), steps=N,
-                           coast=request.coast, params=p1, tol=request.tol)
-        return robust1d._Problem(req1, p1, N)
+        from .robust1d import solve_block
+
+        return partial(solve_block, p1, float(q0[0]), float(qf[0]), float(request.tf),
+                       tuple(names1), coast=float(request.coast), tol=float(request.tol))
     except Exception:  # pragma: no cover - robust1d missing or incompatible
         return None
 
