@@ -30,6 +30,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Mapping, Optional, Sequence, Union
 
+from .epos_od import CURRENT_MODE
 from .units import FAMILIES, DriveUnits, UnitsError
 
 
@@ -38,7 +39,7 @@ class ConfigError(ValueError):
 
 
 # canopen's 0x6060 values per family
-MODE_OF_OPERATION = {"epos4": 10, "epos2": -3}
+MODE_OF_OPERATION = CURRENT_MODE            # 0x6060 per family (epos_od)
 
 
 @dataclass(frozen=True)

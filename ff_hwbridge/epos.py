@@ -50,6 +50,7 @@ import canopen
 import numpy as np
 
 from . import cia402
+from .can_hub import open_bus
 from .cia402 import State
 from .config import BridgeConfig, JointConfig, load_config, with_bus
 from .epos_od import (RPDO_SETPOINT, TPDO_MOTION, TPDO_STATUS, build_object_dictionary,
@@ -203,7 +204,7 @@ class EposMaster:
         if self.network is not None:
             return
         if bus is None:
-            bus = _open_bus(self.config.bus.as_dict())
+            bus = open_bus(self.config.bus.as_dict())   # checks loopback-only remotes
         net = canopen.Network(bus)
         net.NOTIFIER_CYCLE = 0.1        # bounds how long disconnect() waits for the receiver
         net.connect()
@@ -686,18 +687,6 @@ class EposMaster:
     def applied_currents(self) -> np.ndarray:
         """A, the currents last sent (from the raw setpoints)."""
         return np.array([d.units.setpoint_to_amps(d.setpoint) for d in self._drives])
-
-
-def _open_bus(cfg: dict[str, Any]) -> Any:
-    """A python-can bus from a config dict (through ff_hwbridge.can_hub when present: it checks
-    loopback-only remotes and fixes python-can-remote's periodic sender)."""
-    try:
-        from .can_hub import open_bus
-    except ImportError:       # pragma: no cover - can_hub is part of the suite
-        import can
-
-        return can.Bus(**cfg)
-    return open_bus(cfg)
 
 
 # --- a small runner ---------------------------------------------------------------------------

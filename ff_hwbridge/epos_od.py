@@ -34,6 +34,8 @@ RPDO_SETPOINT = 1
 TPDO_STATUS = 1
 TPDO_MOTION = 2
 
+#: 0x6060 modes of operation value of the contract's current mode: EPOS4 CST, EPOS2 current mode
+CURRENT_MODE = {"epos4": 10, "epos2": -3}
 MAXON_VENDOR_ID = 0x000000FB
 PDO_VALID_BIT = 1 << 31          # set = PDO disabled (CiA 301 "not valid")
 

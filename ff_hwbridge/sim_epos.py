@@ -59,14 +59,15 @@ from canopen.sdo import SdoAbortedError
 
 from ff_hwbridge import cia402, epos_od
 from ff_hwbridge.cia402 import Command, State
-from ff_hwbridge.epos_od import MAXON_VENDOR_ID, PDO_VALID_BIT, MotorData  # noqa: F401 (re-export)
+from ff_hwbridge.epos_od import (CURRENT_MODE, MAXON_VENDOR_ID, PDO_VALID_BIT,  # noqa: F401
+                                 MotorData)
+from ff_hwbridge.units import FAMILIES, DriveUnits
 
 _NUMBER_TYPES = od.NUMBER_TYPES
-FAMILIES = ("epos4", "epos2")
-CURRENT_MODE = {"epos4": 10, "epos2": -3}
 VALID_MODES = {"epos4": {0, 1, 3, 6, 8, 9, 10}, "epos2": {0, -3, -2, -1, 1, 3, 6, 7}}
-SETPOINT_OBJ = {"epos4": (0x6071, 0), "epos2": (0x2030, 0)}
-CURRENT_OBJ = {"epos4": (0x30D1, 2), "epos2": (0x6078, 0)}
+# the contract's setpoint (RPDO1 entry 2) and actual current (TPDO2 entry 2) objects per family
+SETPOINT_OBJ = {f: epos_od.rpdo_layout(f)[1][:2] for f in FAMILIES}
+CURRENT_OBJ = {f: epos_od.tpdo2_layout(f)[1][:2] for f in FAMILIES}
 
 # SDO abort codes (CiA 301)
 ABORT_NOT_MAPPABLE = 0x06040041
@@ -107,6 +108,11 @@ class DriveConfig:
         lim_ma = 65535 if self.family == "epos2" else 2**32 - 1
         if self.current_limit * 1000 > lim_ma or self.nominal_current * 1000 > lim_ma:
             raise SimConfigError(f"currents above {lim_ma} mA do not fit the {self.family} objects")
+
+    def units(self) -> DriveUnits:
+        """The drive's motor and encoder data as the suite's unit conversions."""
+        return DriveUnits(self.family, self.nominal_current, self.torque_constant,
+                          self.counts_per_rev, self.gear_ratio)
 
 
 @dataclass(frozen=True)
@@ -182,10 +188,7 @@ class NullPlant:
 def build_object_dictionary(cfg: DriveConfig) -> ObjectDictionary:
     """The drive's object dictionary: ``epos_od.OBJECTS`` with the drive-only objects, motor data
     from ``cfg`` (mA, µNm/A, µNm = nominal current x kt)."""
-    motor = MotorData(nominal_current_ma=int(round(cfg.nominal_current * 1000)),
-                      output_current_limit_ma=int(round(cfg.current_limit * 1000)),
-                      torque_constant_raw=int(round(cfg.torque_constant * 1e6)),
-                      rated_torque_raw=int(round(cfg.nominal_current * cfg.torque_constant * 1e6)))
+    motor = MotorData.from_units(cfg.units(), int(round(cfg.current_limit * 1000)))
     return epos_od.build_object_dictionary(cfg.family, cfg.node_id, motor=motor, drive=True,
                                            quick_stop_option=cfg.quick_stop_option,
                                            device_name=f"{cfg.family.upper()} (simulated)")
@@ -403,6 +406,9 @@ class SimEpos:
         self._lock = threading.RLock()
         self._log: deque[SetpointRecord] = deque(maxlen=log_capacity)
         self._dict = build_object_dictionary(config)
+        # encoder / velocity conversions (the suite's one place for them); the setpoint scale
+        # comes from the drive's own objects (0x6076, 0x3001:05), which a master may rewrite
+        self._units = config.units()
         self.node = _DriveNode(self, config.node_id, self._dict)
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
@@ -545,11 +551,9 @@ class SimEpos:
     def _live(self, t_ns: int) -> dict[tuple[int, int], Any]:
         """Values of the live objects at ``t_ns``."""
         q, qd, amps = self.plant.sample(t_ns)
-        cfg = self.config
-        motor_rev = q * cfg.gear_ratio / (2 * math.pi)
-        counts = int(round(motor_rev * cfg.counts_per_rev))
-        counts = ((counts + 2**31) % 2**32) - 2**31
-        rpm = int(round(qd * cfg.gear_ratio * 60.0 / (2 * math.pi)))
+        counts = self._units.rad_to_increments(q)
+        counts = ((counts + 2**31) % 2**32) - 2**31      # INT32 wraps like the drive's counter
+        rpm = self._units.rad_s_to_rpm(qd)
         stopped = qd == 0.0
         with self._lock:
             if (self.state is State.QUICK_STOP_ACTIVE and stopped
