@@ -44,3 +44,13 @@ def open_network(channel: str, interface: str = "virtual", notifier_cycle: float
     else:
         net.connect()
     return net
+
+
+def configure_and_enable(master, timeout: float = 2.0) -> None:
+    """SDO/PDO set-up, NMT start and the enable sequence of an ``EposMaster``; asserts that every
+    drive reaches OPERATION ENABLED within ``timeout`` s."""
+    from ff_hwbridge.cia402 import State
+
+    master.configure()
+    master.enable()
+    assert master.wait_for_state(State.OPERATION_ENABLED, timeout), master.fault_reason

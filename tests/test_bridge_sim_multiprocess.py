@@ -14,7 +14,7 @@ from ff_hwbridge.cia402 import State
 from ff_hwbridge.epos import EposError, EposMaster
 from ff_hwbridge.rig_process import RigProcess, rig_master_config
 
-from canopen_helpers import waiter
+from canopen_helpers import configure_and_enable, waiter
 
 HB_MS = 10
 # s; heartbeat / feedback loss is detectable only after this. Generous: this 2-core machine is
@@ -67,9 +67,7 @@ def master(sim):
     sim.cmd("reset 0")
     m = make_master(sim)
     try:
-        m.configure()
-        m.enable()
-        assert m.wait_for_state(State.OPERATION_ENABLED, 2.0), m.fault_reason
+        configure_and_enable(m)
         yield m
     finally:
         m.disconnect()
@@ -137,9 +135,7 @@ def test_sdo_silent_fails_configuration_clearly(sim):
         with pytest.raises(EposError, match=r"(?i)sdo|timeout|respon"):
             m.configure()
         assert sim.cmd("sdo 1 on").startswith("ok")
-        m.configure()
-        m.enable()
-        assert m.wait_for_state(State.OPERATION_ENABLED, 2.0), m.fault_reason
+        configure_and_enable(m)
     finally:
         m.disconnect()
         sim.cmd("clear 1")
@@ -153,9 +149,7 @@ def test_silent_master_stops_the_drive(ros_env):
     sim = SimProcess(ros_env)
     m = make_master(sim, master_heartbeat_ms=50)
     try:
-        m.configure()
-        m.enable()
-        assert m.wait_for_state(State.OPERATION_ENABLED, 2.0), m.fault_reason
+        configure_and_enable(m)
         m.command_currents([1.5])
         assert wait_for(lambda: sim.currents() == [pytest.approx(1.5, abs=0.002)])
         if not wait_for(lambda: "hb_age={127:" in sim.cmd("info 1"), 1.0):

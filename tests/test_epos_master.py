@@ -22,7 +22,7 @@ from ff_hwbridge.epos import EposError, EposMaster
 from ff_hwbridge.epos_od import build_object_dictionary
 from ff_hwbridge.units import DriveUnits
 
-from canopen_helpers import open_network, unique_channel, waiter
+from canopen_helpers import configure_and_enable, open_network, unique_channel, waiter
 
 FMT = {0x6040: "H", 0x6041: "H", 0x6071: "h", 0x2030: "h", 0x6064: "i", 0x606C: "i",
        0x30D1: "i", 0x6078: "h"}
@@ -197,9 +197,7 @@ def test_configure_sets_mode_heartbeat_and_pdo_maps(rig):
 
 def test_enable_sequence_goes_through_transitions_2_3_4(rig):
     master, drives = rig
-    master.configure()
-    master.enable()
-    assert master.wait_for_state(State.OPERATION_ENABLED, 2.0)
+    configure_and_enable(master)
     assert drives[0].transitions[-3:] == [2, 3, 4]
     sent = master.command_currents([1.5])
     assert sent.currents[0] == pytest.approx(1.5)
@@ -214,9 +212,7 @@ def test_enable_sequence_goes_through_transitions_2_3_4(rig):
 
 def test_command_is_clamped_to_limit(rig):
     master, drives = rig
-    master.configure()
-    master.enable()
-    assert master.wait_for_state(State.OPERATION_ENABLED, 2.0)
+    configure_and_enable(master)
     sent = master.command_currents([1e9])
     assert sent.currents[0] == pytest.approx(10.0) and sent.reason
     assert _wait(lambda: drives[0].setpoint_raw == 3333)      # floor(10 A / 3 A * 1000)
@@ -227,9 +223,7 @@ def test_command_is_clamped_to_limit(rig):
 
 def test_emcy_latches_safe_state_and_fault_reset_recovers(rig):
     master, drives = rig
-    master.configure()
-    master.enable()
-    assert master.wait_for_state(State.OPERATION_ENABLED, 2.0)
+    configure_and_enable(master)
     master.command_currents([2.0])
     drives[0].raise_fault(0x2310)
     assert _wait(lambda: master.latched, 1.0)
@@ -248,9 +242,7 @@ def test_emcy_latches_safe_state_and_fault_reset_recovers(rig):
 
 def test_heartbeat_loss_latches_safe_state(rig):
     master, drives = rig
-    master.configure()
-    master.enable()
-    assert master.wait_for_state(State.OPERATION_ENABLED, 2.0)
+    configure_and_enable(master)
     master.command_currents([1.0])
     drives[0].stop_heartbeat()
     assert _wait(lambda: master.latched, 2.0)
@@ -262,9 +254,7 @@ def test_heartbeat_loss_latches_safe_state(rig):
 
 def test_setpoint_watchdog_and_feedback_loss(rig):
     master, drives = rig
-    master.configure()
-    master.enable()
-    assert master.wait_for_state(State.OPERATION_ENABLED, 2.0)
+    configure_and_enable(master)
     master.note_setpoint(motion_running=True)
     master.command_currents([1.0])
     assert _wait(lambda: master.latched, 2.0)
@@ -289,9 +279,7 @@ def test_missing_node_gives_clear_error():
 
 def test_node_leaving_operational_or_rebooting_latches(rig):
     master, drives = rig
-    master.configure()
-    master.enable()
-    assert master.wait_for_state(State.OPERATION_ENABLED, 2.0)
+    configure_and_enable(master)
     assert _wait(lambda: master.status()["joint1.nmt"] == "OPERATIONAL")
     drives[0].node.nmt.send_command(0x02)                    # the drive goes to NMT STOPPED
     assert _wait(lambda: master.latched, 2.0)
@@ -308,9 +296,7 @@ def test_node_leaving_operational_or_rebooting_latches(rig):
 
 def test_lost_quick_stop_is_repeated_and_lost_setpoint_heals(rig):
     master, drives = rig
-    master.configure()
-    master.enable()
-    assert master.wait_for_state(State.OPERATION_ENABLED, 2.0)
+    configure_and_enable(master)
     master.command_currents([1.5])
     assert _wait(lambda: drives[0].setpoint_raw == 500)
     drives[0].drop_rx = True                                 # every RPDO to the drive is lost
