@@ -88,10 +88,17 @@ class RigProcess:
         """``quit`` (the rig writes its ``--record`` log), wait; kill if it does not exit."""
         try:
             self.send("quit")
-            return self.p.wait(timeout)
+            code = self.p.wait(timeout)
         except (OSError, ValueError, subprocess.TimeoutExpired):
             self.kill()
-            return self.p.wait(5)
+            code = self.p.wait(5)
+        for pipe in (self.p.stdin, self.p.stdout):
+            if pipe is not None and not pipe.closed:
+                try:
+                    pipe.close()
+                except OSError:
+                    pass
+        return code
 
     def kill(self) -> str:
         """Kill this process (by its PID) if it still runs; return what is left on stdout."""
