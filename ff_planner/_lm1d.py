@@ -10,7 +10,8 @@ v_bound is the coast-entry speed from which zero current stops the arm a margin 
 once the penalty is zero the arm is at rest at tf on both sides of the nominal parameters
 (q(tf) = the rest position, q̇(tf) = 0 exactly). Jacobians are exact (``_deriv1d``: forward mode
 with the mixed ∂²q/∂p∂I). The step is the minimum-norm LM step δ = −Jᵀ(JJᵀ + λI)⁻¹r
-(m = k+2 rows ≤ N columns), projected onto the box. Starts whose residual is still large after a
+(m = k+2 rows ≤ N columns), projected onto the box; currents at a bound whose step
+would leave the box are held there and the step is recomputed for the free ones. Starts whose residual is still large after a
 few iterations are abandoned; a converged start whose plan lies within MIN_KINK of a
 non-smooth point is reported as KINK, not OK.
 """

@@ -1,15 +1,22 @@
 """Robust feedforward planning for the 1-DOF arm (paper Eq. 7, section 4.1) at compiled speed.
 
-``plan_robust_1dof(request, progress=None, initial_currents=None) -> PlanResult``
+``plan_robust_1dof(request, progress=None, initial_currents=None, grid=None, *, warm_only=False)
+-> PlanResult``; ``verify(...)`` judges any plan; ``solve_block(...)`` is the public entry to the
+compiled solver for other planners (robust2d's joint 1).
 
 - objective "robust-derivative": N piecewise-constant currents (equal steps on [0, tf − coast]),
   |I| ≤ i_max, such that q(tf) = qf, the arm is at rest at tf, and every ∂q(tf)/∂p_i = 0 for the
   uncertain friction parameters. Seeded multistart of a compiled Levenberg–Marquardt solver with
-  exact Jacobians (``_lm1d``); the first start that meets the tolerances with true derivatives is
-  verified and returned. Starts are drawn 16 at a time: alternately from a narrow box (±0.2·i_max
-  for k ≥ 2, ±0.3·i_max for k = 1) with the first and last currents opposing the move (robust
-  motions first move away from the goal, paper 4.1.2), and from a wide box (±0.8·i_max). A plan within 0.1 % (relative parameter change) of a non-smooth point
-  (zero crossing at a switch time, breakaway edge) is refused: its one-sided derivatives differ.
+  exact Jacobians (``_lm1d``). Starts are drawn 16 at a time, chunk by chunk, in a cycle
+  (``chunk_spread``): a narrow box (±0.2·i_max for k ≥ 2, ±0.3·i_max for k = 1) with the first
+  and last currents opposing the move (robust motions first move away from the goal, paper
+  4.1.2); for k = 1 then two "far" chunks with the inner current pushing the move at 50–100 % /
+  90–100 % of i_max (long moves); and a wide box (±0.8·i_max). Each chunk is ONE compiled call
+  (``_lm1d.plan_chunk``: draw, solve, and verify the first success — exact derivatives, central
+  differences at 1e-6, the 0.1 % quotient, the kink radius, goal, rest, |I| ≤ i_max and the
+  finite-change sweep), so the hot path builds no Python objects until the result. A plan within
+  0.1 % (relative parameter change) of a non-smooth point (zero crossing at a switch time,
+  breakaway edge) is refused: its one-sided derivatives differ.
 - objective "robust-sampled" (section 6.2): among robust plans, the one — refined by SLSQP along
   the robust set — with the least RMS error of the REST position over sampled parameter values
   (each uncertain parameter at ±10 % and ±20 %, and the corners of the ±20 % box). When no
