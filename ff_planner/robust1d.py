@@ -203,9 +203,14 @@ def verify(params: Arm1DofParams, profile: CurrentProfile, q0: float, qf: float,
 
 _CFG_KEYS = ("wpen", "wq", "lam0", "tol_q", "tol_d", "min_kink", "max_iter", "abandon_iter",
              "abandon_norm", "max_reject", "lam_down", "lam_up")
-#: LM settings overriding lm_settings(k) for given (warm) starts: more patience — a warm start
-#: is often close to a solution but not yet inside the basin the tuned abandonment assumes
-WARM_SETTINGS = dict(max_iter=100, abandon_iter=100, max_reject=10)
+#: LM settings overriding lm_settings(k) for given (warm) starts (``warm_settings=`` per call).
+#: Measured on 180 neighbour continuations (goal ±0.1/0.25 rad, tf +0.1 s): patience (100
+#: iterations, no abandonment) converged no more often than the tuned settings (k = 1: 99 vs 98
+#: of 105 from the neighbour's own currents; k = 3: 15 of 75 either way — those runs end at a
+#: kink, where the neighbour's solution branch stops) and took twice as long; what helped was
+#: the rest-bound stall fix in ``_lm1d.solve_start`` (k = 1: 82 -> 99 of 105) and perturbed
+#: copies of the neighbour (k = 3: 66-68 of 75 with 15 of them). So: the tuned settings.
+WARM_SETTINGS: dict = {}
 
 
 class _Problem:
@@ -351,13 +356,15 @@ def _check_request(request: PlanRequest) -> Arm1DofParams:
 
 def plan_robust_1dof(request: PlanRequest, progress: Progress = None,
                      initial_currents: Optional[np.ndarray] = None,
-                     grid: Optional[float] = None, *, warm_only: bool = False) -> PlanResult:
+                     grid: Optional[float] = None, *, warm_only: bool = False,
+                     warm_settings: Optional[dict] = None) -> PlanResult:
     """Plan a robust rest-to-rest move of the 1-DOF arm; see the module docstring.
 
-    initial_currents: (N,) or (N, 1) A (one start), or (M, N) (M starts): warm start(s) tried first (e.g. a motion-library
-    neighbour), each with more patience than a random start (``WARM_SETTINGS``: no early
-    abandonment, up to 100 iterations). They count towards ``request.starts``: seeded random
-    starts fill the rest, none with ``warm_only``. ``starts_tried`` = starts actually run
+    initial_currents: (N,) or (N, 1) A (one start), or (M, N) (M starts): given starts tried
+    first, in order, in one compiled call (e.g. a motion-library neighbour and perturbed copies
+    of it), with LM settings ``WARM_SETTINGS`` updated by ``warm_settings`` (e.g.
+    dict(max_iter=100, abandon_iter=100) for more patience). They count towards
+    ``request.starts``: seeded random starts fill the rest, none with ``warm_only``. ``starts_tried`` = starts actually run
     (warm ones included); ``extra["warm_starts_ok"]`` says how many given starts converged.
     grid: put the switch times on this grid (s), e.g. 1e-3 for a 1 kHz drive (also read from
     ``request.grid`` when the request has that field).
@@ -381,6 +388,10 @@ def plan_robust_1dof(request: PlanRequest, progress: Progress = None,
     elif warm_only:
         raise PlanningError("warm_only needs initial_currents")
     warm = warm_block is not None
+    ws = dict(WARM_SETTINGS, **(warm_settings or {}))
+    bad = set(ws) - set(_CFG_KEYS)
+    if bad:
+        raise PlanningError(f"unknown warm_settings {sorted(bad)}; choose from {_CFG_KEYS}")
     n_warm = 0 if warm_block is None else warm_block.shape[0]
     total = 0 if warm_only else max(0, int(request.starts) - n_warm)
     sampled = request.objective == "robust-sampled"
@@ -404,7 +415,7 @@ def plan_robust_1dof(request: PlanRequest, progress: Progress = None,
             break
         if warm_block is not None:       # the warm starts run alone, first, with patience
             block, warm_block = warm_block, None
-            done, verified, st, it, f = prob.chunk(block, prob.cfg(**WARM_SETTINGS),
+            done, verified, st, it, f = prob.chunk(block, prob.cfg(**ws),
                                                    stop_first, counts, ver_out)
             warm_ok = int(np.count_nonzero(st[:done] == _lm1d.OK))
         else:                            # seeded random starts, drawn chunk by chunk (compiled)

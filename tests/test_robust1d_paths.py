@@ -78,6 +78,11 @@ def test_warm_only_runs_exactly_the_given_starts(k3):
     assert r.success and r.starts_tried == 2
     with pytest.raises(PlanningError, match="warm_only"):
         plan_robust_1dof(PlanRequest(), warm_only=True)
+    patient = plan_robust_1dof(PlanRequest(), initial_currents=good, warm_only=True,
+                               warm_settings=dict(max_iter=100, abandon_iter=100))
+    assert patient.success and patient.starts_tried == 1
+    with pytest.raises(PlanningError, match="warm_settings"):
+        plan_robust_1dof(PlanRequest(), initial_currents=good, warm_settings={"zeal": 1})
 
 
 def test_warm_starts_count_towards_the_requested_starts():
