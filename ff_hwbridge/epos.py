@@ -440,7 +440,7 @@ class EposMaster:
 
     def _react(self, reason: str) -> None:
         log.error("safe state: %s", reason)
-        self.events.append((self.clock(), f"safe state: {reason}"))
+        t_latch = self.clock()
         for d in self._drives:
             state = d.feedback.state
             d.target = State.QUICK_STOP_ACTIVE if state is State.OPERATION_ENABLED else State.SWITCH_ON_DISABLED
@@ -449,6 +449,9 @@ class EposMaster:
                       if d.target is State.QUICK_STOP_ACTIVE
                       else cia402.CONTROLWORD[cia402.Command.DISABLE_VOLTAGE])
                 self._send_rpdo(d, cw, 0)
+        # stamped at the latch, listed once the zero-current reaction has been sent: whoever
+        # sees the event also sees applied_currents() == 0
+        self.events.append((t_latch, f"safe state: {reason}"))
         if self.on_fault is not None:
             try:
                 self.on_fault(reason)
