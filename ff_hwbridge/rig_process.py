@@ -1,7 +1,7 @@
 """The simulated rig (``python -m ff_hwbridge.sim_rig``) as a child process, for benchmarks and
 multi-process tests: start it hosting the loopback CAN hub, wait for ``sim rig ready``, send stdin
 commands, stop it by its own PID. Plus the master configuration that matches the rig's default
-drive (``sim_epos.DriveConfig``), so that the two sides' motor data are stated once.
+drive (``sim_rig.RigConfig``'s first joint), so that the two sides' motor data are stated once.
 
 No rclpy. All traffic stays on 127.0.0.1.
 """
@@ -14,7 +14,7 @@ import time
 from typing import IO, Any, Mapping, Optional, Sequence
 
 from .config import BridgeConfig, load_config
-from .sim_epos import DriveConfig
+from .sim_rig import RigConfig
 
 
 def free_port() -> int:
@@ -113,10 +113,11 @@ class RigProcess:
 
 def rig_master_config(url: str, family: str = "epos4", current_limit: float = 10.0,
                       node_id: int = 1, **settings: Any) -> BridgeConfig:
-    """EposMaster settings for one joint on the rig's default drive (``DriveConfig``'s motor data:
-    nominal current A, kt Nm/A, counts per rev, gear ratio), over the hub at ``url``; ``settings``
-    are further top-level keys of ``load_config`` (sync_period s, heartbeat_timeout s, ...)."""
-    d = DriveConfig()
+    """EposMaster settings for joint 1 of a rig started with its default model (motor data as the
+    rig's drive serves them: nominal current A, kt Nm/A, counts per rev, gear ratio), over the hub
+    at ``url``; ``settings`` are further top-level keys of ``load_config`` (sync_period s,
+    heartbeat_timeout s, ...)."""
+    d = RigConfig(family=family).drive_configs()[0]
     return load_config({
         **settings,
         "bus": {"interface": "remote", "channel": url},

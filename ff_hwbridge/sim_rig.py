@@ -48,8 +48,8 @@ class RigConfig:
     true_params: Optional[Params] = None          # default: the model's paper table
     q0: tuple[float, ...] = (0.0,)
     step: float = 1e-4                            # s, physics sub-step
-    counts_per_rev: int = 2048
-    nominal_current: float = 3.0                  # A (sets the ‰ scale on EPOS4)
+    counts_per_rev: int = DriveConfig.counts_per_rev
+    nominal_current: float = DriveConfig.nominal_current   # A (sets the ‰ scale on EPOS4)
 
     def params(self) -> Params:
         return self.true_params if self.true_params is not None else default_params(self.model)
