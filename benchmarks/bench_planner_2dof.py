@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import os
 import statistics
 import time
@@ -74,7 +75,7 @@ def main() -> None:
             })
         out["section_4_2"].append(row)
         print(json.dumps({"progress": f"seed {seed}", "wall_s": wall, "ok": res.success}),
-              flush=True)
+              file=sys.stderr, flush=True)
     walls = [r["wall_s"] for r in out["section_4_2"]]
     cpus = [r["cpu_s"] for r in out["section_4_2"]]
     warm = [r["wall_s"] for r in out["section_4_2"] if not r["first_in_process"]] or walls
@@ -110,7 +111,7 @@ def main() -> None:
         row.update({k: v for k, v in res.extra.items() if isinstance(v, (int, float, str))})
         out["random_tasks"].append(row)
         print(json.dumps({"progress": f"task {q0.tolist()}->{qf.tolist()}", "wall_s": wall,
-                          "ok": res.success}), flush=True)
+                          "ok": res.success}), file=sys.stderr, flush=True)
     if args.moving_search > 0:
         from ff_planner._robust2d_sampled import derivative_search
 
