@@ -3,7 +3,10 @@
 Measured in one run, same tasks and seeds:
 - ours: ``plan_robust_1dof`` for k = 3 (N = 5) and k = 1 (N = 3, each of pv, pc, pt), 0 → 1 rad
   in 1 s, over --seeds seeds: wall time to a verified truly robust plan (median, p90), the
-  compiled search part alone, time per start, success rate per start;
+  compiled part alone (search and the in-call verification, ``search_time_s``), time per start,
+  success rate per start;
+- warm starts (motion-library continuation): from a solved neighbour (goal ±0.1/0.25 rad,
+  tf +0.1 s) its own currents alone, and with 15 perturbed copies in one ``warm_only`` call;
 - first plan in a fresh process (numba cache warm) and in a fresh install (empty numba cache:
   cold compilation), each as a subprocess;
 - peer: a straightforward scipy SLSQP implementation of the paper's method (minimise the sum of
@@ -58,6 +61,43 @@ def bench_ours(seeds, uncertain, starts=5000):
             "cpu_time_to_robust_plan_s": _stats(cpu),
             "time_per_start_s": float(sum(search) / max(1, tried)),
             "starts_per_plan_mean": tried / len(seeds)}
+
+
+def bench_warm(uncertain, sigma=0.3, copies=15):
+    """Continuation from solved neighbours: how often the neighbour's own currents converge,
+    how often one warm_only call with them and ``copies`` perturbed copies (σ·√j A) does."""
+    import math
+
+    from ff_planner.profile import PlanRequest
+    from ff_planner.robust1d import plan_robust_1dof
+
+    own = anyof = tasks = 0
+    times, tried = [], []
+    for g in np.arange(0.5, 2.01, 0.25):
+        for tf in (0.9, 1.0, 1.1):
+            base = plan_robust_1dof(PlanRequest(qf=(g,), tf=tf, uncertain=tuple(uncertain),
+                                                starts=2000, seed=1))
+            if not base.success:
+                continue
+            I0 = base.profile.currents[:, 0]
+            for dg, dtf in ((0.1, 0.0), (0.25, 0.0), (0.0, 0.1), (-0.25, 0.0), (0.25, 0.1)):
+                req = PlanRequest(qf=(g + dg,), tf=tf + dtf, uncertain=tuple(uncertain),
+                                  starts=copies + 1, seed=1)
+                rng = np.random.default_rng(1)
+                block = [I0] + [np.clip(I0 + rng.normal(0.0, sigma * math.sqrt(j), I0.shape),
+                                        -10.0, 10.0) for j in range(1, copies + 1)]
+                t0 = time.perf_counter()
+                r = plan_robust_1dof(req, initial_currents=np.array(block), warm_only=True)
+                times.append(time.perf_counter() - t0)
+                tasks += 1
+                anyof += int(r.success)
+                own += int(r.success and r.starts_tried == 1)
+                if r.success:
+                    tried.append(r.starts_tried)
+    return {"uncertain": list(uncertain), "tasks": tasks, "neighbour_currents_converge": own,
+            f"neighbour_or_{copies}_perturbed_converge": anyof,
+            "starts_per_success_mean": float(np.mean(tried)) if tried else None,
+            "time_per_call_s": _stats(times)}
 
 
 def peer_plan(seed, uncertain, n, cap, starts=5000):
@@ -162,6 +202,8 @@ def main() -> None:
                  "machine_cores": os.cpu_count(), "load_average_at_start": os.getloadavg()}
     out["ours_k3_N5"] = bench_ours(seeds, ("pv", "pc", "pt"))
     out["ours_k1_N3"] = {k: bench_ours(seeds, (k,)) for k in ("pv", "pc", "pt")}
+    out["warm_k1_pc"] = bench_warm(("pc",))
+    out["warm_k3"] = bench_warm(("pv", "pc", "pt"))
     pseeds = seeds[:a.peer_seeds]
     out["peer_slsqp_fd_k3_N5"] = bench_peer(pseeds, ("pv", "pc", "pt"), 5, a.peer_cap)
     out["peer_slsqp_fd_k1_N3_pc"] = bench_peer(pseeds, ("pc",), 3, a.peer_cap)
