@@ -10,10 +10,11 @@ v_bound is the coast-entry speed from which zero current stops the arm a margin 
 once the penalty is zero the arm is at rest at tf on both sides of the nominal parameters
 (q(tf) = the rest position, q̇(tf) = 0 exactly). Jacobians are exact (``_deriv1d``: forward mode
 with the mixed ∂²q/∂p∂I). The step is the minimum-norm LM step δ = −Jᵀ(JJᵀ + λI)⁻¹r
-(m = k+2 rows ≤ N columns), projected onto the box; currents at a bound whose step
-would leave the box are held there and the step is recomputed for the free ones. Starts whose residual is still large after a
-few iterations are abandoned; a converged start whose plan lies within MIN_KINK of a
-non-smooth point is reported as KINK, not OK.
+(m = k+2 rows ≤ N columns), projected onto the box; currents at a bound whose step would leave
+the box are held there and the step is recomputed for the free ones. Starts whose residual is
+still large after a few iterations are abandoned; a converged start whose plan lies within
+MIN_KINK of a non-smooth point is reported as KINK, not OK. A stall with the rest row switching
+on and off across its bound turns that row into an equality just inside the bound.
 """
 from __future__ import annotations
 
@@ -368,8 +369,9 @@ def plan_chunk(J, c, pv, pc, pt, times, tf, q0, goal, umask, pscale, i_max, vb, 
                spread, direction, mid_lo, mid_hi, draw, stop_first, changes, starts, st, it, f,
                kk, counts, ver_out):
     """One chunk of the robust-derivative multistart, compiled end to end: draw the starts
-    (when ``draw``: ``draw_starts``), run LM from each (``starts`` becomes the end points), and — when
-    ``stop_first`` and a start succeeded — verify that plan (``verify_core`` into ver_out).
+    (when ``draw``: ``draw_starts``), run LM from each (``starts`` becomes the end points), and
+    — when ``stop_first`` and a start succeeded — verify that plan (``verify_core`` into
+    ver_out).
 
     cfg: [wpen, wq, lam0, tol_q, tol_d, min_kink, max_iter, abandon_iter, abandon_norm,
     max_reject, lam_down, lam_up]. counts (5,) accumulates the status codes.

@@ -364,8 +364,9 @@ def plan_robust_1dof(request: PlanRequest, progress: Progress = None,
     first, in order, in one compiled call (e.g. a motion-library neighbour and perturbed copies
     of it), with LM settings ``WARM_SETTINGS`` updated by ``warm_settings`` (e.g.
     dict(max_iter=100, abandon_iter=100) for more patience). They count towards
-    ``request.starts``: seeded random starts fill the rest, none with ``warm_only``. ``starts_tried`` = starts actually run
-    (warm ones included); ``extra["warm_starts_ok"]`` says how many given starts converged.
+    ``request.starts``: seeded random starts fill the rest, none with ``warm_only``.
+    ``starts_tried`` = starts actually run (given ones included); ``extra["warm_starts_ok"]``
+    says how many given starts converged.
     grid: put the switch times on this grid (s), e.g. 1e-3 for a 1 kHz drive (also read from
     ``request.grid`` when the request has that field).
     """
