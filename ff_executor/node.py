@@ -31,6 +31,7 @@ joint-state period — and labelled so in the log.
 from __future__ import annotations
 
 import math
+import sys
 import threading
 import time
 from collections import deque
@@ -127,7 +128,7 @@ class ExecutorNode(Node):
         self._state_client = self.create_client(GetState, f"/{g('bridge_node')}/get_state",
                                                 callback_group=self._client_group)
         self._server = ActionServer(
-            self, ExecuteProfile, "~/execute", execute_callback=self._execute,
+            self, ExecuteProfile, "~/execute", execute_callback=self._execute_in_thread,
             goal_callback=self._on_goal, cancel_callback=self._on_cancel,
             callback_group=ReentrantCallbackGroup())
 
@@ -259,6 +260,25 @@ class ExecutorNode(Node):
         return timing_stats([], [], "none")
 
     # --- the move -----------------------------------------------------------------------------
+    async def _execute_in_thread(self, goal_handle):
+        """Run the goal on its own thread and await it, leaving the executor's threads free.
+
+        A goal that held an executor thread for the whole move kept rclpy's MultiThreadedExecutor
+        busy-looping (~95 % CPU, GIL held), which delayed the streaming thread by up to seconds.
+        """
+        from rclpy.task import Future
+
+        done = Future()
+
+        def work() -> None:
+            try:
+                done.set_result(self._execute(goal_handle))
+            except BaseException as exc:  # noqa: BLE001 - handed to the awaiting task
+                done.set_exception(exc)
+
+        threading.Thread(target=work, name="ff_executor_goal", daemon=True).start()
+        return await done
+
     def _execute(self, goal_handle):
         if not self._busy.acquire(blocking=False):
             return self._finish(goal_handle, False, f"refused: {self._busy_reason()}", how="abort")
@@ -372,6 +392,9 @@ def main(argv: Optional[list[str]] = None) -> None:
     # rclpy's own SIGINT handler would shut the context down before we could send a zero
     # current; handle KeyboardInterrupt ourselves instead.
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    # The streaming thread must wake on time while rclpy's executor threads run Python code:
+    # a short GIL switch interval bounds that wait (see ff_executor.timed).
+    sys.setswitchinterval(1e-4)
     node = None
     try:
         node = ExecutorNode()
