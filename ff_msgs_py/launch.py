@@ -9,6 +9,7 @@ from __future__ import annotations
 import os
 import random
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -18,16 +19,42 @@ from pathlib import Path
 from typing import IO, Mapping, Optional, Sequence
 
 
+def domain_in_use(domain_id: int) -> bool:
+    """True if a DDS participant of ``domain_id`` lives on this machine.
+
+    The first participant of a domain binds the RTPS metatraffic unicast port 7410 + 250·domain
+    (Fast DDS / RTPS default port mapping), so a failing bind means the domain is taken.
+    """
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        sock.bind(("127.0.0.1", 7410 + 250 * int(domain_id)))
+        return False
+    except OSError:
+        return True
+    finally:
+        sock.close()
+
+
+def free_domain_id(exclude: frozenset[int] | set[int] = frozenset()) -> int:
+    """A ROS_DOMAIN_ID in 1..100 that no process on this machine uses (random among the free ones)."""
+    ids = [d for d in range(1, 101) if d not in exclude]
+    random.shuffle(ids)
+    for d in ids:
+        if not domain_in_use(d):
+            return d
+    raise RuntimeError("every ROS_DOMAIN_ID in 1..100 is in use on this machine")
+
+
 def ros_environment(domain_id: Optional[int] = None, log_dir: Optional[str] = None,
                     base: Optional[Mapping[str, str]] = None) -> dict[str, str]:
     """A copy of ``base`` (default os.environ) with loopback-only ROS settings.
 
-    ``domain_id`` None picks a random id in 1..100 (Linux-safe range); ``log_dir`` None makes a
-    fresh temporary folder.
+    ``domain_id`` None picks a random id in 1..100 (Linux-safe range) that no other process on this
+    machine uses; ``log_dir`` None makes a fresh temporary folder.
     """
     env = dict(os.environ if base is None else base)
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env["ROS_DOMAIN_ID"] = str(domain_id if domain_id is not None else random.randint(1, 100))
+    env["ROS_DOMAIN_ID"] = str(domain_id if domain_id is not None else free_domain_id())
     env["ROS_LOG_DIR"] = log_dir or tempfile.mkdtemp(prefix="ff-roslog-")
     env.pop("ROS_STATIC_PEERS", None)
     env.setdefault("PYTHONUNBUFFERED", "1")

@@ -1,28 +1,29 @@
 """Shared fixtures: a per-run loopback-only ROS environment for this test process and its children."""
 from __future__ import annotations
 
-import itertools
 import os
-import random
 import tempfile
 
 import pytest
 
-from ff_msgs_py.launch import apply_ros_environment, ros_environment
+from ff_msgs_py.launch import apply_ros_environment, free_domain_id, ros_environment
 
 
-_DOMAINS = itertools.count(random.randint(0, 99))
+_USED_DOMAINS: set[int] = set()
 
 
 @pytest.fixture(scope="module")
 def ros_env() -> dict[str, str]:
     """Environment for child processes; also applied to this process (rclpy in tests).
 
-    Each test module gets its own ROS_DOMAIN_ID (and log folder): nodes and DDS participants left
-    over by one module can then never answer, or crowd the discovery ports of, the next.
+    Each test module gets its own ROS_DOMAIN_ID (and log folder), one that no other process on the
+    machine uses: nodes left over by one module, or another test run in parallel, can then never
+    answer, or crowd the discovery ports of, this one.
     """
     log_dir = tempfile.mkdtemp(prefix="ff-test-roslog-")
-    env = ros_environment(domain_id=1 + next(_DOMAINS) % 100, log_dir=log_dir)
+    domain = free_domain_id(exclude=_USED_DOMAINS)   # not used by any process on this machine
+    _USED_DOMAINS.add(domain)
+    env = ros_environment(domain_id=domain, log_dir=log_dir)
     repo = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
     env["PYTHONPATH"] = os.pathsep.join(p for p in (repo, env.get("PYTHONPATH", "")) if p)
     apply_ros_environment(env)

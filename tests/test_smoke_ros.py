@@ -34,3 +34,17 @@ def test_plan_service_in_other_process(ros_env, rclpy_node):
     finally:
         proc.stop()
     assert not proc.alive()
+
+
+def test_free_domain_skips_a_domain_in_use(ros_env):
+    from ff_msgs_py.launch import domain_in_use, free_domain_id
+
+    busy = int(ros_env["ROS_DOMAIN_ID"])
+    proc = start_module("plan_echo_domain", "tests.nodes.plan_echo_node", [], ros_env)
+    try:
+        assert wait_for_line(proc, "plan_echo ready", 30), proc.output()
+        assert domain_in_use(busy)
+        picks = {free_domain_id() for _ in range(200)}
+        assert busy not in picks and picks <= set(range(1, 101))
+    finally:
+        proc.stop()
