@@ -68,6 +68,9 @@ def master(sim):
     m = make_master(sim)
     try:
         configure_and_enable(m)
+        # heartbeat loss is judged against heartbeat_timeout only once an OPERATIONAL heartbeat
+        # was seen (before that the master allows its state_timeout): start from there
+        assert wait_for(lambda: all(d.seen_operational for d in m._drives)), "no OPERATIONAL heartbeat"
         yield m
     finally:
         m.disconnect()
