@@ -107,7 +107,37 @@ def build_parser() -> argparse.ArgumentParser:
                           "final position vs parameter change")
     out.add_argument("--json", action="store_true", help="print the summary as JSON")
     out.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
+    out.add_argument("--quiet", action="store_true",
+                     help="no progress lines on stderr (shown once a plan runs longer than 1 s)")
     return p
+
+
+class ProgressPrinter:
+    """Progress lines on stderr for long plans: nothing in the first ``delay`` s, then one line
+    at most every ``every`` s (elapsed time, starts done, best residual, stage)."""
+
+    def __init__(self, delay: float = 1.0, every: float = 1.0, stream=None) -> None:
+        import time
+
+        self._clock = time.monotonic
+        self._t0 = self._clock()
+        self._next = self._t0 + delay
+        self._every = every
+        self._stream = stream if stream is not None else sys.stderr
+        self.lines = 0
+
+    def __call__(self, info: dict) -> None:
+        now = self._clock()
+        if now < self._next:
+            return
+        self._next = now + self._every
+        parts = [f"{now - self._t0:6.1f} s"]
+        for key in ("stage", "starts_done", "robust_found", "best", "robust"):
+            if key in info:
+                v = info[key]
+                parts.append(f"{key}={v:.3g}" if isinstance(v, float) else f"{key}={v}")
+        print(f"{PROG}: " + "  ".join(parts), file=self._stream, flush=True)
+        self.lines += 1
 
 
 DEFAULTS = {"tf": 1.0, "coast": DEFAULT_COAST, "objective": "robust-derivative", "starts": 50,
@@ -314,7 +344,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         request = make_request(args)
         from .planner import plan   # after argument checks: keeps --help and errors fast
 
-        result = plan(request)
+        result = plan(request, None if args.quiet else ProgressPrinter())
         if args.output and result.profile is not None:
             from .motion_file import write_motion
 

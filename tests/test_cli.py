@@ -118,3 +118,19 @@ def test_config_files_load_and_flags_override(tmp_path, capsys):
     bad.write_text("task: {tf: .nan}\n")
     assert main(["--config", str(bad)]) == 2
     assert "finite" in capsys.readouterr().err
+
+
+def test_progress_printer_is_quiet_at_first_then_throttled():
+    import io
+
+    from ff_planner.cli import ProgressPrinter
+
+    out = io.StringIO()
+    pp = ProgressPrinter(delay=0.0, every=3600.0, stream=out)
+    pp({"starts_done": 10, "best": 1e-3, "stage": "joint1"})
+    pp({"starts_done": 20, "best": 1e-4})          # within the throttle window: dropped
+    text = out.getvalue()
+    assert pp.lines == 1 and "starts_done=10" in text and "best=0.001" in text and "stage=joint1" in text
+    quiet = ProgressPrinter(delay=3600.0, stream=out)
+    quiet({"starts_done": 1})
+    assert quiet.lines == 0
