@@ -49,6 +49,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy, HistoryPolicy
 from ff_msgs.action import ExecuteProfile
 from ff_msgs.msg import CurrentSetpoint
 from ff_msgs_py.convert import msg_to_profile, setpoint_msg, time_to_ns
+from ff_msgs_py.threads import in_thread
 from lifecycle_msgs.srv import GetState
 from sensor_msgs.msg import JointState
 
@@ -261,23 +262,9 @@ class ExecutorNode(Node):
 
     # --- the move -----------------------------------------------------------------------------
     async def _execute_in_thread(self, goal_handle):
-        """Run the goal on its own thread and await it, leaving the executor's threads free.
-
-        A goal that held an executor thread for the whole move kept rclpy's MultiThreadedExecutor
-        busy-looping (~95 % CPU, GIL held), which delayed the streaming thread by up to seconds.
-        """
-        from rclpy.task import Future
-
-        done = Future()
-
-        def work() -> None:
-            try:
-                done.set_result(self._execute(goal_handle))
-            except BaseException as exc:  # noqa: BLE001 - handed to the awaiting task
-                done.set_exception(exc)
-
-        threading.Thread(target=work, name="ff_executor_goal", daemon=True).start()
-        return await done
+        """Run the goal on its own thread and await it, leaving the executor's threads free
+        (see ff_msgs_py.threads: a goal holding an executor thread delayed streaming by seconds)."""
+        return await in_thread(self._execute, goal_handle, name="ff_executor_goal")
 
     def _execute(self, goal_handle):
         if not self._busy.acquire(blocking=False):

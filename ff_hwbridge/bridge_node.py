@@ -329,7 +329,13 @@ class BridgeNode(LifecycleNode):
             self.scheduler.clear()
         self._diag_now.set()              # the reason is logged by the master (forwarded)
 
-    def _on_fault_reset(self, request: Any, response: Any) -> Any:
+    async def _on_fault_reset(self, request: Any, response: Any) -> Any:
+        """Service ~/fault_reset: waits for the drive on its own thread (ff_msgs_py.threads)."""
+        from ff_msgs_py.threads import in_thread
+
+        return await in_thread(self._fault_reset, response, name="ff_fault_reset")
+
+    def _fault_reset(self, response: Any) -> Any:
         if self.master is None:
             response.success, response.message = False, "bridge is not configured"
             return response
