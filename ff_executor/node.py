@@ -128,6 +128,7 @@ class ExecutorNode(Node):
                                  setpoint_qos, callback_group=self._io_group)
         self._state_client = self.create_client(GetState, f"/{g('bridge_node')}/get_state",
                                                 callback_group=self._client_group)
+        self._wake = self.create_guard_condition(lambda: None)   # resumes awaited work (ff_msgs_py.threads)
         self._server = ActionServer(
             self, ExecuteProfile, "~/execute", execute_callback=self._execute_in_thread,
             goal_callback=self._on_goal, cancel_callback=self._on_cancel,
@@ -264,7 +265,7 @@ class ExecutorNode(Node):
     async def _execute_in_thread(self, goal_handle):
         """Run the goal on its own thread and await it, leaving the executor's threads free
         (see ff_msgs_py.threads: a goal holding an executor thread delayed streaming by seconds)."""
-        return await in_thread(self._execute, goal_handle, name="ff_executor_goal")
+        return await in_thread(self._execute, goal_handle, wake=self._wake, name="ff_executor_goal")
 
     def _execute(self, goal_handle):
         if not self._busy.acquire(blocking=False):

@@ -267,6 +267,7 @@ class BridgeNode(LifecycleNode):
         # holds up the intake of setpoints
         sub = self.create_subscription(CurrentSetpoint, "~/setpoints", self._on_setpoint, 100,
                                        callback_group=MutuallyExclusiveCallbackGroup())
+        self._wake = self.create_guard_condition(lambda: None)   # resumes awaited work (ff_msgs_py.threads)
         srv = self.create_service(Trigger, "~/fault_reset", self._on_fault_reset,
                                   callback_group=MutuallyExclusiveCallbackGroup())
         self._entities += [("pub", self._pub_js), ("pub", self._pub_applied),
@@ -333,7 +334,7 @@ class BridgeNode(LifecycleNode):
         """Service ~/fault_reset: waits for the drive on its own thread (ff_msgs_py.threads)."""
         from ff_msgs_py.threads import in_thread
 
-        return await in_thread(self._fault_reset, response, name="ff_fault_reset")
+        return await in_thread(self._fault_reset, response, wake=self._wake, name="ff_fault_reset")
 
     def _fault_reset(self, response: Any) -> Any:
         if self.master is None:

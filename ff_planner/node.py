@@ -49,6 +49,7 @@ class PlannerNode(Node):
         # a deep request queue: a burst of requests waits in DDS instead of being dropped (the
         # default depth of 10 loses requests); admission control then answers or refuses each one
         qos = QoSProfile(depth=max(256, 8 * config.max_pending), reliability=ReliabilityPolicy.RELIABLE)
+        self._wake = self.create_guard_condition(lambda: None)   # resumes awaited work (ff_msgs_py.threads)
         self._srv = self.create_service(PlanTrajectory, "~/plan", self._on_plan, qos_profile=qos,
                                         callback_group=ReentrantCallbackGroup())
         self._diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
@@ -56,7 +57,13 @@ class PlannerNode(Node):
             self.create_timer(self.diagnostics_period, self._publish_diagnostics,
                               callback_group=MutuallyExclusiveCallbackGroup())
 
-    def _on_plan(self, req: PlanTrajectory.Request, res: PlanTrajectory.Response) -> PlanTrajectory.Response:
+    async def _on_plan(self, req: PlanTrajectory.Request, res: PlanTrajectory.Response) -> PlanTrajectory.Response:
+        """Service ~/plan: the (blocking) handling runs on its own thread (ff_msgs_py.threads)."""
+        from ff_msgs_py.threads import in_thread
+
+        return await in_thread(self._plan_blocking, req, res, wake=self._wake, name="ff_plan_request")
+
+    def _plan_blocking(self, req: PlanTrajectory.Request, res: PlanTrajectory.Response) -> PlanTrajectory.Response:
         try:
             fields = RequestFields(
                 model=req.model, q0=list(req.q0), qf=list(req.qf), move_time=req.move_time,
