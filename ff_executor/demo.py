@@ -10,8 +10,10 @@
 3. Executes both through the executor ACTION on the simulated arm, whose true friction differs from
    the planner's model, resetting the arm to 0 rad before each.
 4. Prints the final errors side by side, saves a PNG (ground-truth positions vs time, commanded
-   and measured currents) and exits 0 when both moves ran and the robust one landed within
-   ``--tolerance`` (default 0.005 rad); 1 otherwise.
+   and measured currents) and exits 0 when both moves ran, the robust one landed within
+   ``--tolerance`` (default 0.01 rad: a few mrad of the simulated stack's switch-timing jitter come
+   on top of the plan's own finite-change error) and missed at least ``--min-ratio`` (5) times
+   less than the baseline; 1 otherwise. (The CI end-to-end test holds the robust move to 0.005 rad.)
 """
 from __future__ import annotations
 
@@ -149,7 +151,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="absolute true parameter of the simulated arm (SI units)")
     ap.add_argument("--qf", type=float, default=1.0, help="goal, rad (start 0)")
     ap.add_argument("--tf", type=float, default=1.0, help="move time, s")
-    ap.add_argument("--tolerance", type=float, default=0.005, help="rad, robust move must land within")
+    ap.add_argument("--tolerance", type=float, default=0.01, help="rad, robust move must land within")
+    ap.add_argument("--min-ratio", type=float, default=5.0,
+                    help="the baseline must miss at least this many times more than the robust move")
     ap.add_argument("--plot", default="ff-demo.png", help="PNG to write")
     ap.add_argument("--json", default=None, help="also write the summary as JSON here")
     ap.add_argument("--run-dir", default=None, help="logs and generated files (default temp)")
@@ -212,8 +216,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                  for k, v in summary.items()}
         Path(a.json).write_text(json.dumps({"true_friction": true, "motions": clean,
                                             "ratio": ratio}, indent=2, default=float))
-    ok = rob["executed"] and base["executed"] and abs(rob["error_truth"]) <= a.tolerance
-    print("ff-demo: " + ("OK" if ok else f"FAILED (robust error above {a.tolerance} rad or a move did not run)"))
+    ok = (rob["executed"] and base["executed"] and abs(rob["error_truth"]) <= a.tolerance
+          and ratio >= a.min_ratio)
+    print("ff-demo: " + ("OK" if ok else f"FAILED (robust error above {a.tolerance} rad, baseline "
+                                         f"not {a.min_ratio:g}x worse, or a move did not run)"))
     return 0 if ok else 1
 
 
