@@ -55,6 +55,21 @@ def _cross_time(v: float, a: float, b: float) -> float:
     return -x * psi_value(z)
 
 
+@njit("int64(float64[:, ::1], int64, float64, float64, float64, float64, float64, float64, float64)",
+      cache=True, nogil=True)
+def _record(seg, nseg, t0, t1, q, v, a, b, moving):
+    """Store one segment row (t0, t1, q0, v0, a, b, moving) if there is room; returns nseg + 1."""
+    if nseg < seg.shape[0]:
+        seg[nseg, 0] = t0
+        seg[nseg, 1] = t1
+        seg[nseg, 2] = q
+        seg[nseg, 3] = v
+        seg[nseg, 4] = a
+        seg[nseg, 5] = b
+        seg[nseg, 6] = moving
+    return nseg + 1
+
+
 _PHASE_SIG = ("Tuple((float64, float64, float64, int64, int64))(float64, float64, float64, "
               "float64, float64, float64, float64, float64, float64, float64[:, ::1], int64, "
               "float64[:, ::1], int64, int64)")
@@ -72,15 +87,7 @@ def _phase(t, q, v, torque, t_end, J, a, pc, pt, seg, nseg, ev, nev, rest_kind):
     while t < t_end:
         if v == 0.0:
             if not abs(torque) > fric:          # sticks (Eq. 9, q̇ = 0 branch)
-                if nseg < seg.shape[0]:
-                    seg[nseg, 0] = t
-                    seg[nseg, 1] = t_end
-                    seg[nseg, 2] = q
-                    seg[nseg, 3] = 0.0
-                    seg[nseg, 4] = a
-                    seg[nseg, 5] = 0.0
-                    seg[nseg, 6] = 0.0
-                nseg += 1
+                nseg = _record(seg, nseg, t, t_end, q, 0.0, a, 0.0, 0.0)
                 return t_end, q, 0.0, nseg, nev
             s = 1.0 if torque > 0.0 else -1.0
             if not reversed_ and nev < ev.shape[0]:
@@ -104,29 +111,13 @@ def _phase(t, q, v, torque, t_end, J, a, pc, pt, seg, nseg, ev, nev, rest_kind):
         else:
             t_next = t_end
             if math.isinf(t_end):   # runs away (negative viscous friction beats Coulomb)
-                if nseg < seg.shape[0]:
-                    seg[nseg, 0] = t
-                    seg[nseg, 1] = t_end
-                    seg[nseg, 2] = q
-                    seg[nseg, 3] = v
-                    seg[nseg, 4] = a
-                    seg[nseg, 5] = b
-                    seg[nseg, 6] = 1.0
-                nseg += 1
+                nseg = _record(seg, nseg, t, t_end, q, v, a, b, 1.0)
                 if a < 0.0 and b == 0.0:    # pure viscous decay: comes to rest at infinity
                     return t_end, q - v / a, 0.0, nseg, nev
                 return t_end, math.nan, math.nan, nseg, nev
             q1, v1 = _free(q, v, t_end - t, a, b)
             kind = 0
-        if nseg < seg.shape[0]:
-            seg[nseg, 0] = t
-            seg[nseg, 1] = t_next
-            seg[nseg, 2] = q
-            seg[nseg, 3] = v
-            seg[nseg, 4] = a
-            seg[nseg, 5] = b
-            seg[nseg, 6] = 1.0
-        nseg += 1
+        nseg = _record(seg, nseg, t, t_next, q, v, a, b, 1.0)
         t, q, v = t_next, q1, v1
         if kind != 0:
             v = 0.0
