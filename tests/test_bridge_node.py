@@ -27,8 +27,11 @@ def bridge(ros_env):
     drive = MiniEpos(channel, 1, DriveUnits(nominal_current=3.0))
     ctx = rclpy.Context()
     rclpy.init(context=ctx)
+    # heartbeat_timeout 1 s: the stand-in drive shares this process (and its GIL) with the node and
+    # the test's executors, and was seen silent for 346 ms on a loaded machine; heartbeat-loss
+    # timing is tested across processes in test_bridge_sim_multiprocess.py
     params = [Parameter("bus_interface", value="virtual"), Parameter("bus_channel", value=channel),
-              Parameter("sync_period", value=0.005), Parameter("heartbeat_timeout", value=0.3),
+              Parameter("sync_period", value=0.005), Parameter("heartbeat_timeout", value=1.0),
               Parameter("setpoint_timeout", value=0.3), Parameter("joint_state_rate", value=50.0)]
     node = BridgeNode(context=ctx, parameter_overrides=params)
     client = Node("ff_bridge_test_client", context=ctx)
