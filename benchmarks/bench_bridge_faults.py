@@ -1,7 +1,7 @@
 """Bridge benchmark: time from an injected drive fault to the bridge's safe state, and recovery.
 
-Starts the simulated rig (``python -m ff_hwbridge.sim_rig --host-hub PORT``, own process, CAN hub
-on 127.0.0.1), connects an :class:`~ff_hwbridge.epos.EposMaster`, enables the drive with a small
+Starts the simulated rig (``python -m ff_hwbridge.sim.rig --host-hub PORT``, own process, CAN hub
+on 127.0.0.1), connects an :class:`~ff_hwbridge.drive.epos.EposMaster`, enables the drive with a small
 current, then per repetition injects a fault through the rig's stdin (EMCY, heartbeat stop,
 dropped TPDOs/heartbeats), waits for the latch, clears the fault and calls ``fault_reset()``.
 
@@ -22,9 +22,9 @@ import time
 
 import numpy as np
 
-from ff_hwbridge.cia402 import State
-from ff_hwbridge.epos import EposMaster
-from ff_hwbridge.rig_process import RigProcess, rig_master_config
+from ff_hwbridge.protocol.cia402 import State
+from ff_hwbridge.drive.epos import EposMaster
+from ff_hwbridge.sim.rig_process import RigProcess, rig_master_config
 
 FAULTS = {
     "emcy": ("emcy 1 0x2310", "clear 1"),

@@ -1,7 +1,7 @@
 """Benchmark: sustained 1 kHz current-setpoint stream, bridge master -> simulated EPOS, across
 processes over the loopback CAN hub. Prints one JSON object.
 
-Process A (child): ``python -m ff_hwbridge.sim_rig --host-hub PORT`` (hub + emulated EPOS4 +
+Process A (child): ``python -m ff_hwbridge.sim.rig --host-hub PORT`` (hub + emulated EPOS4 +
 arm), recording every setpoint's arrival (wall clock ns). Process B (this one): the bridge's
 ``EposMaster`` (SDO/PDO set-up, SYNC at 1 kHz, heartbeat and TPDO monitoring) and its
 ``StampScheduler``, which sends each setpoint at its stamp (1 ms apart).
@@ -34,10 +34,10 @@ import time
 
 import numpy as np
 
-from ff_hwbridge.cia402 import State
-from ff_hwbridge.epos import EposMaster
-from ff_hwbridge.rig_process import RigProcess, free_port, rig_master_config
-from ff_hwbridge.scheduler import StampScheduler
+from ff_hwbridge.protocol.cia402 import State
+from ff_hwbridge.drive.epos import EposMaster
+from ff_hwbridge.sim.rig_process import RigProcess, free_port, rig_master_config
+from ff_hwbridge.drive.scheduler import StampScheduler
 
 
 def pct(a: np.ndarray) -> dict[str, float]:
@@ -78,7 +78,7 @@ def main() -> int:
     record = os.path.join(tempfile.mkdtemp(prefix="ff-bench-can-"), "sim.json")
     hub = None
     if a.hub == "process":
-        hub = subprocess.Popen([sys.executable, "-u", "-m", "ff_hwbridge.can_hub", "--port", str(port)],
+        hub = subprocess.Popen([sys.executable, "-u", "-m", "ff_hwbridge.sim.can_hub", "--port", str(port)],
                                stdout=subprocess.PIPE, text=True)
         hub.stdout.readline()
     load_before = os.getloadavg()

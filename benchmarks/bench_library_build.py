@@ -28,8 +28,8 @@ import tempfile
 import time
 from pathlib import Path
 
-from ff_planner.library_build import build_library, start_local_cluster
-from ff_planner.library_grid import describe, expand, parse_grid
+from ff_planner.library.build import build_library, start_local_cluster
+from ff_planner.library.grid import describe, expand, parse_grid
 
 SCALING_GRID = {
     "name": "bench-scaling", "model": "arm1dof", "preset": "table2", "objective": "robust-sampled",
@@ -47,8 +47,8 @@ QUICK = {"qf": {"start": 0.8, "stop": 1.1, "step": 0.1}, "tf": [1.0, 1.1]}
 def _warm_workers(client) -> float:
     """Import the planner and plan small tasks in every worker (JIT caches); returns s."""
     def warm() -> int:
-        from ff_planner.library_build import plan_for_library
-        from ff_planner.profile import PlanRequest
+        from ff_planner.library.build import plan_for_library
+        from ff_planner.model.profile import PlanRequest
 
         for obj, unc, n in (("robust-derivative", ["pc"], None), ("robust-derivative", ["pv", "pc", "pt"], 5),
                             ("robust-sampled", ["pv", "pc", "pt"], 6)):

@@ -39,8 +39,8 @@ def _stats(xs):
 
 
 def bench_ours(seeds, uncertain, starts=5000):
-    from ff_planner.profile import PlanRequest
-    from ff_planner.robust1d import plan_robust_1dof
+    from ff_planner.model.profile import PlanRequest
+    from ff_planner.optimize.robust1d import plan_robust_1dof
 
     total, search, tried, ok = [], [], 0, 0
     per_start, cpu = [], []
@@ -68,8 +68,8 @@ def bench_warm(uncertain, sigma=0.3, copies=15):
     how often one warm_only call with them and ``copies`` perturbed copies (σ·√j A) does."""
     import math
 
-    from ff_planner.profile import PlanRequest
-    from ff_planner.robust1d import plan_robust_1dof
+    from ff_planner.model.profile import PlanRequest
+    from ff_planner.optimize.robust1d import plan_robust_1dof
 
     own = anyof = tasks = 0
     times, tried = [], []
@@ -104,10 +104,10 @@ def peer_plan(seed, uncertain, n, cap, starts=5000):
     """The paper's method with scipy SLSQP and finite differences (see module docstring)."""
     from scipy.optimize import minimize
 
-    from ff_planner.arm1dof import final_state
-    from ff_planner.params import preset
-    from ff_planner.profile import CurrentProfile
-    from ff_planner.robust1d import verify
+    from ff_planner.model.arm1dof import final_state
+    from ff_planner.model.params import preset
+    from ff_planner.model.profile import CurrentProfile
+    from ff_planner.optimize.robust1d import verify
 
     p = preset("table2")
     tf, coast, goal = 1.0, 0.05, 1.0
@@ -163,8 +163,8 @@ def bench_peer(seeds, uncertain, n, cap):
 
 
 FIRST_PLAN = ("import time; t0 = time.perf_counter(); "
-              "from ff_planner.profile import PlanRequest; "
-              "from ff_planner.robust1d import plan_robust_1dof; "
+              "from ff_planner.model.profile import PlanRequest; "
+              "from ff_planner.optimize.robust1d import plan_robust_1dof; "
               "t1 = time.perf_counter(); r = plan_robust_1dof(PlanRequest(starts=5000, seed=0)); "
               "t2 = time.perf_counter(); "
               "import json; print(json.dumps({'import_s': t1 - t0, 'first_plan_s': t2 - t1, "
@@ -194,8 +194,8 @@ def main() -> None:
     ap.add_argument("--no-fresh", action="store_true", help="skip the fresh-process runs")
     a = ap.parse_args()
     seeds = list(range(a.seeds))
-    from ff_planner.profile import PlanRequest
-    from ff_planner.robust1d import plan_robust_1dof
+    from ff_planner.model.profile import PlanRequest
+    from ff_planner.optimize.robust1d import plan_robust_1dof
 
     plan_robust_1dof(PlanRequest(starts=5000, seed=12345))    # load the compiled code
     out: dict = {"task": "arm1dof table2, 0 -> 1 rad, tf = 1 s, coast 0.05 s",

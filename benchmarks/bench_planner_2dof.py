@@ -33,10 +33,10 @@ def main() -> None:
     args = ap.parse_args()
 
     t_imp = time.perf_counter()
-    from ff_planner import scara2
-    from ff_planner.params import Scara2Params
-    from ff_planner.profile import PlanRequest
-    from ff_planner.robust2d import plan_robust_scara2, verify_plan, warm_up
+    from ff_planner.model import scara2
+    from ff_planner.model.params import Scara2Params
+    from ff_planner.model.profile import PlanRequest
+    from ff_planner.optimize.robust2d import plan_robust_scara2, verify_plan, warm_up
     import_s = time.perf_counter() - t_imp
     warm_s = warm_up()   # compile/load kernels first: user requests never pay for it
 
@@ -113,7 +113,7 @@ def main() -> None:
         print(json.dumps({"progress": f"task {q0.tolist()}->{qf.tolist()}", "wall_s": wall,
                           "ok": res.success}), file=sys.stderr, flush=True)
     if args.moving_search > 0:
-        from ff_planner._robust2d_sampled import derivative_search
+        from ff_planner.optimize.robust2d_least_worst import derivative_search
 
         mv = [(q0, qf) for q0, qf in tasks if qf[1] != q0[1]]
         if mv:

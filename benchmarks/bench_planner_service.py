@@ -33,7 +33,7 @@ def _node(env, folder: Path, name: str, **params) -> object:
     lines = "\n".join(f"    {k}: {json.dumps(v)}" for k, v in params.items())
     path = folder / f"{name}.yaml"
     path.write_text(f"ff_planner:\n  ros__parameters:\n{lines}\n")
-    proc = start_module(name, "ff_planner.node", ["--ros-args", "--params-file", str(path)], env,
+    proc = start_module(name, "ff_planner.ros.planner_node", ["--ros-args", "--params-file", str(path)], env,
                         log_dir=str(folder))
     if not wait_for_line(proc, "ff_planner ready", 300):
         proc.stop()

@@ -30,9 +30,9 @@ import time
 import numpy as np
 from scipy.optimize import least_squares
 
-from ff_planner.params import default_params
-from ff_planner.profile import CurrentProfile
-from ff_planner.simulate import rest_position, simulate
+from ff_planner.model.params import default_params
+from ff_planner.model.profile import CurrentProfile
+from ff_planner.model.simulate import rest_position, simulate
 
 PCS = (0.19, 0.22, 0.25)
 PAPER = {"best_rms_rad": 0.002, "worst_rms_rad": 0.092, "controllers": 32}
@@ -99,8 +99,8 @@ def controllers(n: int, params) -> list[dict]:
 
 
 def run_on_stack(ctrls: list[dict], log) -> dict:
-    from ff_executor.bringup import Stack, StackOptions
-    from ff_executor.client import StackClient
+    from ff_executor.bringup.stack import Stack, StackOptions
+    from ff_executor.ros.client import StackClient
     from ff_msgs_py.convert import profile_to_msg
 
     t0 = time.monotonic()

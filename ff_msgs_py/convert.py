@@ -11,7 +11,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from ff_planner.profile import CurrentProfile, PlanRequest, PlanResult
+from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult
 
 DEFAULT_JOINT_NAMES = {"arm1dof": ["joint1"], "scara2": ["joint1", "joint2"]}
 
@@ -94,7 +94,7 @@ def request_from_msg(req: Any, defaults: PlanRequest | None = None, params=None)
     Parameter overrides are applied to ``params`` (or the model's preset); a ParameterError names
     an unknown key. Nothing here plans: call ``request.validate()`` next.
     """
-    from ff_planner.params import ParameterError, default_params
+    from ff_planner.model.params import ParameterError, default_params
 
     d = defaults or PlanRequest()
     if len(req.override_names) != len(req.override_values):
@@ -114,7 +114,7 @@ def request_from_msg(req: Any, defaults: PlanRequest | None = None, params=None)
 def request_to_msg(request: PlanRequest):
     """PlanRequest -> PlanTrajectory.Request (overrides = every parameter that differs from preset)."""
     from ff_msgs.srv import PlanTrajectory
-    from ff_planner.params import default_params
+    from ff_planner.model.params import default_params
 
     p = request.resolved_params()
     ref = default_params(request.model).to_dict()

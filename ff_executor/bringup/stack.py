@@ -1,0 +1,458 @@
+"""``ff-bringup``: start the simulated stack — sim driver, bridge, planner, executor — as processes.
+
+    ff-bringup                              # table 2 arm, true friction = the planner's model
+    ff-bringup --true-scale pc=1.2          # the simulated arm's Coulomb friction 20 % higher
+    ff-bringup --true-param pc=0.25 --no-planner --hub-port 54701
+
+Safe defaults, always: ROS traffic on loopback only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``),
+a per-run ``ROS_DOMAIN_ID`` and log folder (``ff_msgs_py.launch.ros_environment``), and the CAN
+hub on 127.0.0.1, hosted by the simulated driver. Start order and readiness (each waits for the
+previous one, checked in the ROS graph, not by sleeping):
+
+1. ``ff_sim_driver`` (ff_hwbridge.ros.sim_driver_node) hosting the CAN hub → service ``~/reset``;
+2. ``ff_hwbridge`` (ff_hwbridge.ros.bridge_node --autostart) on the hub → lifecycle state *active*;
+3. ``ff_planner`` (ff_planner.ros.planner_node) → service ``~/plan`` (its motion library in the run folder);
+4. ``ff_executor`` (ff_executor.ros.executor_node) → action ``~/execute``.
+
+Stopping (Ctrl-C, SIGTERM, or any child dying): every child gets SIGINT, then SIGTERM, then
+SIGKILL, by PID, in reverse start order — the executor first, so a running move ends with a zero
+current. The :class:`Stack` class does the same for the demo, tests and benchmarks.
+
+Timing (the end nearest the bus decides when a current switches; 1 ms ≈ 0.04 rad at 10 A): the sim
+driver, the bridge and the executor run through ``ff_executor.bringup.timed`` (0.1 ms GIL switch
+interval) at nice −10 where permitted; ``--rt-priority N`` puts the simulated drive under
+SCHED_FIFO N and asks the bridge for a SCHED_FIFO scheduler thread (root / CAP_SYS_NICE; off by
+default here, the demo, tests and benchmarks use 10 where permitted). Generated for each run in
+the run folder: the sim driver's and bridge's parameter files and the bridge config (remote bus on
+the hub, 10 ms SYNC, 50 ms heartbeat with a 1 s timeout: lenient for shared machines; a bridge
+that fails its enable sequence is restarted once).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import socket
+import sys
+import tempfile
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Mapping, Optional, Sequence
+
+import yaml
+
+from ff_msgs_py.launch import NodeProcess, ros_environment, start_module
+from ff_planner.model.params import ParameterError, default_params, n_joints
+
+REPO = Path(__file__).resolve().parents[2]
+CONFIG_DIR = REPO / "config"
+COUNTS_PER_REV = 4096      # encoder increments per motor revolution, simulated drive = bridge
+NOMINAL_CURRENT = 3.0      # A, motor nominal current (EPOS4 per-mille scale), drive = bridge
+SYNC_PERIOD = 0.01         # s; setpoints are asynchronous RPDOs (applied on arrival), SYNC only paces feedback
+
+
+class BringupError(RuntimeError):
+    """The stack could not be started; the message names the process and shows its last output."""
+
+
+@dataclass
+class StackOptions:
+    """How to start the simulated stack. Friction: SI units; ``true_scale`` multiplies the model's."""
+
+    model: str = "arm1dof"
+    true_scale: Mapping[str, float] = field(default_factory=dict)   # e.g. {"pc": 1.2}
+    true_params: Mapping[str, float] = field(default_factory=dict)  # absolute, e.g. {"pc": 0.25}
+    planner: bool = True
+    executor: bool = True
+    hub_port: int = 0                          # 0 = a free port on 127.0.0.1
+    domain_id: Optional[int] = None            # None = random per run
+    run_dir: Optional[str] = None              # logs, generated parameter files, motion library
+    executor_params: Optional[str] = None      # default config/executor.yaml (or _scara2)
+    planner_params: Optional[str] = None       # default config/planner.yaml
+    # the simulated stack runs on shared machines: hand setpoints to the bridge 0.3 s ahead
+    executor_overrides: Mapping[str, object] = field(
+        default_factory=lambda: {"lead_time": 0.3, "start_margin": 0.5})
+    planner_overrides: Mapping[str, object] = field(default_factory=dict)
+    sim_overrides: Mapping[str, object] = field(default_factory=dict)
+    bridge_overrides: Mapping[str, object] = field(default_factory=dict)
+    start_timeout: float = 90.0                # s per process (first start may JIT-compile)
+    q0: Sequence[float] = ()                   # rad, initial arm position (default zeros)
+    switch_interval: Optional[float] = 1e-4    # s, GIL switch interval of the sim driver and the
+                                               # bridge (ff_executor.bringup.timed); None = Python's 5 ms
+    separate_hub: bool = False                 # CAN hub in its own process (else the sim driver hosts it)
+    rt_priority: int = 0                       # 1..99: SCHED_FIFO for the sim driver process and the
+                                               # bridge's scheduler thread (root/CAP_SYS_NICE); 0 = off
+    timing_nice: Optional[int] = -10           # nice value for the sim driver and the bridge (the
+                                               # timing-critical end); None = leave as is
+
+    def true_friction(self) -> dict[str, float]:
+        """The simulated arm's true parameters that differ from the planner's model."""
+        base = default_params(self.model)
+        out: dict[str, float] = {}
+        unknown = [k for k in self.true_scale if k not in base.keys()]
+        if unknown:
+            raise ParameterError(f"unknown parameter(s) {unknown} for model '{self.model}'; "
+                                 f"valid keys are: {', '.join(base.keys())}")
+        for k, s in self.true_scale.items():
+            out[k] = float(getattr(base, k)) * float(s)
+        out.update({k: float(v) for k, v in self.true_params.items()})
+        base.replace(**out)     # ParameterError on unknown keys or bad values
+        return out
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def _params_file(path: Path, node: str, params: Mapping[str, object]) -> Path:
+    path.write_text(yaml.safe_dump({node: {"ros__parameters": dict(params)}}, sort_keys=False))
+    return path
+
+
+def bridge_config(model: str, hub_url: str) -> dict:
+    """The bridge's config (ff_hwbridge.drive.config) for the simulated drives on the hub."""
+    p = default_params(model)
+    joints = []
+    for j in range(n_joints(model)):
+        sfx = "" if model == "arm1dof" else str(j + 1)
+        joints.append({"name": f"joint{j + 1}", "node_id": j + 1, "family": "epos4",
+                       "current_limit": float(getattr(p, "i_max" + sfx)),
+                       "units": {"nominal_current": NOMINAL_CURRENT,
+                                 "torque_constant": float(getattr(p, "kt" + sfx)),
+                                 "counts_per_rev": COUNTS_PER_REV, "gear_ratio": float(getattr(p, "n" + sfx))}})
+    return {"bus": {"interface": "remote", "channel": hub_url, "bitrate": 1_000_000},
+            "sync_period": SYNC_PERIOD, "heartbeat_producer_ms": 50, "heartbeat_timeout": 1.0,
+            "setpoint_timeout": 0.5, "joints": joints}
+
+
+class Stack:
+    """The four processes of the simulated stack; a context manager (stops everything on exit).
+
+    ``with Stack(StackOptions(true_scale={"pc": 1.2})) as stack: ...`` — ``stack.env`` is the
+    ROS environment to use in this process too (apply it before ``rclpy.init``).
+    """
+
+    def __init__(self, options: StackOptions | None = None,
+                 log: Callable[[str], None] = lambda s: print(s, flush=True)) -> None:
+        self.options = options or StackOptions()
+        self.log = log
+        self.run_dir = Path(self.options.run_dir or tempfile.mkdtemp(prefix="ff-bringup-"))
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self.env = ros_environment(self.options.domain_id, str(self.run_dir / "ros-log"))
+        self.env["PYTHONPATH"] = os.pathsep.join(
+            p for p in (str(REPO), self.env.get("PYTHONPATH", "")) if p)
+        self.hub_port = self.options.hub_port or free_port()
+        self.procs: list[NodeProcess] = []
+        self._renice: list[NodeProcess] = []
+        self._ctx = None
+        self._node = None
+
+    @property
+    def hub_url(self) -> str:
+        return f"ws://127.0.0.1:{self.hub_port}/"
+
+    # --- the graph probe (this process's own rclpy context) ----------------------------------
+    def _probe(self):
+        if self._node is None:
+            import rclpy
+            from rclpy.node import Node
+
+            from ff_msgs_py.launch import apply_ros_environment
+
+            apply_ros_environment(self.env)
+            self._ctx = rclpy.Context()
+            rclpy.init(context=self._ctx)
+            self._node = Node(f"ff_bringup_{os.getpid()}", context=self._ctx)
+        return self._node
+
+    def _has_service(self, name: str) -> bool:
+        return any(n == name for n, _ in self._probe().get_service_names_and_types())
+
+    def _lifecycle_state(self, node_name: str) -> Optional[str]:
+        from lifecycle_msgs.srv import GetState
+        from rclpy.executors import SingleThreadedExecutor
+
+        node = self._probe()
+        cli = node.create_client(GetState, f"/{node_name}/get_state")
+        try:
+            if not cli.wait_for_service(timeout_sec=0.5):
+                return None
+            fut = cli.call_async(GetState.Request())
+            ex = SingleThreadedExecutor(context=self._ctx)
+            ex.add_node(node)
+            ex.spin_until_future_complete(fut, timeout_sec=2.0)
+            ex.remove_node(node)
+            return fut.result().current_state.label if fut.done() and fut.result() else None
+        finally:
+            node.destroy_client(cli)
+
+    def _wait(self, proc: NodeProcess, ready: Callable[[], bool], what: str) -> None:
+        end = time.monotonic() + self.options.start_timeout
+        while time.monotonic() < end:
+            if not proc.alive():
+                raise BringupError(f"{proc.name} exited (code {proc.popen.returncode}) before "
+                                   f"{what}; its output:\n{proc.output()[-3000:]}")
+            if ready():
+                if proc in self._renice:
+                    self._apply_nice(proc)
+                self.log(f"  {proc.name} up ({what}), pid {proc.pid}")
+                return
+            time.sleep(0.2)
+        raise BringupError(f"{proc.name} did not get to '{what}' within "
+                           f"{self.options.start_timeout:.0f} s; its output:\n{proc.output()[-3000:]}")
+
+    # --- start / stop -------------------------------------------------------------------------
+    def _start(self, name: str, module: str, args: Sequence[str], timing: bool = False) -> NodeProcess:
+        if timing and self.options.switch_interval:
+            args = ["--switch-interval", repr(float(self.options.switch_interval)), module, *args]
+            module = "ff_executor.bringup.timed"
+        proc = start_module(name, module, list(args), self.env, str(self.run_dir))
+        self.procs.append(proc)
+        if timing and (self.options.timing_nice is not None or self.options.rt_priority):
+            self._renice.append(proc)
+            self._apply_nice(proc)
+        return proc
+
+    def _apply_nice(self, proc: NodeProcess) -> None:
+        """Give every thread of ``proc`` the timing nice value (Linux nice is per thread;
+        threads inherit it from their creator, so this runs at start and again once up); with
+        ``rt_priority`` the simulated driver's threads get SCHED_FIFO instead."""
+        task_dir = f"/proc/{proc.pid}/task"
+        tids = [int(t) for t in os.listdir(task_dir)] if os.path.isdir(task_dir) else [proc.pid]
+        rt = int(self.options.rt_priority) if proc.name in ("ff_sim_driver", "ff_can_hub") else 0
+        nice = self.options.timing_nice
+        for tid in tids:
+            try:
+                if rt:
+                    os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(rt))
+                    continue
+            except PermissionError:
+                rt = 0
+                self.log(f"  note: SCHED_FIFO not permitted for {proc.name}; using nice instead")
+            except OSError:
+                continue
+            try:
+                if nice is not None:
+                    os.setpriority(os.PRIO_PROCESS, tid, int(nice))
+            except PermissionError as exc:
+                self.log(f"  note: cannot raise the priority of {proc.name} ({exc}); its timing "
+                         "may suffer on a busy machine")
+                self._renice.remove(proc)
+                return
+            except OSError:
+                continue
+
+    def start(self) -> "Stack":
+        o = self.options
+        model = o.model
+        true = o.true_friction()
+        nj = n_joints(model)
+        q0 = [float(x) for x in (o.q0 or [0.0] * nj)]
+        self.log(f"ff-bringup: run folder {self.run_dir}, ROS_DOMAIN_ID={self.env['ROS_DOMAIN_ID']} "
+                 f"(loopback only), CAN hub {self.hub_url}")
+        self.log(f"  simulated arm: {model}, true friction differs from the model by {true or 'nothing'}")
+        try:
+            if o.separate_hub:
+                p = self._start("ff_can_hub", "ff_hwbridge.sim.can_hub", ["--port", str(self.hub_port)],
+                                timing=True)
+                self._wait(p, lambda: "CAN hub on" in p.output(), "serving on 127.0.0.1")
+            sim = {"model": model, "host_hub": not o.separate_hub, "hub_port": self.hub_port,
+                   "bus.interface": "remote", "bus.channel": self.hub_url,
+                   "node_ids": list(range(1, nj + 1)), "q0": q0, "counts_per_rev": COUNTS_PER_REV,
+                   "nominal_current": NOMINAL_CURRENT, "ground_truth_rate": 100.0,
+                   # arm1dof.advance is exact for any step; the SCARA integrates numerically
+                   "physics_step": 1e-3 if model == "arm1dof" else 1e-4}
+            sim.update({f"true_params.{k}": v for k, v in true.items()})
+            sim.update(o.sim_overrides)
+            pf = _params_file(self.run_dir / "sim_driver.yaml", "ff_sim_driver", sim)
+            p = self._start("ff_sim_driver", "ff_hwbridge.ros.sim_driver_node",
+                            ["--ros-args", "--params-file", str(pf)], timing=True)
+            self._wait(p, lambda: self._has_service("/ff_sim_driver/reset"), "service ~/reset")
+
+            bcfg = self.run_dir / "bridge.yaml"
+            bdata = bridge_config(model, self.hub_url)
+            if o.rt_priority:
+                bdata["scheduler_rt_priority"] = int(o.rt_priority)
+            bcfg.write_text(yaml.safe_dump(bdata, sort_keys=False))
+            bp = {"config_file": str(bcfg)}
+            bp.update(o.bridge_overrides)
+            pf = _params_file(self.run_dir / "bridge_params.yaml", "ff_hwbridge", bp)
+            for attempt in (1, 2):   # a busy machine can stall the first enable sequence
+                p = self._start("ff_hwbridge", "ff_hwbridge.ros.bridge_node",
+                                ["--autostart", "--ros-args", "--params-file", str(pf)], timing=True)
+                try:
+                    self._wait(p, lambda: self._lifecycle_state("ff_hwbridge") == "active",
+                               "lifecycle state active")
+                    break
+                except BringupError as exc:
+                    if attempt == 2 or p.alive():
+                        raise
+                    self.log(f"  ff_hwbridge failed to come up, retrying once: {str(exc)[-300:]}")
+                    self.procs.remove(p)
+                    p.stop()
+
+            if o.planner:
+                pp = {"library_path": str(self.run_dir / "motions.sqlite")}
+                pp.update(o.planner_overrides)
+                base = o.planner_params or str(CONFIG_DIR / "planner.yaml")
+                over = _params_file(self.run_dir / "planner_overrides.yaml", "ff_planner", pp)
+                p = self._start("ff_planner", "ff_planner.ros.planner_node",
+                                ["--ros-args", "--params-file", base, "--params-file", str(over)])
+                self._wait(p, lambda: self._has_service("/ff_planner/plan"), "service ~/plan")
+
+            if o.executor:
+                default = "executor.yaml" if model == "arm1dof" else "executor_scara2.yaml"
+                base = o.executor_params or str(CONFIG_DIR / default)
+                args = ["--ros-args", "--params-file", base]
+                if o.executor_overrides:
+                    over = _params_file(self.run_dir / "executor_overrides.yaml", "ff_executor",
+                                        dict(o.executor_overrides))
+                    args += ["--params-file", str(over)]
+                p = self._start("ff_executor", "ff_executor.ros.executor_node", args, timing=True)
+                self._wait(p, lambda: self._has_service("/ff_executor/execute/_action/send_goal"),
+                           "action ~/execute")
+        except BaseException:
+            self.stop()
+            raise
+        self.log("ff-bringup: all up")
+        return self
+
+    def set_true_params(self, values: Mapping[str, float], timeout: float = 10.0) -> None:
+        """Change the simulated arm's true parameters at runtime (``true_params.<key>``, SI)."""
+        from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+        from rcl_interfaces.srv import SetParameters
+        from rclpy.executors import SingleThreadedExecutor
+
+        default_params(self.options.model).replace(**values)   # refuse unknown keys early
+        node = self._probe()
+        cli = node.create_client(SetParameters, "/ff_sim_driver/set_parameters")
+        try:
+            if not cli.wait_for_service(timeout_sec=timeout):
+                raise BringupError("ff_sim_driver's set_parameters service is not available")
+            req = SetParameters.Request(parameters=[
+                Parameter(name=f"true_params.{k}", value=ParameterValue(
+                    type=ParameterType.PARAMETER_DOUBLE, double_value=float(v)))
+                for k, v in values.items()])
+            fut = cli.call_async(req)
+            ex = SingleThreadedExecutor(context=self._ctx)
+            ex.add_node(node)
+            ex.spin_until_future_complete(fut, timeout_sec=timeout)
+            ex.remove_node(node)
+            if not fut.done() or fut.result() is None:
+                raise BringupError("ff_sim_driver did not answer set_parameters")
+            bad = [r.reason for r in fut.result().results if not r.successful]
+            if bad:
+                raise BringupError(f"ff_sim_driver refused the true parameters: {bad}")
+        finally:
+            node.destroy_client(cli)
+
+    def dead(self) -> list[NodeProcess]:
+        """Children that have exited."""
+        return [p for p in self.procs if not p.alive()]
+
+    def stop(self) -> dict[str, int]:
+        """Stop every child by PID in reverse start order; returns their exit codes."""
+        codes = {}
+        for p in reversed(self.procs):
+            codes[p.name] = p.stop()
+        self.procs = []
+        if self._node is not None:
+            import rclpy
+
+            self._node.destroy_node()
+            self._node = None
+            if self._ctx is not None and self._ctx.ok():
+                rclpy.shutdown(context=self._ctx)
+            self._ctx = None
+        return codes
+
+    def __enter__(self) -> "Stack":
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+
+def _kv(items: Sequence[str], what: str) -> dict[str, float]:
+    out = {}
+    for item in items:
+        if "=" not in item:
+            raise ParameterError(f"{what} needs KEY=VALUE, got {item!r}")
+        k, v = item.split("=", 1)
+        try:
+            out[k.strip()] = float(v)
+        except ValueError:
+            raise ParameterError(f"{what} {k}: {v!r} is not a number") from None
+    return out
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="ff-bringup", description=__doc__.splitlines()[0],
+                                 formatter_class=argparse.RawDescriptionHelpFormatter,
+                                 epilog="\n".join(__doc__.splitlines()[2:6]))
+    ap.add_argument("--model", default="arm1dof", choices=("arm1dof", "scara2"))
+    ap.add_argument("--true-scale", action="append", default=[], metavar="KEY=FACTOR",
+                    help="scale a true friction parameter of the simulated arm, e.g. pc=1.2")
+    ap.add_argument("--true-param", action="append", default=[], metavar="KEY=VALUE",
+                    help="set a true parameter of the simulated arm (SI units), e.g. pc=0.25")
+    ap.add_argument("--no-planner", action="store_true", help="do not start the planner node")
+    ap.add_argument("--hub-port", type=int, default=0, help="CAN hub port on 127.0.0.1 (0 = free)")
+    ap.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default random 1..100)")
+    ap.add_argument("--run-dir", default=None, help="logs + generated files (default: a temp folder)")
+    ap.add_argument("--start-timeout", type=float, default=90.0, help="s per process")
+    ap.add_argument("--rt-priority", type=int, default=0, metavar="N",
+                    help="SCHED_FIFO priority 1..99 for the simulated driver and the bridge's "
+                         "scheduler thread (needs root/CAP_SYS_NICE; 0 = off, the default)")
+    return ap
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    """Console script ``ff-bringup``: start the stack, wait for Ctrl-C or a dying child, stop all."""
+    a = build_parser().parse_args(argv)
+    try:
+        opts = StackOptions(model=a.model, true_scale=_kv(a.true_scale, "--true-scale"),
+                            true_params=_kv(a.true_param, "--true-param"), planner=not a.no_planner,
+                            hub_port=a.hub_port, domain_id=a.domain_id, run_dir=a.run_dir,
+                            start_timeout=a.start_timeout, rt_priority=a.rt_priority)
+        opts.true_friction()
+        if not 0 <= a.rt_priority <= 99:
+            raise ValueError(f"--rt-priority must be 0..99, got {a.rt_priority}")
+    except (ParameterError, ValueError) as exc:
+        print(f"ff-bringup: {exc}", file=sys.stderr)
+        return 2
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stack = Stack(opts)
+    code = 0
+    try:
+        stack.start()
+        print(f"ff-bringup: running; export ROS_DOMAIN_ID={stack.env['ROS_DOMAIN_ID']} "
+              "ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST to talk to it; Ctrl-C stops everything",
+              flush=True)
+        while not stop.wait(0.5):
+            dead = stack.dead()
+            if dead:
+                for p in dead:
+                    print(f"ff-bringup: {p.name} died (code {p.popen.returncode}); stopping all. "
+                          f"Last output:\n{p.output()[-2000:]}", file=sys.stderr, flush=True)
+                code = 1
+                break
+    except KeyboardInterrupt:
+        pass
+    except BringupError as exc:
+        print(f"ff-bringup: {exc}", file=sys.stderr)
+        code = 1
+    finally:
+        codes = stack.stop()
+        if codes:
+            print("ff-bringup: stopped " + ", ".join(f"{k} ({v})" for k, v in codes.items()),
+                  flush=True)
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

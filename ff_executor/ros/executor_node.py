@@ -1,0 +1,411 @@
+"""ROS 2 node ``ff_executor``: the action server ``~/execute`` (ff_msgs/action/ExecuteProfile).
+
+A thin adapter around :mod:`ff_executor.engine.engine`. For each goal it
+
+1. checks the profile (joint names, current limits, times, step count) and that the bridge's
+   lifecycle state is *active* (``/<bridge_node>/get_state``) and the arm is at rest at q0;
+2. streams stamped setpoints to ``setpoint_topic``, each ``lead_time`` s before its stamp (the
+   bridge applies them at their stamps: its timing, not ours, decides the switch moments);
+3. sends feedback at ``feedback_rate`` Hz (elapsed s, commanded A, measured rad and rad/s);
+4. after tf waits until the arm has settled (|velocity| <= ``rest_velocity`` for
+   ``settle_hold`` s, at most ``settle_timeout`` s), then returns final position and velocity,
+   the error to the goal and the switch-time statistics.
+
+Refusals. A goal is refused, and no current is sent, when the profile is bad, the bridge is not
+active, the arm is not at rest at q0, or another goal is running. By default
+(``refuse_mode: abort``) the goal is accepted and at once aborted with ``success = false`` and the
+reason in ``message`` — ROS 2 goal rejections cannot carry a reason, and a client should learn
+what to change. ``refuse_mode: reject`` rejects such goals at the goal-request stage instead (the
+reason goes to this node's log only). A second goal while one runs is refused, never queued: a
+queued feedforward move would start from wherever the first one ended.
+
+Cancel → a zero-current setpoint stamped *now* at once (plus a zero after any setpoint already
+handed to the bridge), then the goal ends as cancelled with the measured state. Losing the joint
+states during a move (``joint_state_timeout``) stops it the same way and aborts.
+
+Switch-time statistics come from the bridge's reports of applied setpoints on ``applied_topic``
+(ff_msgs/msg/CurrentSetpoint whose stamp is the moment it was applied) when it publishes them,
+else they are estimated from the measured currents (JointState effort, A) — coarse, bounded by the
+joint-state period — and labelled so in the log.
+"""
+from __future__ import annotations
+
+import math
+import sys
+import threading
+import time
+from collections import deque
+from typing import Optional
+
+import numpy as np
+import rclpy
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+from rclpy.qos import QoSProfile, ReliabilityPolicy, HistoryPolicy
+
+from ff_msgs.action import ExecuteProfile
+from ff_msgs.msg import CurrentSetpoint
+from ff_msgs_py.convert import msg_to_profile, setpoint_msg, time_to_ns
+from ff_msgs_py.threads import in_thread
+from lifecycle_msgs.srv import GetState
+from sensor_msgs.msg import JointState
+
+from ff_executor.engine.engine import (NS, EngineConfig, Motion, ProfileRejected, SettleDetector, Stream,
+                     StreamRunner, build_setpoints, check_profile, check_start_state,
+                     estimate_applied_times, resolve_start, timing_stats)
+
+READY_LINE = "ff_executor ready"
+
+PARAMETERS = {
+    # name: (default, description)
+    "joint_names": (["joint1"], "joints of the drive group, in the bridge's order"),
+    "current_limits": ([10.0], "A, per joint (one value = all joints)"),
+    "lead_time": (0.1, "s, publish each setpoint this long before its stamp"),
+    "start_margin": (0.25, "s, start this long after the goal when no start time is given"),
+    "max_start_wait": (60.0, "s, refuse start times further ahead"),
+    "max_steps": (10000, "most current steps per joint"),
+    "min_step": (1e-4, "s, shortest current step accepted"),
+    "max_move_time": (600.0, "s, longest move accepted"),
+    "keepalive": (0.0, "s, repeat the present current at this period (0 = switches only)"),
+    "start_tolerance": (0.02, "rad, arm must be this close to q0 (inf = no check)"),
+    "rest_velocity": (1e-3, "rad/s, at rest below this"),
+    "settle_hold": (0.05, "s, at rest this long = settled"),
+    "settle_timeout": (3.0, "s after tf, give up waiting for rest"),
+    "feedback_rate": (20.0, "Hz, action feedback rate"),
+    "bridge_node": ("ff_hwbridge", "name of the bridge lifecycle node"),
+    "require_bridge_active": (True, "refuse unless the bridge reports lifecycle state active"),
+    "bridge_timeout": (5.0, "s, wait this long for the bridge's get_state service"),
+    "setpoint_topic": ("/ff_hwbridge/setpoints", "where setpoints go"),
+    "joint_state_topic": ("/ff_hwbridge/joint_states", "measured joint states"),
+    "applied_topic": ("/ff_hwbridge/applied", "bridge reports of applied setpoints (optional)"),
+    "joint_state_timeout": (1.0, "s, stop the move if joint states stop for this long"),
+    "refuse_mode": ("abort", "'abort': accept then abort with the reason; 'reject': reject"),
+}
+
+
+class ExecutorNode(Node):
+    """Node ``ff_executor`` serving ``~/execute``; see the module docstring."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__("ff_executor", **kwargs)
+        for name, (default, _desc) in PARAMETERS.items():
+            self.declare_parameter(name, default)
+        g = self._p
+        self.config = EngineConfig(
+            joint_names=tuple(g("joint_names")), current_limits=tuple(g("current_limits")),
+            lead_time=g("lead_time"), start_margin=g("start_margin"),
+            max_start_wait=g("max_start_wait"), max_steps=int(g("max_steps")),
+            min_step=g("min_step"), max_move_time=g("max_move_time"), keepalive=g("keepalive"),
+            start_tolerance=float(g("start_tolerance")), rest_velocity=g("rest_velocity"))
+        if g("refuse_mode") not in ("abort", "reject"):
+            raise ValueError(f"refuse_mode must be 'abort' or 'reject', got {g('refuse_mode')!r}")
+        if not g("feedback_rate") >= 10.0:
+            self.get_logger().warn("feedback_rate below 10 Hz requested; using 10 Hz")
+
+        self._busy = threading.Lock()
+        self._running_id: Optional[str] = None
+        self._state_lock = threading.Lock()
+        self._pos: Optional[np.ndarray] = None    # rad, bridge joint order
+        self._vel: Optional[np.ndarray] = None    # rad/s
+        self._state_t = 0                         # ns (ROS clock) of the last joint state
+        self._effort_log: Optional[deque] = None  # (t_ns, effort) while a move runs
+        self._applied: dict[tuple[str, int], int] = {}
+        self._active_stream: Optional[Stream] = None
+
+        sensor_qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT,
+                                history=HistoryPolicy.KEEP_LAST)
+        setpoint_qos = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE,
+                                  history=HistoryPolicy.KEEP_LAST)
+        self._io_group = MutuallyExclusiveCallbackGroup()
+        self._client_group = ReentrantCallbackGroup()
+        self._pub = self.create_publisher(CurrentSetpoint, g("setpoint_topic"), setpoint_qos)
+        self.create_subscription(JointState, g("joint_state_topic"), self._on_joint_state,
+                                 sensor_qos, callback_group=self._io_group)
+        self.create_subscription(CurrentSetpoint, g("applied_topic"), self._on_applied,
+                                 setpoint_qos, callback_group=self._io_group)
+        self._state_client = self.create_client(GetState, f"/{g('bridge_node')}/get_state",
+                                                callback_group=self._client_group)
+        self._wake = self.create_guard_condition(lambda: None)   # resumes awaited work (ff_msgs_py.threads)
+        self._server = ActionServer(
+            self, ExecuteProfile, "~/execute", execute_callback=self._execute_in_thread,
+            goal_callback=self._on_goal, cancel_callback=self._on_cancel,
+            callback_group=ReentrantCallbackGroup())
+
+    def _p(self, name: str):
+        return self.get_parameter(name).value
+
+    def _now_ns(self) -> int:
+        return int(self.get_clock().now().nanoseconds)
+
+    # --- inputs -------------------------------------------------------------------------------
+    def _on_joint_state(self, msg: JointState) -> None:
+        names = list(msg.name)
+        order = self.config.joint_names
+        try:
+            idx = [names.index(n) for n in order] if names else list(range(len(order)))
+            pos = np.array([msg.position[i] for i in idx], dtype=float)
+            vel = (np.array([msg.velocity[i] for i in idx], dtype=float)
+                   if len(msg.velocity) >= len(names or order) else np.zeros(len(order)))
+            eff = (np.array([msg.effort[i] for i in idx], dtype=float)
+                   if len(msg.effort) >= len(names or order) else None)
+        except (ValueError, IndexError):
+            return
+        now = self._now_ns()
+        with self._state_lock:
+            self._pos, self._vel, self._state_t = pos, vel, now
+            if self._effort_log is not None and eff is not None:
+                stamp = time_to_ns(msg.header.stamp) or now
+                self._effort_log.append((stamp, eff))
+
+    def _on_applied(self, msg: CurrentSetpoint) -> None:
+        with self._state_lock:
+            self._applied[(msg.profile_id, int(msg.seq))] = time_to_ns(msg.stamp)
+
+    def _state(self):
+        with self._state_lock:
+            return self._pos, self._vel, self._state_t
+
+    # --- goal handling ------------------------------------------------------------------------
+    def _on_goal(self, goal_request) -> GoalResponse:
+        if self._p("refuse_mode") == "reject":
+            reason = self._refusal(goal_request, check_busy=True)[1]
+            if reason:
+                self.get_logger().warn(f"goal rejected: {reason}")
+                return GoalResponse.REJECT
+        return GoalResponse.ACCEPT
+
+    def _on_cancel(self, _goal_handle) -> CancelResponse:
+        self.get_logger().info("cancel requested: zero current now")
+        return CancelResponse.ACCEPT
+
+    def _bridge_state(self) -> Optional[str]:
+        """The bridge's lifecycle state label, or None if it does not answer in time."""
+        timeout = float(self._p("bridge_timeout"))
+        if not self._state_client.wait_for_service(timeout_sec=timeout):
+            return None
+        future = self._state_client.call_async(GetState.Request())
+        done = threading.Event()
+        future.add_done_callback(lambda _f: done.set())
+        if not done.wait(timeout) or future.result() is None:
+            return None
+        return future.result().current_state.label
+
+    def _busy_reason(self) -> str:
+        return (f"another goal is running (profile {self._running_id!r}); this executor runs one "
+                "motion at a time and does not queue: wait for its result or cancel it")
+
+    def _refusal(self, goal, check_busy: bool) -> tuple[Optional[Motion], str]:
+        """(motion, "") if the goal may run, else (None, reason)."""
+        if check_busy and self._busy.locked():
+            return None, self._busy_reason()
+        msg = goal.profile
+        try:
+            profile = msg_to_profile(msg)
+            motion = check_profile(profile, list(msg.joint_names), list(msg.q0), list(msg.qf),
+                                   self.config, msg.profile_id)
+        except ValueError as exc:
+            return None, f"bad profile: {exc}"
+        if self._p("require_bridge_active"):
+            label = self._bridge_state()
+            if label is None:
+                return None, (f"bridge '{self._p('bridge_node')}' does not answer get_state; "
+                              "start it (ff-hwbridge --autostart)")
+            if label != "active":
+                return None, (f"bridge '{self._p('bridge_node')}' is '{label}', not 'active'; "
+                              "configure and activate it (or fault-reset it) first")
+        pos, vel, t = self._state()
+        if pos is not None and self._now_ns() - t > self._p("joint_state_timeout") * NS:
+            pos = None
+        try:
+            check_start_state(pos, vel, motion, self.config)
+        except ProfileRejected as exc:
+            return None, str(exc)
+        return motion, ""
+
+    def _finish(self, goal_handle, success: bool, message: str, motion: Optional[Motion] = None,
+                stream: Optional[Stream] = None, start_delay: float = 0.0, how: str = "succeed"):
+        res = ExecuteProfile.Result(success=success, message=message)
+        pos, vel, _ = self._state()
+        if motion is not None and pos is not None:
+            back = [list(self.config.joint_names).index(n) for n in goal_handle.request.profile.joint_names]
+            res.final_position = [float(pos[i]) for i in back]
+            res.final_velocity = [float(vel[i]) for i in back]
+            res.position_error = [float(pos[i] - motion.qf[i]) for i in back]
+        if stream is not None:
+            res.setpoints_sent = len(stream.published)
+            res.start_delay = float(start_delay)
+            stats = self._timing(stream)
+            res.switch_error_p50, res.switch_error_p99, res.switch_error_max = (
+                stats.p50, stats.p99, stats.max)
+        getattr(goal_handle, how)()
+        if success:
+            self.get_logger().info(f"goal ended: {message}")
+        else:
+            self.get_logger().warn(f"goal ended: {message}")
+        return res
+
+    def _timing(self, stream: Stream):
+        sent = [p.setpoint for p in stream.published]
+        with self._state_lock:
+            applied = dict(self._applied)
+            log = list(self._effort_log or [])
+        pairs = [(sp.stamp_ns, applied[(sp.profile_id, sp.seq)]) for sp in sent
+                 if sp.switch and (sp.profile_id, sp.seq) in applied]
+        if pairs:
+            return timing_stats([a for a, _ in pairs], [b for _, b in pairs], "bridge")
+        if log:
+            est = estimate_applied_times(stream.setpoints, [t for t, _ in log], [e for _, e in log])
+            return timing_stats([a for a, _ in est], [b for _, b in est], "estimated")
+        return timing_stats([], [], "none")
+
+    # --- the move -----------------------------------------------------------------------------
+    async def _execute_in_thread(self, goal_handle):
+        """Run the goal on its own thread and await it, leaving the executor's threads free
+        (see ff_msgs_py.threads: a goal holding an executor thread delayed streaming by seconds)."""
+        return await in_thread(self._execute, goal_handle, wake=self._wake, name="ff_executor_goal")
+
+    def _execute(self, goal_handle):
+        if not self._busy.acquire(blocking=False):
+            return self._finish(goal_handle, False, f"refused: {self._busy_reason()}", how="abort")
+        try:
+            goal = goal_handle.request
+            motion, reason = self._refusal(goal, check_busy=False)
+            if motion is None:
+                return self._finish(goal_handle, False, f"refused: {reason}", how="abort")
+            self._running_id = motion.profile_id
+            return self._run(goal_handle, motion)
+        finally:
+            self._running_id = None
+            self._active_stream = None
+            self._busy.release()
+
+    def _run(self, goal_handle, motion: Motion):
+        goal = goal_handle.request
+        cfg = self.config
+        received = self._now_ns()
+        try:
+            start = resolve_start(time_to_ns(goal.start_time), received, cfg)
+        except ProfileRejected as exc:
+            return self._finish(goal_handle, False, f"refused: {exc}", how="abort")
+        requested = time_to_ns(goal.start_time) or received
+        stream = Stream(build_setpoints(motion, start, cfg.keepalive), cfg.lead_time)
+        self._active_stream = stream
+        with self._state_lock:
+            self._effort_log = deque(maxlen=200_000)
+            self._applied = {}
+        back = [list(cfg.joint_names).index(n) for n in goal.profile.joint_names]
+        lost = {"flag": False}
+
+        def feedback(now: int) -> None:
+            pos, vel, t = self._state()
+            if stream.start_ns <= now and now - t > self._p("joint_state_timeout") * NS:
+                lost["flag"] = True
+            fb = ExecuteProfile.Feedback()
+            fb.elapsed = max(0.0, (now - stream.start_ns) / NS)
+            cur = stream.commanded(now)
+            fb.commanded_currents = [float(cur[i]) for i in back]
+            if pos is not None:
+                fb.measured_positions = [float(pos[i]) for i in back]
+                fb.measured_velocities = [float(vel[i]) for i in back]
+            goal_handle.publish_feedback(fb)
+
+        def publish(sp) -> None:
+            self._pub.publish(setpoint_msg(sp.stamp_ns, sp.currents, sp.seq, sp.profile_id, sp.last))
+
+        def stop_now() -> bool:
+            return goal_handle.is_cancel_requested or lost["flag"] or not rclpy.ok(context=self.context)
+
+        period = 1.0 / max(float(self._p("feedback_rate")), 10.0)
+        tf_ns = start + int(round(motion.profile.tf * NS))
+        self.get_logger().info(f"executing profile {motion.profile_id!r}: {motion.profile.n_steps} "
+                               f"steps, {len(stream.setpoints)} setpoints, start in "
+                               f"{(start - received) / 1e6:.0f} ms")
+        runner = StreamRunner(stream, publish, self._now_ns, time.sleep, stop_now, feedback, period)
+        stopped = runner.run(until_ns=tf_ns)
+        slip = max((p.published_ns - (p.setpoint.stamp_ns - stream.lead_ns)) / 1e6
+                   for p in stream.published)
+        self.get_logger().info(f"streamed {len(stream.published)} setpoints; latest publish "
+                               f"{slip:.1f} ms after its slot (lead {cfg.lead_time * 1e3:.0f} ms)")
+        start_delay = (start - requested) / NS
+        if stopped:
+            self._wait_settled(feedback, period, timeout=1.0)
+            if goal_handle.is_cancel_requested:
+                return self._finish(goal_handle, False, "cancelled: zero current sent at once",
+                                    motion, stream, start_delay, how="canceled")
+            return self._finish(goal_handle, False, "aborted: joint states stopped during the move; "
+                                "zero current sent", motion, stream, start_delay, how="abort")
+        settled = self._wait_settled(feedback, period, timeout=float(self._p("settle_timeout")))
+        pos, _vel, _ = self._state()
+        if pos is None:
+            return self._finish(goal_handle, False, "no joint state to judge the move",
+                                motion, stream, start_delay, how="abort")
+        err = pos - motion.qf
+        late = stream.late()
+        text = (f"{'settled' if settled else 'NOT settled'} at {np.round(pos, 6).tolist()} rad, "
+                f"error {np.round(err, 6).tolist()} rad")
+        if late:
+            text += f"; {len(late)} setpoint(s) reached the bridge after their stamp"
+        return self._finish(goal_handle, True, text, motion, stream, start_delay, how="succeed")
+
+    def _wait_settled(self, feedback, period: float, timeout: float) -> bool:
+        det = SettleDetector(self.config.rest_velocity, float(self._p("settle_hold")))
+        end = self._now_ns() + int(timeout * NS)
+        next_fb = self._now_ns()
+        while rclpy.ok(context=self.context):
+            now = self._now_ns()
+            _pos, vel, t = self._state()
+            if vel is not None and det.update(now, vel):
+                return True
+            if now >= next_fb:
+                feedback(now)
+                next_fb = now + int(period * NS)
+            if now >= end:
+                return False
+            time.sleep(min(0.005, period))
+        return False
+
+    def emergency_zero(self) -> None:
+        """Publish a zero-current setpoint now if a move is running (shutdown path)."""
+        stream = self._active_stream
+        if stream is not None and not stream.done:
+            for sp in stream.cancel(self._now_ns()):
+                self._pub.publish(setpoint_msg(sp.stamp_ns, sp.currents, sp.seq, sp.profile_id, True))
+
+
+def main(argv: Optional[list[str]] = None) -> None:
+    """Console script ``ff-executor``: ``ff-executor --ros-args --params-file config/executor.yaml``."""
+    # rclpy's own SIGINT handler would shut the context down before we could send a zero
+    # current; handle KeyboardInterrupt ourselves instead.
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    # The streaming thread must wake on time while rclpy's executor threads run Python code:
+    # a short GIL switch interval bounds that wait (see ff_executor.bringup.timed).
+    sys.setswitchinterval(1e-4)
+    node = None
+    try:
+        node = ExecutorNode()
+        executor = MultiThreadedExecutor(num_threads=4)
+        executor.add_node(node)
+        node.get_logger().info(f"{READY_LINE}: action {node.get_fully_qualified_name()}/execute, "
+                               f"joints {list(node.config.joint_names)}")
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except ValueError as exc:   # bad parameters: one clear line, no traceback
+        print(f"ff_executor: {exc}", flush=True)
+        raise SystemExit(2)
+    finally:
+        if node is not None:
+            try:
+                node.emergency_zero()
+            except Exception:  # noqa: BLE001 - best effort on the way out
+                pass
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,451 @@
+"""ROS 2 lifecycle node ``ff_hwbridge``: stamped current setpoints -> EPOS drives over CANopen.
+
+A thin adapter around :class:`ff_hwbridge.drive.epos.EposMaster` (protocol, state machine, safety) and
+:class:`ff_hwbridge.drive.scheduler.StampScheduler` (applies each setpoint at its stamp).
+
+Lifecycle (rclpy.lifecycle):
+- configure:  read the bridge config, open the bus, NMT/SDO/PDO set-up of every drive, SYNC,
+              heartbeat/EMCY monitoring; create topics, service, timers. Failure -> ErrorProcessing.
+- activate:   enable operation (CiA 402 transitions 2, 3, 4) with zero current; setpoints are
+              accepted from now on. Failure (drive does not reach Operation enabled, safe state
+              latched) -> ErrorProcessing.
+- deactivate: drop pending setpoints, zero current, disable operation (transition 5).
+- cleanup:    stop the scheduler, disable voltage, stop SYNC, close the bus, remove topics.
+- shutdown:   as cleanup, from any state.
+- error:      log the reason, close everything best effort, back to unconfigured.
+
+Interfaces (relative to the node: /ff_hwbridge/...):
+- sub ``~/setpoints``   ff_msgs/msg/CurrentSetpoint: applied at ``stamp`` (ROS system clock).
+- pub ``~/joint_states`` sensor_msgs/JointState: position rad, velocity rad/s, effort = measured
+  motor current A.
+- pub ``~/applied``     ff_msgs/msg/CurrentSetpoint: each applied setpoint, stamp = when it was sent.
+- pub ``/diagnostics``  diagnostic_msgs/DiagnosticArray: drive states, safe-state reason, timing.
+- srv ``~/fault_reset`` std_srvs/Trigger: clear the safe state and reset drive faults (re-enables
+  when active).
+
+Parameters: ``config_file`` (bridge YAML, config/bridge_*.yaml) or the flat parameters below
+(``--ros-args --params-file``); ``bus_interface``/``bus_channel`` override the bus (e.g. the
+CAN hub's ws://127.0.0.1:PORT/). Command line: ``ff-hwbridge [--autostart] [--config PATH]
+[--channel URL] [--ros-args ...]``.
+"""
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import threading
+import time
+from collections import deque
+from typing import Any, Optional, Sequence
+
+import rclpy
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.signals import SignalHandlerOptions
+
+from ff_hwbridge.protocol.cia402 import State
+from ff_hwbridge.drive.config import BridgeConfig, ConfigError, config_from_mapping, load_config, with_bus
+from ff_hwbridge.drive.epos import EposError, EposMaster
+from ff_hwbridge.drive.scheduler import StampScheduler
+
+READY_LINE = "ff_hwbridge ready"
+NODE_NAME = "ff_hwbridge"
+
+# name: (default, description) — the flat form of config/bridge_*.yaml
+PARAMS: dict[str, tuple[Any, str]] = {
+    "config_file": ("", "bridge YAML; when set, the flat joint/bus parameters are ignored"),
+    "bus_interface": ("", "python-can interface override (socketcan, pcan, kvaser, remote, virtual)"),
+    "bus_channel": ("", "python-can channel override (e.g. can0, ws://127.0.0.1:54701/)"),
+    "bus_bitrate": (1_000_000, "bit/s"),
+    "joint_names": (["joint1"], "one per drive"),
+    "node_ids": ([1], "CANopen node id per joint"),
+    "families": (["epos4"], "'epos4' (CST) or 'epos2' (current mode) per joint"),
+    "current_limits": ([10.0], "A per joint; every command is clamped to it"),
+    "nominal_currents": ([3.0], "A per joint (motor nominal current; EPOS4 per mille base)"),
+    "torque_constants": ([0.0267], "Nm/A per joint"),
+    "counts_per_rev": ([2048.0], "encoder increments per motor revolution, per joint"),
+    "gear_ratios": ([54.0], "per joint"),
+    "sync_period": (0.001, "s, SYNC period"),
+    "heartbeat_producer_ms": (10, "ms, written to each drive's 0x1017"),
+    "heartbeat_timeout": (0.1, "s, heartbeat consumer timeout -> safe state"),
+    "master_heartbeat_ms": (0, "ms, > 0: produce a master heartbeat the drives consume (0x1016)"),
+    "master_node_id": (127, "node id of the master's heartbeat"),
+    "setpoint_timeout": (0.5, "s, no fresh setpoint during a motion -> safe state"),
+    "spin_margin": (0.0003, "s, the scheduler sleeps until this long before a stamp, then spins"),
+    "scheduler_rt_priority": (0, "1..99: SCHED_FIFO for the scheduler thread (needs CAP_SYS_NICE); 0 = off"),
+    "joint_state_rate": (100.0, "Hz"),
+    "diagnostics_rate": (2.0, "Hz"),
+}
+
+
+def _flat_config(get) -> dict[str, Any]:
+    """The config mapping from the flat parameters."""
+    names = list(get("joint_names"))
+    n = len(names)
+    lists = {k: list(get(k)) for k in ("node_ids", "families", "current_limits", "nominal_currents",
+                                       "torque_constants", "counts_per_rev", "gear_ratios")}
+    for k, v in lists.items():
+        if len(v) != n:
+            raise ConfigError(f"parameter {k} has {len(v)} entries, joint_names has {n}; give one per joint")
+    joints = [{"name": names[i], "node_id": int(lists["node_ids"][i]), "family": lists["families"][i],
+               "current_limit": lists["current_limits"][i],
+               "units": {"nominal_current": lists["nominal_currents"][i],
+                         "torque_constant": lists["torque_constants"][i],
+                         "counts_per_rev": lists["counts_per_rev"][i],
+                         "gear_ratio": lists["gear_ratios"][i]}} for i in range(n)]
+    return {"bus": {"interface": get("bus_interface") or "virtual",
+                    "channel": get("bus_channel") or "ff-bridge", "bitrate": int(get("bus_bitrate"))},
+            "joints": joints, "sync_period": get("sync_period"),
+            "heartbeat_producer_ms": int(get("heartbeat_producer_ms")),
+            "heartbeat_timeout": get("heartbeat_timeout"),
+            "master_heartbeat_ms": int(get("master_heartbeat_ms")), "master_node_id": int(get("master_node_id")), "setpoint_timeout": get("setpoint_timeout"),
+            "spin_margin": get("spin_margin"), "scheduler_rt_priority": int(get("scheduler_rt_priority"))}
+
+
+class _RosLogHandler(logging.Handler):
+    """Forwards the libraries' python logging (ff_hwbridge.*, canopen) to the node's ROS logger."""
+
+    def __init__(self, ros_logger: Any) -> None:
+        super().__init__(logging.WARNING)
+        self._ros = ros_logger
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            text = f"{record.name}: {record.getMessage()}"
+            if record.levelno >= logging.ERROR:
+                self._ros.error(text)
+            else:
+                self._ros.warning(text)
+        except Exception:  # noqa: BLE001 - logging must never raise
+            pass
+
+
+class BridgeNode(LifecycleNode):
+    """The ``ff_hwbridge`` lifecycle node (see the module docstring)."""
+
+    def __init__(self, config_file: str = "", channel: str = "", **kwargs: Any) -> None:
+        super().__init__(NODE_NAME, **kwargs)
+        for name, (default, desc) in PARAMS.items():
+            self.declare_parameter(name, default)
+        self._override_file = config_file
+        self._override_channel = channel
+        self.config: Optional[BridgeConfig] = None
+        self.master: Optional[EposMaster] = None
+        self.scheduler: Optional[StampScheduler] = None
+        self._active = False
+        self._applied: deque = deque(maxlen=10_000)
+        self._entities: list[Any] = []
+        self._timers: list[Any] = []
+        self._pub_js = self._pub_diag = self._pub_applied = None
+        self._diag_now = threading.Event()
+        self._log_handler = _RosLogHandler(self.get_logger())
+        for name in ("ff_hwbridge", "canopen"):
+            logging.getLogger(name).addHandler(self._log_handler)
+
+    # --- helpers ----------------------------------------------------------------------------------
+    def _get(self, name: str) -> Any:
+        return self.get_parameter(name).value
+
+    def _load_config(self) -> BridgeConfig:
+        path = self._override_file or self._get("config_file")
+        if path:
+            cfg = load_config(path)
+        else:
+            cfg = config_from_mapping(_flat_config(self._get))
+        channel = self._override_channel or (self._get("bus_channel") if path else "")
+        iface = self._get("bus_interface") if path else ""
+        if channel or iface:
+            iface = iface or ("remote" if str(channel).startswith("ws") else cfg.bus.interface)
+            bus = {"interface": iface, "bitrate": cfg.bus.bitrate}
+            if channel or cfg.bus.channel:
+                bus["channel"] = channel or cfg.bus.channel
+            cfg = with_bus(cfg, bus)
+        return cfg
+
+    # --- lifecycle --------------------------------------------------------------------------------
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Connect and set up the drives (NMT, SDO, PDO, SYNC, heartbeat/EMCY)."""
+        try:
+            self.config = self._load_config()
+            self.master = EposMaster(self.config, on_fault=self._on_fault)
+            self.master.connect()
+            self.master.configure()
+        except (ValueError, EposError, OSError) as exc:
+            self.get_logger().error(f"configure failed: {exc}")
+            return TransitionCallbackReturn.ERROR
+        self.scheduler = StampScheduler(self._apply, spin_margin=self.config.spin_margin,
+                                        rt_priority=self.config.scheduler_rt_priority,
+                                        prepare=self._prepare).start()
+        self.master.pending_fn = lambda: bool(self.scheduler and self.scheduler.pending)
+        self._make_interfaces()
+        self.get_logger().info(f"configured: joints {list(self.config.joint_names)} on "
+                               f"{self.config.bus.interface}:{self.config.bus.channel}")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Enable operation with zero current (transitions 2, 3, 4)."""
+        assert self.master is not None
+        try:
+            self.master.enable()
+        except EposError as exc:
+            self.get_logger().error(f"activate failed: {exc}")
+            return TransitionCallbackReturn.ERROR
+        if not self.master.wait_for_state(State.OPERATION_ENABLED, self.config.state_timeout * 2):
+            states = [s.value if s else "unknown" for s in self.master.states()]
+            self.get_logger().error(f"activate failed: drives did not reach Operation enabled "
+                                    f"(states {states}; {self.master.fault_reason or 'no fault'})")
+            return TransitionCallbackReturn.ERROR
+        self._active = True
+        self.get_logger().info("active: operation enabled, accepting setpoints")
+        return super().on_activate(state)
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Drop pending setpoints, zero current, disable operation (transition 5)."""
+        self._active = False
+        if self.scheduler is not None:
+            self.scheduler.clear()
+        if self.master is not None:
+            self.master.disable()
+            self.master.wait_for_state(State.SWITCHED_ON, self.config.state_timeout)
+        self.get_logger().info("inactive: zero current, operation disabled")
+        return super().on_deactivate(state)
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Stop the scheduler, disable voltage, stop SYNC, close the bus."""
+        self._teardown()
+        self.get_logger().info("cleaned up: bus closed")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._teardown()
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        reason = self.master.fault_reason if self.master else None
+        self.get_logger().error(f"error processing (from '{state.label}'): closing the bus"
+                                + (f"; safe state: {reason}" if reason else ""))
+        self._teardown()
+        return TransitionCallbackReturn.SUCCESS
+
+    def destroy_node(self) -> None:
+        for name in ("ff_hwbridge", "canopen"):
+            logging.getLogger(name).removeHandler(self._log_handler)
+        super().destroy_node()
+
+    def _teardown(self) -> None:
+        self._active = False
+        if self.scheduler is not None:
+            self.scheduler.stop()
+            self.scheduler = None
+        if self.master is not None:
+            try:
+                self.master.disconnect()
+            except Exception as exc:  # noqa: BLE001 - best effort on the way out
+                self.get_logger().error(f"disconnect: {exc}")
+            self.master = None
+        for t in self._timers:
+            self.destroy_timer(t)
+        self._timers.clear()
+        for e in self._entities:
+            kind, ent = e
+            {"pub": self.destroy_publisher, "sub": self.destroy_subscription,
+             "srv": self.destroy_service}[kind](ent)
+        self._entities.clear()
+
+    # --- interfaces -------------------------------------------------------------------------------
+    def _make_interfaces(self) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+        from ff_msgs.msg import CurrentSetpoint
+        from sensor_msgs.msg import JointState
+        from std_srvs.srv import Trigger
+
+        self._pub_js = self.create_publisher(JointState, "~/joint_states", 10)
+        self._pub_applied = self.create_publisher(CurrentSetpoint, "~/applied", 100)
+        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        # own callback groups: a fault reset (which waits for the drives) or a timer never
+        # holds up the intake of setpoints
+        sub = self.create_subscription(CurrentSetpoint, "~/setpoints", self._on_setpoint, 100,
+                                       callback_group=MutuallyExclusiveCallbackGroup())
+        self._wake = self.create_guard_condition(lambda: None)   # resumes awaited work (ff_msgs_py.threads)
+        srv = self.create_service(Trigger, "~/fault_reset", self._on_fault_reset,
+                                  callback_group=MutuallyExclusiveCallbackGroup())
+        self._entities += [("pub", self._pub_js), ("pub", self._pub_applied),
+                           ("pub", self._pub_diag), ("sub", sub), ("srv", srv)]
+        self._timers.append(self.create_timer(1.0 / float(self._get("joint_state_rate")),
+                                              self._publish_joint_states))
+        self._timers.append(self.create_timer(1.0 / float(self._get("diagnostics_rate")),
+                                              self._publish_diagnostics))
+        self._timers.append(self.create_timer(0.01, self._fast_tick))
+
+    def _on_setpoint(self, msg: Any) -> None:
+        master, sched = self.master, self.scheduler
+        if master is None or sched is None:
+            return
+        if not self._active:
+            self.get_logger().warning("setpoint ignored: bridge is not active",
+                                      throttle_duration_sec=1.0)
+            return
+        if master.latched:
+            self.get_logger().warning(f"setpoint ignored: safe state ({master.fault_reason}); "
+                                      "call ~/fault_reset", throttle_duration_sec=1.0)
+            return
+        currents = list(msg.currents)
+        if len(currents) != len(self.config.joints):
+            self.get_logger().warning(f"setpoint {msg.seq} ignored: {len(currents)} current(s) for "
+                                      f"{len(self.config.joints)} joint(s) {list(self.config.joint_names)}",
+                                      throttle_duration_sec=1.0)
+            return
+        stamp_ns = int(msg.stamp.sec) * 1_000_000_000 + int(msg.stamp.nanosec)
+        # a motion runs (the watchdog watches) after a profile's setpoint that is not its last,
+        # or after a manual setpoint with a non-zero current; a manual zero ends it
+        running = not msg.last and (bool(msg.profile_id) or any(c != 0.0 for c in currents))
+        master.note_setpoint(motion_running=running)
+        sched.submit(stamp_ns, (currents, int(msg.seq), str(msg.profile_id), bool(msg.last)))
+
+    def _prepare(self, payload: Any) -> Any:
+        """Scheduler thread, just before the stamp: safety guard + unit conversion."""
+        currents, seq, pid, last = payload
+        master = self.master
+        return (master.prepare_currents(currents) if master else None), seq, pid, last
+
+    def _apply(self, stamp_ns: int, payload: Any) -> None:
+        """Scheduler thread, at the stamp: send the prepared RPDOs."""
+        master = self.master
+        prepared, seq, pid, last = payload
+        if master is None or prepared is None:
+            return
+        master.send_prepared(prepared)
+        sent_ns = time.time_ns()
+        cmd = prepared.command
+        if cmd.reason and not cmd.latched:
+            self.get_logger().warning(f"setpoint {seq}: {cmd.reason}", throttle_duration_sec=1.0)
+        if last:
+            master.guard.end_motion()
+        self._applied.append((sent_ns, list(master.applied_currents()), seq, pid, last))
+
+    def _on_fault(self, reason: str) -> None:
+        """Master thread: safe state latched."""
+        if self.scheduler is not None:
+            self.scheduler.clear()
+        self._diag_now.set()              # the reason is logged by the master (forwarded)
+
+    async def _on_fault_reset(self, request: Any, response: Any) -> Any:
+        """Service ~/fault_reset: waits for the drive on its own thread (ff_msgs_py.threads)."""
+        from ff_msgs_py.threads import in_thread
+
+        return await in_thread(self._fault_reset, response, wake=self._wake, name="ff_fault_reset")
+
+    def _fault_reset(self, response: Any) -> Any:
+        if self.master is None:
+            response.success, response.message = False, "bridge is not configured"
+            return response
+        old = self.master.fault_reset(reenable=self._active)
+        ok = not self.master.latched
+        if ok and self._active:
+            ok = self.master.wait_for_state(State.OPERATION_ENABLED, self.config.state_timeout)
+        response.success = bool(ok)
+        response.message = (f"cleared: {old or 'nothing latched'}" if ok else
+                            f"fault reset did not recover: {self.master.fault_reason or 'drive state'}")
+        self.get_logger().info(f"fault reset: {response.message}")
+        self._diag_now.set()
+        return response
+
+    def _fast_tick(self) -> None:
+        from ff_msgs.msg import CurrentSetpoint
+
+        while self._applied:
+            sent_ns, currents, seq, pid, last = self._applied.popleft()
+            msg = CurrentSetpoint()
+            msg.stamp.sec, msg.stamp.nanosec = divmod(sent_ns, 1_000_000_000)
+            msg.currents, msg.seq, msg.profile_id, msg.last = [float(c) for c in currents], seq, pid, last
+            self._pub_applied.publish(msg)
+        if self._diag_now.is_set():
+            self._diag_now.clear()
+            self._publish_diagnostics()
+
+    def _publish_joint_states(self) -> None:
+        from sensor_msgs.msg import JointState
+
+        if self.master is None:
+            return
+        msg = JointState()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        fb = self.master.feedback()
+        msg.name = list(self.config.joint_names)
+        msg.position = [f.position for f in fb]
+        msg.velocity = [f.velocity for f in fb]
+        msg.effort = [f.current for f in fb]
+        self._pub_js.publish(msg)
+
+    def _publish_diagnostics(self) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+        if self.master is None:
+            return
+        st = self.master.status()
+        if self.scheduler is not None:
+            s = self.scheduler.stats()
+            st.update({"switch_count": s.count, "switch_late": s.late, "switch_p50_us": s.p50_us,
+                       "switch_p99_us": s.p99_us, "switch_max_us": s.max_us,
+                       "pending_setpoints": self.scheduler.pending})
+        st["active"] = self._active
+        status = DiagnosticStatus()
+        status.name = f"{NODE_NAME}: drive group"
+        status.hardware_id = ",".join(f"node{j.node_id}" for j in self.config.joints)
+        if self.master.latched:
+            status.level, status.message = DiagnosticStatus.ERROR, f"safe state: {self.master.fault_reason}"
+        elif not self._active:
+            status.level, status.message = DiagnosticStatus.WARN, "not active"
+        else:
+            status.level, status.message = DiagnosticStatus.OK, "operation enabled"
+        status.values = [KeyValue(key=str(k), value=str(v)) for k, v in st.items()]
+        arr = DiagnosticArray()
+        arr.header.stamp = self.get_clock().now().to_msg()
+        arr.status = [status]
+        self._pub_diag.publish(arr)
+
+
+def main(argv: Optional[Sequence[str]] = None) -> None:
+    """Console script ``ff-hwbridge [--autostart] [--config PATH] [--channel URL] [--ros-args ...]``."""
+    from rclpy.utilities import remove_ros_args
+
+    argv = list(sys.argv if argv is None else ["ff-hwbridge", *argv])
+    ap = argparse.ArgumentParser(prog="ff-hwbridge", description="CANopen bridge to Maxon EPOS drives "
+                                 "(ROS 2 lifecycle node ff_hwbridge).")
+    ap.add_argument("--autostart", action="store_true", help="configure and activate at start")
+    ap.add_argument("--config", default="", help="bridge YAML (overrides the config_file parameter)")
+    ap.add_argument("--channel", default="", help="bus channel override, e.g. ws://127.0.0.1:54701/")
+    args = ap.parse_args(remove_ros_args(argv)[1:])
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    node = None
+    try:
+        node = BridgeNode(config_file=args.config, channel=args.channel)
+        executor = MultiThreadedExecutor(num_threads=4)
+        executor.add_node(node)
+        if args.autostart:
+            node.trigger_configure()
+            if node.master is None:
+                print("ff_hwbridge: configure failed (see the log above)", flush=True)
+                raise SystemExit(1)
+            node.trigger_activate()
+            if not node._active:
+                print("ff_hwbridge: activate failed (see the log above)", flush=True)
+                raise SystemExit(1)
+        node.get_logger().info(f"{READY_LINE}: {'active' if node._active else 'unconfigured'}")
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            try:
+                node._teardown()
+            except Exception:  # noqa: BLE001
+                pass
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+
+
+if __name__ == "__main__":
+    main()

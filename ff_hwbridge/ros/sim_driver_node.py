@@ -1,0 +1,242 @@
+"""ROS 2 node ``ff_sim_driver``: emulated Maxon EPOS drives (CANopen slaves) + the simulated arm.
+
+A thin adapter around :mod:`ff_hwbridge.sim.rig` (arm plant + one ``SimEpos`` per joint).
+The bridge talks to it over CAN exactly as to real drives; this node only adds parameters,
+ground truth, diagnostics and a reset service.
+
+Parameters (see ``PARAMETERS``; ``config/sim_*.yaml``):
+  model ('arm1dof' | 'scara2'), node_ids, family ('epos4' | 'epos2'), joint_names,
+  host_hub + hub_port (host the CAN hub on 127.0.0.1) or bus.interface / bus.channel /
+  bus.bitrate, true_preset + ``true_params.<key>`` (the TRUE model parameters, e.g.
+  ``true_params.pc``; changeable at runtime), q0 (rad), physics_step (s), counts_per_rev,
+  nominal_current (A), ground_truth_rate (Hz), diagnostics_rate (Hz).
+  Fault injection, per drive, changeable at runtime (``fault.n<ID>.<name>``): heartbeat_stopped
+  (bool), sdo_silent (bool), delay_ms (float) + delay_direction ('rx'|'tx'|'both'),
+  drop_fraction (0..1) + drop_direction, drop_next (int: set N > 0 to drop the next N frames),
+  emcy_code (int: set a code 0x1000..0xFFFF to raise that EMCY; the drive goes to FAULT).
+Publishes ``~/ground_truth`` (sensor_msgs/JointState: rad, rad/s, effort = motor current A) and
+``/diagnostics``. Service ``~/reset`` (std_srvs/Trigger): arm back to q0 at rest (the drives keep
+applying their present current: 0 A unless enabled with a non-zero setpoint).
+"""
+from __future__ import annotations
+
+import sys
+from typing import Any, Optional
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import SetParametersResult
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.signals import SignalHandlerOptions
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
+
+from ff_planner.model.params import ParameterError, check_model, default_params, preset
+
+from ff_hwbridge.sim.can_hub import CanConfigError, CanHub, start_hub
+from ff_hwbridge.sim.drive import SimConfigError, SimEpos
+from ff_hwbridge.sim.rig import RigConfig, SimRig
+
+READY_LINE = "ff_sim_driver ready"
+
+PARAMETERS: dict[str, tuple[Any, str]] = {
+    "model": ("arm1dof", "'arm1dof' or 'scara2'"),
+    "node_ids": ([1], "CANopen node id per joint"),
+    "family": ("epos4", "'epos4' (CST, 0x6071 per mille) or 'epos2' (current mode, 0x2030 mA)"),
+    "joint_names": ([""], "names in ~/ground_truth (default joint1, joint2)"),
+    "host_hub": (False, "host the CAN hub on 127.0.0.1:hub_port in this process"),
+    "hub_port": (54701, "TCP port of the hosted hub"),
+    "bus.interface": ("remote", "python-can interface when not hosting the hub"),
+    "bus.channel": ("ws://127.0.0.1:54701/", "python-can channel when not hosting the hub"),
+    "bus.bitrate": (1_000_000, "bit/s"),
+    "true_preset": ("", "preset of the true parameters ('' = the model's paper table)"),
+    "q0": ([0.0], "rad, initial joint angle(s)"),
+    "physics_step": (1e-4, "s, largest internal physics step"),
+    "counts_per_rev": (2048, "encoder increments per motor revolution"),
+    "nominal_current": (3.0, "A, motor nominal current (EPOS4 per mille scale)"),
+    "ground_truth_rate": (100.0, "Hz"),
+    "diagnostics_rate": (1.0, "Hz"),
+    "switch_interval": (0.0005, "s, python thread switch interval (latency of the CAN thread)"),
+}
+FAULT_PARAMETERS: dict[str, Any] = {
+    "heartbeat_stopped": False, "sdo_silent": False, "delay_ms": 0.0, "delay_direction": "both",
+    "drop_fraction": 0.0, "drop_direction": "rx", "drop_next": 0, "emcy_code": 0,
+}
+
+
+class SimDriverNode(Node):
+    """Node ``ff_sim_driver``; see the module docstring."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__("ff_sim_driver", **kwargs)
+        for name, (default, descr) in PARAMETERS.items():
+            self.declare_parameter(name, default)
+        if float(self._p("switch_interval")) > 0:
+            sys.setswitchinterval(float(self._p("switch_interval")))
+        model = check_model(self._p("model"))
+        base = preset(self._p("true_preset")) if self._p("true_preset") else default_params(model)
+        if base.model != model:
+            raise ParameterError(f"true_preset {self._p('true_preset')!r} is for model "
+                                 f"'{base.model}', not '{model}'")
+        for key, value in base.to_dict().items():
+            self.declare_parameter(f"true_params.{key}", value)
+        params = base.replace(**{k: self._p(f"true_params.{k}") for k in base.keys()})
+        node_ids = tuple(int(x) for x in self._p("node_ids"))
+        q0 = tuple(float(x) for x in self._p("q0"))
+        self.hub: Optional[CanHub] = None
+        if self._p("host_hub"):
+            self.hub = start_hub(int(self._p("hub_port")))
+            bus = self.hub.local_bus_config()     # same process: the hub's channel, no websocket
+        else:
+            bus = {"interface": self._p("bus.interface"), "channel": self._p("bus.channel"),
+                   "bitrate": int(self._p("bus.bitrate"))}
+        cfg = RigConfig(model=model, node_ids=node_ids, family=self._p("family"), bus=bus,
+                        true_params=params, q0=q0, step=float(self._p("physics_step")),
+                        counts_per_rev=int(self._p("counts_per_rev")),
+                        nominal_current=float(self._p("nominal_current")))
+        try:
+            self.rig = SimRig(cfg)
+        except Exception:
+            if self.hub is not None:
+                self.hub.close()
+            raise
+        names = [n for n in self._p("joint_names") if n]
+        self.joint_names = names or [f"joint{j + 1}" for j in range(len(node_ids))]
+        if len(self.joint_names) != len(node_ids):
+            raise SimConfigError(f"joint_names needs {len(node_ids)} name(s), got {self.joint_names}")
+        for nid in node_ids:
+            for name, default in FAULT_PARAMETERS.items():
+                self.declare_parameter(f"fault.n{nid}.{name}", default)
+        self.add_on_set_parameters_callback(self._on_params)
+        self._apply_faults_from_params()
+
+        self.pub_truth = self.create_publisher(JointState, "~/ground_truth", 10)
+        self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_service(Trigger, "~/reset", self._on_reset)
+        self.create_timer(1.0 / float(self._p("ground_truth_rate")), self._publish_truth)
+        self.create_timer(1.0 / float(self._p("diagnostics_rate")), self._publish_diagnostics)
+        self.rig.boot()
+        where = self.hub.url if self.hub is not None else bus.get("channel")
+        self.get_logger().info(f"{READY_LINE}: {model} drives {list(node_ids)} ({cfg.family}) "
+                               f"on {where}, true params {params.to_dict()}")
+
+    def _p(self, name: str) -> Any:
+        return self.get_parameter(name).value
+
+    # -- parameters at runtime ------------------------------------------------------------------
+    def _on_params(self, params: list) -> SetParametersResult:
+        true_updates: dict[str, Any] = {}
+        try:
+            for p in params:
+                if p.name.startswith("true_params."):
+                    true_updates[p.name.split(".", 1)[1]] = p.value
+                elif p.name.startswith("fault."):
+                    _, n, key = p.name.split(".", 2)
+                    self._apply_fault(self.rig.drive(int(n[1:])), key, p.value)
+                elif p.name in PARAMETERS:
+                    return SetParametersResult(successful=False, reason=(
+                        f"'{p.name}' is fixed at start-up; restart the node to change it"))
+            if true_updates:
+                new = self.rig.arm.params.replace(**true_updates)
+                self.rig.arm.set_params(new)
+                self.get_logger().info(f"true parameters now {new.to_dict()}")
+        except (ParameterError, SimConfigError, ValueError) as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
+
+    def _apply_faults_from_params(self) -> None:
+        for d in self.rig.drives:
+            for key in FAULT_PARAMETERS:
+                self._apply_fault(d, key, self._p(f"fault.n{d.node_id}.{key}"), quiet=True)
+
+    def _apply_fault(self, d: SimEpos, key: str, value: Any, quiet: bool = False) -> None:
+        log = self.get_logger()
+        if key == "heartbeat_stopped":
+            d.stop_heartbeat(bool(value))
+        elif key == "sdo_silent":
+            d.set_sdo_silent(bool(value))
+        elif key == "delay_ms":
+            d.set_delay(float(value), self._p(f"fault.n{d.node_id}.delay_direction"))
+        elif key == "drop_fraction":
+            d.drop_fraction(float(value), self._p(f"fault.n{d.node_id}.drop_direction"))
+        elif key == "drop_next":
+            if int(value) > 0:
+                d.drop_next(int(value), self._p(f"fault.n{d.node_id}.drop_direction"))
+        elif key == "emcy_code":
+            if int(value):
+                d.raise_emcy(int(value))
+        elif key in ("delay_direction", "drop_direction"):
+            SimEpos._directions(str(value))
+        else:
+            raise SimConfigError(f"unknown fault parameter {key!r}; known: {list(FAULT_PARAMETERS)}")
+        if not quiet or value not in (False, 0, 0.0, "both", "rx"):
+            log.info(f"drive {d.node_id}: fault {key} = {value!r}")
+
+    # -- outputs ---------------------------------------------------------------------------------
+    def _publish_truth(self) -> None:
+        s = self.rig.arm.state()
+        msg = JointState()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.name = list(self.joint_names)
+        msg.position, msg.velocity, msg.effort = list(s.q), list(s.qd), list(s.current)
+        self.pub_truth.publish(msg)
+
+    def _publish_diagnostics(self) -> None:
+        arr = DiagnosticArray()
+        arr.header.stamp = self.get_clock().now().to_msg()
+        for d in self.rig.drives:
+            st = DiagnosticStatus()
+            st.name = f"ff_sim_driver: drive {d.node_id}"
+            st.hardware_id = f"{d.family} node {d.node_id} (simulated)"
+            fault = d.fault_code != 0
+            st.level = DiagnosticStatus.ERROR if fault else DiagnosticStatus.OK
+            st.message = f"{d.state.value}" + (f", fault 0x{d.fault_code:04X}" if fault else "")
+            stats = d.link_stats
+            values = {"nmt": d.nmt_state, "statusword": f"0x{d.statusword():04X}",
+                      "applied_current_A": f"{d.applied_current:.4f}",
+                      "setpoints_received": str(len(d.setpoint_log())),
+                      "rx_frames": str(stats.rx_frames), "rx_dropped": str(stats.rx_dropped),
+                      "tx_frames": str(stats.tx_frames), "tx_dropped": str(stats.tx_dropped)}
+            st.values = [KeyValue(key=k, value=v) for k, v in values.items()]
+            arr.status.append(st)
+        self.pub_diag.publish(arr)
+
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        self.rig.reset_arm()
+        s = self.rig.arm.state()
+        response.success = True
+        response.message = (f"arm at q={list(s.q)} rad, at rest; drives apply {list(s.current)} A")
+        self.get_logger().info(f"reset: {response.message}")
+        return response
+
+    def close(self) -> None:
+        self.rig.close()
+        if self.hub is not None:
+            self.hub.close()
+
+
+def main(argv: Optional[list[str]] = None) -> None:
+    """Console script ``ff-sim-driver``: ``ff-sim-driver --ros-args --params-file config/sim_arm1dof.yaml``."""
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    node: Optional[SimDriverNode] = None
+    try:
+        node = SimDriverNode()
+        executor = MultiThreadedExecutor(num_threads=2)
+        executor.add_node(node)
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    except (ParameterError, SimConfigError, CanConfigError, ValueError) as exc:
+        print(f"ff_sim_driver: {exc}", flush=True)
+        raise SystemExit(2)
+    finally:
+        if node is not None:
+            node.close()
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,169 @@
+"""The simulated arm (the plant) that the emulated EPOS drives push current into.
+
+One model in the suite: the plant integrates with the PLANNER's model,
+``ff_planner.model.arm1dof.advance`` (1-DOF) or ``ff_planner.model.scara2.advance`` (2-DOF SCARA), but with
+its OWN parameters (the "true" friction), so tests can make the real arm differ from the model
+the planner believed.
+
+Time is ``time.monotonic_ns()`` unless a clock is given. The state is advanced lazily, whenever
+someone sets a current or asks for the state, exactly to that instant: a current change takes
+effect at the instant it is set (the drive calls ``set_current`` with the frame's arrival time),
+and between changes the model is stepped in sub-steps of at most ``step`` s (default 0.1 ms).
+Thread-safe (one lock). Units: rad, rad/s, A, s.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from dataclasses import dataclass
+from typing import Callable, Optional, Sequence, Union
+
+import numpy as np
+
+from ff_planner.model.params import Arm1DofParams, ParameterError, Scara2Params
+
+Params = Union[Arm1DofParams, Scara2Params]
+#: advance(params, q, qd, current(s), dt) -> (q, qd); floats for 1-DOF, arrays(2) for SCARA.
+AdvanceFn = Callable[..., tuple]
+
+
+def planner_advance(params: Params) -> AdvanceFn:
+    """The planner's exact one-step model for the parameter type (imported on first use)."""
+    if isinstance(params, Arm1DofParams):
+        from ff_planner.model.arm1dof import advance
+    elif isinstance(params, Scara2Params):
+        from ff_planner.model.scara2 import advance
+    else:
+        raise ParameterError(f"no arm model for parameters of type {type(params).__name__}; "
+                             "use Arm1DofParams or Scara2Params")
+    return advance
+
+
+@dataclass(frozen=True)
+class ArmState:
+    """Ground truth at ``t_ns`` (monotonic ns): joint angles (rad), rates (rad/s), currents (A)."""
+
+    t_ns: int
+    q: tuple[float, ...]
+    qd: tuple[float, ...]
+    current: tuple[float, ...]
+
+
+class SimArm:
+    """Joint state of a 1-DOF arm or 2-DOF SCARA under piecewise-constant motor currents."""
+
+    def __init__(self, params: Params, q0: Sequence[float] | float = 0.0,
+                 qd0: Sequence[float] | float | None = None, *, step: float = 1e-4,
+                 advance: Optional[AdvanceFn] = None,
+                 clock: Callable[[], int] = time.monotonic_ns) -> None:
+        if not step > 0.0:
+            raise ParameterError(f"physics step must be > 0 s, got {step}")
+        self.params = params
+        self.n_joints = 1 if isinstance(params, Arm1DofParams) else 2
+        self.step = float(step)
+        self._advance = advance if advance is not None else planner_advance(params)
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._q, self._qd = self._vec(q0, "q0"), self._vec(0.0 if qd0 is None else qd0, "qd0")
+        self._i = np.zeros(self.n_joints)
+        self._t_ns = clock()
+
+    # -- helpers -------------------------------------------------------------------------------
+    def _vec(self, x: Sequence[float] | float, name: str) -> np.ndarray:
+        a = np.atleast_1d(np.asarray(x, dtype=float)).copy()
+        if a.size == 1 and self.n_joints == 2 and np.ndim(x) == 0:
+            a = np.full(2, float(a[0]))
+        if a.shape != (self.n_joints,) or not np.all(np.isfinite(a)):
+            raise ParameterError(f"{name} must be {self.n_joints} finite value(s), got {x!r}")
+        return a
+
+    def _integrate(self, dt: float) -> None:
+        p = self.params
+        while dt > 0.0:
+            h = min(self.step, dt)
+            if self.n_joints == 1:
+                q, qd = self._advance(p, float(self._q[0]), float(self._qd[0]), float(self._i[0]), h)
+                self._q[0], self._qd[0] = q, qd
+            else:
+                q, qd = self._advance(p, self._q.copy(), self._qd.copy(), self._i.copy(), h)
+                self._q[:], self._qd[:] = q, qd
+            dt -= h
+
+    def _advance_to(self, t_ns: int) -> None:
+        if t_ns > self._t_ns:                 # events arriving a hair out of order: no time travel
+            self._integrate((t_ns - self._t_ns) * 1e-9)
+            self._t_ns = t_ns
+
+    # -- public API ----------------------------------------------------------------------------
+    def now(self) -> int:
+        """The plant's clock (ns)."""
+        return self._clock()
+
+    def set_current(self, joint: int, current: float, t_ns: Optional[int] = None) -> None:
+        """Motor ``joint`` (0-based) carries ``current`` A from ``t_ns`` (default: now) on."""
+        if not 0 <= joint < self.n_joints:
+            raise ParameterError(f"joint index must be 0..{self.n_joints - 1}, got {joint}")
+        with self._lock:
+            self._advance_to(self._clock() if t_ns is None else t_ns)
+            self._i[joint] = float(current)
+
+    def state(self, t_ns: Optional[int] = None) -> ArmState:
+        """Ground truth at ``t_ns`` (default now; never earlier than the last event)."""
+        with self._lock:
+            self._advance_to(self._clock() if t_ns is None else t_ns)
+            return ArmState(self._t_ns, tuple(map(float, self._q)), tuple(map(float, self._qd)),
+                            tuple(map(float, self._i)))
+
+    def joint(self, joint: int, t_ns: Optional[int] = None) -> tuple[float, float, float]:
+        """(q rad, qd rad/s, current A) of one joint at ``t_ns``."""
+        s = self.state(t_ns)
+        return s.q[joint], s.qd[joint], s.current[joint]
+
+    def reset(self, q0: Sequence[float] | float = 0.0, qd0: Sequence[float] | float | None = None,
+              params: Optional[Params] = None) -> None:
+        """Put the arm back at (q0, qd0) with zero current, now; optionally new true parameters."""
+        with self._lock:
+            if params is not None:
+                if type(params) is not type(self.params):
+                    raise ParameterError("reset cannot change the arm model; make a new SimArm")
+                self.params = params
+            self._q, self._qd = self._vec(q0, "q0"), self._vec(0.0 if qd0 is None else qd0, "qd0")
+            self._i[:] = 0.0
+            self._t_ns = self._clock()
+
+    def set_params(self, params: Params) -> None:
+        """Change the true parameters from now on (state kept; same model type only)."""
+        if type(params) is not type(self.params):
+            raise ParameterError("cannot change the arm model of a running SimArm")
+        with self._lock:
+            self._advance_to(self._clock())
+            self.params = params
+
+    def port(self, joint: int) -> "JointPort":
+        """The connection one drive uses to push current into motor ``joint``."""
+        return JointPort(self, joint)
+
+
+@dataclass(frozen=True)
+class JointPort:
+    """A drive's view of its motor: set current at an instant, sample the joint at an instant."""
+
+    arm: SimArm
+    joint: int
+
+    def set_current(self, current: float, t_ns: int) -> None:
+        self.arm.set_current(self.joint, current, t_ns)
+
+    def sample(self, t_ns: int) -> tuple[float, float, float]:
+        """(q rad, qd rad/s, current A) of the joint at ``t_ns``."""
+        return self.arm.joint(self.joint, t_ns)
+
+    @property
+    def gear_ratio(self) -> float:
+        p = self.arm.params
+        return p.n if isinstance(p, Arm1DofParams) else (p.n1, p.n2)[self.joint]
+
+    @property
+    def torque_constant(self) -> float:
+        p = self.arm.params
+        return p.kt if isinstance(p, Arm1DofParams) else (p.kt1, p.kt2)[self.joint]

@@ -1,0 +1,934 @@
+"""An emulated Maxon EPOS4 / EPOS2 as a CANopen slave (canopen LocalNode + an OD built in code).
+
+What it does, per the suite's CANopen contract (CiA 301/402):
+
+- boot-up frame (0x700+id, data 0x00) on ``boot()`` and after NMT reset node / reset
+  communication, then PRE-OPERATIONAL; NMT start / stop / pre-operational.
+- SDO server for the objects below; PDO communication/mapping objects written over SDO in the
+  standard way (COB-ID bit 31 set, count 0, entries, count, COB-ID re-enabled) are validated and
+  the PDO maps RELOADED at once.
+- RPDOs applied the moment they arrive (transmission type 254/255; types 0-240 wait for the next
+  SYNC); the controlword drives the CiA 402 state machine (the tables of ``cia402``, plus the
+  EPOS's "switch on & enable operation" 0x000F from READY TO SWITCH ON = transitions 3+4, and
+  the quick stop option code 0x605A: 0 = disable at once, 1-4 = current 0 then SWITCH ON
+  DISABLED once the motor stands still, 5-8 = stay in QUICK STOP ACTIVE), the setpoint becomes
+  motor current, clamped to the drive's own output current limit like a real drive. Current is
+  only driven in OPERATION ENABLED and in the drive's current mode (EPOS4 CST 10, EPOS2 -3).
+- TPDOs with transmission type 1-240 sent on every n-th SYNC in OPERATIONAL, sampled at the SYNC's
+  arrival (event-driven TPDOs, types 254/255, are not produced: the contract uses SYNC); heartbeat producer per 0x1017; EMCY (0x080+id) with error register 0x1001 and the
+  pre-defined error field 0x1003 on a fault; fault reset by a rising controlword bit 7
+  (EMCY "error reset" 0x0000 sent).
+- Heartbeat consumer 0x1016:01-04 ((node id << 16) | ms): once a consumed heartbeat has been
+  seen, silence longer than its time is a fault (EMCY 0x8130 heartbeat error, FAULT, 0 A), so a
+  dead master stops the drive as on the real EPOS.
+- Every received setpoint is recorded with its arrival time (``time.monotonic_ns`` and wall clock
+  ``time.time_ns``), so benchmarks can compare the time a setpoint was due with when it applied.
+- Fault injection: stop heartbeat, raise EMCY, stop answering SDO, delay / drop frames.
+
+Units on the wire (maxon EPOS4 Firmware Specification / object dictionary; the search tool here
+did not return maxon's own pages, so these are from maxon's EDS/firmware conventions as recalled,
+cross-checked with CiA 402 where it defines them):
+  0x6071 target torque, 0x6077 torque actual: INT16, per mille (‰) of 0x6076.
+  0x6076 motor rated torque: UNSIGNED32, µNm (0.001 mNm); EPOS4 derives it as
+         0x3001:01 nominal current × 0x3001:05 torque constant.
+  0x3001:01 nominal current, :02 output current limit: UNSIGNED32, mA.
+  0x3001:05 torque constant: UNSIGNED32, µNm/A (0.001 mNm/A).
+  Hence I [A] = ‰/1000 · 0x6076 / 0x3001:05 = ‰/1000 · I_nominal.
+  0x30D1:01/:02 current actual averaged / actual: INT32, mA (EPOS4); 0x6078 INT16 mA (EPOS2).
+  0x2030 current mode setting value: INT16, mA (EPOS2); 0x6410:01/:02 UNSIGNED16 mA (EPOS2).
+  0x6064 position actual: INT32, encoder increments of the motor shaft; 0x606C velocity actual:
+  INT32, motor rpm (EPOS4 default SI unit of velocity).
+NMT STOPPED halts PDOs and SDO but (as on the real drive) does not change the power stage.
+"""
+from __future__ import annotations
+
+import heapq
+import math
+import random
+import struct
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any, Callable, Optional
+
+import canopen
+from canopen import objectdictionary as od
+from canopen.objectdictionary import ObjectDictionary, ODVariable
+from canopen.sdo import SdoAbortedError
+
+from ff_hwbridge.protocol import cia402
+
+from ff_hwbridge.protocol import epos_od
+from ff_hwbridge.protocol.cia402 import Command, State
+from ff_hwbridge.protocol.epos_od import (CURRENT_MODE, MAXON_VENDOR_ID, PDO_VALID_BIT,  # noqa: F401
+                                 MotorData)
+from ff_hwbridge.protocol.units import FAMILIES, DriveUnits
+
+_NUMBER_TYPES = od.NUMBER_TYPES
+VALID_MODES = {"epos4": {0, 1, 3, 6, 8, 9, 10}, "epos2": {0, -3, -2, -1, 1, 3, 6, 7}}
+# the contract's setpoint (RPDO1 entry 2) and actual current (TPDO2 entry 2) objects per family
+SETPOINT_OBJ = {f: epos_od.rpdo_layout(f)[1][:2] for f in FAMILIES}
+CURRENT_OBJ = {f: epos_od.tpdo2_layout(f)[1][:2] for f in FAMILIES}
+
+# SDO abort codes (CiA 301)
+ABORT_NOT_MAPPABLE = 0x06040041
+ABORT_PDO_TOO_LONG = 0x06040042
+ABORT_VALUE_RANGE = 0x06090030
+ABORT_DEVICE_STATE = 0x08000022
+ABORT_NOT_IN_OD = 0x06020000
+
+
+class SimConfigError(ValueError):
+    """A simulated-drive setting that cannot be used; the message says what to change."""
+
+
+@dataclass(frozen=True)
+class DriveConfig:
+    """One emulated drive: identity, motor data and encoder (motor side; A, Nm/A, counts)."""
+
+    node_id: int = 1
+    family: str = "epos4"               # 'epos4' (CST, 0x6071 ‰) or 'epos2' (current mode, 0x2030 mA)
+    nominal_current: float = 3.0        # A, 0x3001:01 / 0x6410:01
+    current_limit: float = 10.0         # A, output current limit 0x3001:02 / 0x6410:02
+    torque_constant: float = 0.0267     # Nm/A, 0x3001:05
+    counts_per_rev: int = 2048          # encoder increments per motor revolution (quadcounts)
+    gear_ratio: float = 54.0            # joint angle = motor angle / gear_ratio
+    quick_stop_option: int = 2          # 0x605A default (maxon default 2: stop, then SOD)
+
+    def __post_init__(self) -> None:
+        if not 1 <= int(self.node_id) <= 127:
+            raise SimConfigError(f"node_id must be 1..127, got {self.node_id}")
+        if self.family not in FAMILIES:
+            raise SimConfigError(f"family must be one of {FAMILIES}, got {self.family!r}")
+        for k in ("nominal_current", "current_limit", "torque_constant", "gear_ratio"):
+            v = getattr(self, k)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise SimConfigError(f"{k} must be a finite number > 0, got {v!r}")
+        if int(self.counts_per_rev) <= 0:
+            raise SimConfigError(f"counts_per_rev must be > 0, got {self.counts_per_rev}")
+        lim_ma = 65535 if self.family == "epos2" else 2**32 - 1
+        if self.current_limit * 1000 > lim_ma or self.nominal_current * 1000 > lim_ma:
+            raise SimConfigError(f"currents above {lim_ma} mA do not fit the {self.family} objects")
+
+    def units(self) -> DriveUnits:
+        """The drive's motor and encoder data as the suite's unit conversions."""
+        return DriveUnits(self.family, self.nominal_current, self.torque_constant,
+                          self.counts_per_rev, self.gear_ratio)
+
+
+@dataclass(frozen=True)
+class SetpointRecord:
+    """One received setpoint: arrival (monotonic ns, wall ns), raw value, current (A)."""
+
+    mono_ns: int
+    wall_ns: int
+    raw: int
+    commanded: float      # A, after unit conversion, before clamping
+    applied: float        # A, what the power stage drives (0 unless OPERATION ENABLED + mode)
+    source: str           # 'rpdo' or 'sdo'
+
+
+@dataclass
+class FaultSettings:
+    """Injected faults; change through SimEpos methods (thread-safe enough: plain attributes)."""
+
+    heartbeat_stopped: bool = False
+    sdo_silent: bool = False
+    rx_delay_s: float = 0.0
+    tx_delay_s: float = 0.0
+    rx_drop_fraction: float = 0.0
+    tx_drop_fraction: float = 0.0
+    rx_drop_next: int = 0
+    tx_drop_next: int = 0
+
+
+@dataclass
+class LinkStats:
+    rx_frames: int = 0
+    rx_dropped: int = 0
+    tx_frames: int = 0
+    tx_dropped: int = 0
+
+
+_POWERED = frozenset({State.OPERATION_ENABLED})
+SW_FOLLOWS_COMMAND = 1 << 12   # cyclic synchronous / current mode: drive follows the setpoint
+
+
+def drive_step(state: State, controlword: int, previous: int,
+               quick_stop_option: int) -> tuple[State, list[int]]:
+    """What the drive does with one controlword: (new state, transition numbers fired)."""
+    cmd = cia402.decode_controlword(controlword, previous)
+    if cmd is None:
+        return state, []
+    if cmd is Command.FAULT_RESET:
+        return (State.SWITCH_ON_DISABLED, [15]) if state is State.FAULT else (state, [])
+    if state is State.READY_TO_SWITCH_ON and cmd is Command.ENABLE_OPERATION:
+        return State.OPERATION_ENABLED, [3, 4]
+    if state is State.OPERATION_ENABLED and cmd is Command.QUICK_STOP and quick_stop_option == 0:
+        return State.SWITCH_ON_DISABLED, [9]
+    t = cia402.apply_command(state, cmd, allow_quick_stop_recovery=5 <= quick_stop_option <= 8)
+    return (t.target, [t.number]) if t is not None else (state, [])
+
+
+class NullPlant:
+    """A motor on no arm: holds the commanded current, never moves (for protocol-only tests)."""
+
+    def __init__(self) -> None:
+        self.current = 0.0
+
+    def set_current(self, current: float, t_ns: int) -> None:
+        self.current = current
+
+    def sample(self, t_ns: int) -> tuple[float, float, float]:
+        return 0.0, 0.0, self.current
+
+
+# ------------------------------------------------------------------------------------------------
+# Object dictionary
+# ------------------------------------------------------------------------------------------------
+def build_object_dictionary(cfg: DriveConfig) -> ObjectDictionary:
+    """The drive's object dictionary: ``epos_od.OBJECTS`` with the drive-only objects, motor data
+    from ``cfg`` (mA, µNm/A, µNm = nominal current x kt)."""
+    motor = MotorData.from_units(cfg.units(), int(round(cfg.current_limit * 1000)))
+    return epos_od.build_object_dictionary(cfg.family, cfg.node_id, motor=motor, drive=True,
+                                           quick_stop_option=cfg.quick_stop_option,
+                                           device_name=f"{cfg.family.upper()} (simulated)")
+
+
+# ------------------------------------------------------------------------------------------------
+# The link between one drive and the canopen Network: fault injection + arrival stamps
+# ------------------------------------------------------------------------------------------------
+class _DelayLine:
+    """Runs callables at given monotonic instants on one thread, in due order (FIFO on ties)."""
+
+    def __init__(self, name: str) -> None:
+        self._heap: list[tuple[int, int, Callable[[], None]]] = []
+        self._seq = 0
+        self._cv = threading.Condition()
+        self._stop = False
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def put(self, due_ns: int, fn: Callable[[], None]) -> None:
+        with self._cv:
+            self._seq += 1
+            heapq.heappush(self._heap, (due_ns, self._seq, fn))
+            self._cv.notify()
+
+    def _run(self) -> None:
+        while True:
+            with self._cv:
+                while not self._stop and (not self._heap or self._heap[0][0] > time.monotonic_ns()):
+                    wait = None if not self._heap else (self._heap[0][0] - time.monotonic_ns()) * 1e-9
+                    self._cv.wait(wait if wait is None else max(wait, 0.0))
+                if self._stop:
+                    return
+                _, _, fn = heapq.heappop(self._heap)
+            try:
+                fn()
+            except Exception:  # a delayed frame must not kill the line
+                pass
+
+    def close(self) -> None:
+        with self._cv:
+            self._stop = True
+            self._cv.notify()
+        self._thread.join(timeout=2.0)
+
+
+class _PeriodicSender:
+    """canopen-compatible periodic task (stop/update) that sends through the drive's link.
+
+    Replaces canopen's use of the bus's cyclic sender, so heartbeats obey fault injection (and
+    python-can-remote's broken ``modify_data`` is never involved)."""
+
+    def __init__(self, link: "_Link", can_id: int, data: bytes, period: float) -> None:
+        self._link, self._id, self._data, self._period = link, can_id, bytes(data), period
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"periodic-{can_id:03X}", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        nxt = time.monotonic()
+        while not self._stop.is_set():
+            if not (self._id & 0x780 == 0x700 and self._link.faults.heartbeat_stopped):
+                try:
+                    self._link.send_message(self._id, self._data)
+                except Exception:
+                    pass
+            nxt += self._period
+            now = time.monotonic()
+            if nxt < now:               # held off the CPU: skip the missed beats, no burst
+                nxt = now + self._period
+            self._stop.wait(max(0.0, nxt - now))
+
+    def update(self, data: Any) -> None:
+        self._data = bytes(data)
+
+    def stop(self) -> None:
+        self._stop.set()
+        if threading.current_thread() is not self._thread:
+            self._thread.join(timeout=2.0)
+
+
+class _Link:
+    """What one drive's LocalNode sees as its network: the real canopen Network plus faults.
+
+    Incoming frames are stamped (monotonic and wall ns) before they are dispatched, then dropped,
+    delayed or passed on; outgoing frames likewise."""
+
+    def __init__(self, network: canopen.Network, faults: FaultSettings, node_id: int,
+                 seed: Optional[int] = None) -> None:
+        self.network, self.faults, self.node_id = network, faults, node_id
+        self.stats = LinkStats()
+        self.rx_by_id: dict[int, int] = {}        # frames seen per COB-ID (diagnostics)
+        self.rx_mono_ns = 0
+        self.rx_wall_ns = 0
+        self._wrappers: dict[tuple[int, Any], Callable] = {}
+        self._rng = random.Random(seed)
+        self._dispatch = threading.RLock()
+        self._delay: Optional[_DelayLine] = None
+        self._send_lock = threading.Lock()
+
+    def _delay_line(self) -> _DelayLine:
+        if self._delay is None:
+            self._delay = _DelayLine(f"epos{self.node_id}-delay")
+        return self._delay
+
+    def _drop(self, direction: str) -> bool:
+        f = self.faults
+        nxt = f"{direction}_drop_next"
+        if getattr(f, nxt) > 0:
+            setattr(f, nxt, getattr(f, nxt) - 1)
+            return True
+        frac = getattr(f, f"{direction}_drop_fraction")
+        return frac > 0.0 and self._rng.random() < frac
+
+    # canopen Network interface used by LocalNode / NmtSlave / PdoMap / EmcyProducer / SdoServer
+    def subscribe(self, can_id: int, callback: Callable) -> None:
+        key = (can_id, callback)
+        if key in self._wrappers:
+            return
+
+        def wrapper(cid: int, data: bytearray, timestamp: float, _cb=callback) -> None:
+            mono, wall = time.monotonic_ns(), time.time_ns()
+            self.stats.rx_frames += 1
+            self.rx_by_id[cid] = self.rx_by_id.get(cid, 0) + 1
+            f = self.faults
+            if f.sdo_silent and cid == 0x600 + self.node_id:
+                return
+            if self._drop("rx"):
+                self.stats.rx_dropped += 1
+                return
+            data = bytes(data)
+            if f.rx_delay_s > 0.0:
+                due = mono + int(f.rx_delay_s * 1e9)
+                self._delay_line().put(due, lambda: self._deliver(_cb, cid, data, timestamp, None))
+                return
+            self._deliver(_cb, cid, data, timestamp, (mono, wall))
+
+        self._wrappers[key] = wrapper
+        self.network.subscribe(can_id, wrapper)
+
+    def _deliver(self, cb: Callable, cid: int, data: bytes, timestamp: float,
+                 stamps: Optional[tuple[int, int]]) -> None:
+        with self._dispatch:
+            if stamps is None:
+                stamps = (time.monotonic_ns(), time.time_ns())
+            self.rx_mono_ns, self.rx_wall_ns = stamps
+            cb(cid, bytearray(data), timestamp)
+
+    def unsubscribe(self, can_id: int, callback: Optional[Callable] = None) -> None:
+        for key in [k for k in self._wrappers if k[0] == can_id and callback in (None, k[1])]:
+            w = self._wrappers.pop(key)
+            try:
+                self.network.unsubscribe(can_id, w)
+            except (KeyError, ValueError):
+                pass
+
+    def unsubscribe_all(self) -> None:
+        for cid, cb in list(self._wrappers):
+            self.unsubscribe(cid, cb)
+
+    def send_message(self, can_id: int, data: Any, remote: bool = False) -> None:
+        data = bytes(data)
+        if self._drop("tx"):
+            self.stats.tx_dropped += 1
+            return
+        if self.faults.tx_delay_s > 0.0:
+            due = time.monotonic_ns() + int(self.faults.tx_delay_s * 1e9)
+            self._delay_line().put(due, lambda: self._send_now(can_id, data, remote))
+            return
+        self._send_now(can_id, data, remote)
+
+    def _send_now(self, can_id: int, data: bytes, remote: bool) -> None:
+        self.stats.tx_frames += 1
+        self.network.send_message(can_id, data, remote)
+
+    def send_periodic(self, can_id: int, data: Any, period: float, remote: bool = False) -> _PeriodicSender:
+        return _PeriodicSender(self, can_id, bytes(data or b""), period)
+
+    def close(self) -> None:
+        self.unsubscribe_all()
+        if self._delay is not None:
+            self._delay.close()
+            self._delay = None
+
+
+# ------------------------------------------------------------------------------------------------
+# The drive
+# ------------------------------------------------------------------------------------------------
+class _DriveNode(canopen.LocalNode):
+    """LocalNode that tells its drive after every stored write (so PDO maps can be reloaded)."""
+
+    def __init__(self, drive: "SimEpos", node_id: int, dictionary: ObjectDictionary) -> None:
+        self._drive = drive
+        super().__init__(node_id, dictionary)
+
+    def set_data(self, index: int, subindex: int, data: bytes, check_writable: bool = False) -> None:
+        super().set_data(index, subindex, data, check_writable)
+        self._drive._after_write(index, subindex)
+
+
+class SimEpos:
+    """One emulated EPOS drive attached to a canopen Network, pushing current into a plant.
+
+    ``plant`` is anything with ``set_current(A, t_ns)`` and ``sample(t_ns) -> (q rad, qd rad/s,
+    I A)`` at the JOINT (``sim_arm.JointPort``); default a motor on no arm (``NullPlant``).
+    """
+
+    def __init__(self, config: DriveConfig, plant: Any = None, *, seed: Optional[int] = None,
+                 log_capacity: int = 200_000) -> None:
+        self.config = config
+        self.family = config.family
+        self.plant = plant if plant is not None else NullPlant()
+        self.faults = FaultSettings()
+        self._seed = seed
+        self._lock = threading.RLock()
+        self._log: deque[SetpointRecord] = deque(maxlen=log_capacity)
+        self._dict = build_object_dictionary(config)
+        # encoder / velocity conversions (the suite's one place for them); the setpoint scale
+        # comes from the drive's own objects (0x6076, 0x3001:05), which a master may rewrite
+        self._units = config.units()
+        self.node = _DriveNode(self, config.node_id, self._dict)
+        self.node.add_read_callback(self._on_read)
+        self.node.add_write_callback(self._on_write)
+        self._link: Optional[_Link] = None
+        self._consumers: dict[int, float] = {}        # node id -> timeout s (0x1016)
+        self._hb_seen: dict[int, float] = {}
+        self._hb_tripped: set[int] = set()
+        self._consumer_stop = threading.Event()
+        self._consumer_thread: Optional[threading.Thread] = None
+        self._reset_application()
+
+    # -- state ------------------------------------------------------------------------------
+    def _reset_application(self) -> None:
+        with self._lock:
+            self.node.data_store.clear()
+            self._refresh_settings()
+            self.state = State.SWITCH_ON_DISABLED    # transitions 0 and 1 happen at power-on
+            self._controlword = 0
+            self._setpoint_raw = 0
+            self._commanded = 0.0
+            self._applied = 0.0
+            self._fault_code = 0
+            self._error_register = 0
+            self._sync_counts: dict[int, int] = {}
+            self._tpdo_structs: dict[tuple, struct.Struct] = {}
+            self._pending_sync_rpdo: list[Any] = []
+            self.transitions: list[int] = []
+            self._in_rpdo = False
+        self.plant.set_current(0.0, time.monotonic_ns())
+
+    @property
+    def node_id(self) -> int:
+        return self.config.node_id
+
+    @property
+    def link_stats(self) -> LinkStats:
+        return self._link.stats if self._link is not None else LinkStats()
+
+    @property
+    def nmt_state(self) -> str:
+        return self.node.nmt.state
+
+    @property
+    def applied_current(self) -> float:
+        """A the power stage drives now."""
+        return self._applied
+
+    @property
+    def fault_code(self) -> int:
+        return self._fault_code
+
+    def statusword(self) -> int:
+        follows = self.state is State.OPERATION_ENABLED and self._in_current_mode()
+        return cia402.encode_statusword(self.state, extra=SW_FOLLOWS_COMMAND if follows else 0)
+
+    def _raw(self, index: int, sub: int = 0) -> Any:
+        obj = self._dict[index] if sub == 0 and isinstance(self._dict[index], ODVariable) \
+            else self._dict[index][sub]
+        return obj.decode_raw(self.node.get_data(index, sub))
+
+    def _refresh_settings(self) -> None:
+        """Cache the drive settings the 1 kHz path needs (re-read after writes to them)."""
+        self._mode_c = int(self._raw(0x6060))
+        self._qs_c = int(self._raw(0x605A))
+        self._limit_c = self._raw(0x3001 if self.family == "epos4" else 0x6410, 2) / 1000.0
+        if self.family == "epos4":
+            kt = self._raw(0x3001, 5)
+            self._scale_c = self._raw(0x6076) / kt / 1000.0 if kt else 0.0
+        else:
+            self._scale_c = 1.0 / 1000.0
+
+    _SETTINGS = frozenset({0x6060, 0x605A, 0x3001, 0x6410, 0x6076})
+
+    def _mode(self) -> int:
+        return self._mode_c
+
+    def _in_current_mode(self) -> bool:
+        return self._mode_c == CURRENT_MODE[self.family]
+
+    def current_limit(self) -> float:
+        """A: the drive's own output current limit (0x3001:02 / 0x6410:02)."""
+        return self._limit_c
+
+    def setpoint_to_current(self, raw: int) -> float:
+        """A for a raw setpoint: EPOS4 ‰ of 0x6076 (· 0x6076 / 0x3001:05); EPOS2 mA."""
+        return raw * self._scale_c
+
+    def current_to_setpoint(self, amps: float) -> int:
+        """Inverse of ``setpoint_to_current`` (rounded to the wire's integer)."""
+        return int(round(amps / self._scale_c)) if self._scale_c else 0
+
+    # -- network ----------------------------------------------------------------------------
+    def attach(self, network: canopen.Network) -> None:
+        """Join ``network`` (connected canopen Network); call ``boot()`` next."""
+        if self._link is not None:
+            raise RuntimeError(f"drive {self.node_id} is already attached")
+        self._link = _Link(network, self.faults, self.node_id, self._seed)
+        self.node.associate_network(self._link)
+        self._link.unsubscribe(0, self.node.nmt.on_command)
+        self._link.unsubscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
+        self._link.subscribe(0, self._on_nmt)
+        self._link.subscribe(self.node.sdo.rx_cobid, self._on_sdo)
+        self._link.subscribe(0x80, self._on_sync)
+        for m in self.node.rpdo.map.values():
+            m.add_callback(self._on_rpdo)
+
+    def boot(self) -> None:
+        """Power-on: boot-up frame, PRE-OPERATIONAL, heartbeat per 0x1017."""
+        self._reload_pdos()
+        self._configure_consumers()
+        self.node.nmt.send_command(0x81)     # INITIALISING -> boot-up frame
+        self.node.nmt.send_command(0x80)     # PRE-OPERATIONAL, starts heartbeat if 0x1017 > 0
+
+    def close(self) -> None:
+        """Stop heartbeat and timers and leave the network (the network itself stays open)."""
+        self.node.nmt.stop_heartbeat()
+        self._consumer_stop.set()
+        if self._link is not None:
+            self._link.close()
+            self._link = None
+
+    def _reload_pdos(self, which: Optional[tuple[str, int]] = None) -> None:
+        """(Re)read PDO maps from the object dictionary; re-subscribe RPDO COB-IDs."""
+        for kind, maps in (("rpdo", self.node.rpdo.map), ("tpdo", self.node.tpdo.map)):
+            for no, m in maps.items():
+                if which is not None and which != (kind, no):
+                    continue
+                old = m.cob_id if (kind == "rpdo" and m.enabled) else None
+                m.read()                              # also subscribes enabled maps
+                if kind == "tpdo" and m.enabled:
+                    self._link.unsubscribe(m.cob_id, m.on_message)   # our own transmit PDOs
+                if kind == "rpdo" and self._link is not None:
+                    if old is not None and old != m.cob_id:
+                        self._link.unsubscribe(old, m.on_message)
+                    if m.enabled:
+                        self._link.subscribe(m.cob_id, m.on_message)
+                self._sync_counts.pop(id(m), None)
+
+    # -- SDO hooks ----------------------------------------------------------------------------
+    def _live(self, t_ns: int) -> dict[tuple[int, int], Any]:
+        """Values of the live objects at ``t_ns``."""
+        q, qd, amps = self.plant.sample(t_ns)
+        counts = self._units.rad_to_increments(q)
+        counts = ((counts + 2**31) % 2**32) - 2**31      # INT32 wraps like the drive's counter
+        rpm = self._units.rad_s_to_rpm(qd)
+        stopped = qd == 0.0
+        with self._lock:
+            if (self.state is State.QUICK_STOP_ACTIVE and stopped
+                    and 1 <= self._qs_c <= 4):
+                self._set_state(State.SWITCH_ON_DISABLED, 12, t_ns)   # quick stop done
+        ma = int(round(amps * 1000.0))
+        vals: dict[tuple[int, int], Any] = {
+            (0x6041, 0): self.statusword(),
+            (0x6061, 0): self._mode(),
+            (0x6064, 0): counts,
+            (0x606C, 0): rpm,
+            (0x1001, 0): self._error_register,
+        }
+        if self.family == "epos4":
+            vals[(0x30D1, 1)] = vals[(0x30D1, 2)] = ma
+            vals[(0x6077, 0)] = max(-32768, min(32767, self.current_to_setpoint(amps)))
+        else:
+            vals[(0x6078, 0)] = vals[(0x2027, 0)] = max(-32768, min(32767, ma))
+        return vals
+
+    _LIVE = {(0x6041, 0), (0x6061, 0), (0x6064, 0), (0x606C, 0), (0x1001, 0), (0x30D1, 1),
+             (0x30D1, 2), (0x6077, 0), (0x6078, 0), (0x2027, 0)}
+
+    def _on_read(self, index: int, subindex: int, od: ODVariable) -> Any:
+        if (index, subindex) in self._LIVE:
+            return self._live(time.monotonic_ns()).get((index, subindex))
+        return None
+
+    def _on_write(self, index: int, subindex: int, od: ODVariable, data: bytes) -> None:
+        """Validate writes before they are stored (raise SdoAbortedError to refuse)."""
+        value = od.decode_raw(data) if od.data_type in _NUMBER_TYPES else None
+        if 0x1400 <= index <= 0x15FF or 0x1800 <= index <= 0x19FF:
+            self._check_comm_write(index, subindex, value)
+        elif 0x1600 <= index <= 0x17FF or 0x1A00 <= index <= 0x1BFF:
+            self._check_map_write(index, subindex, value)
+        elif index == 0x6060:
+            if value not in VALID_MODES[self.family]:
+                raise SdoAbortedError(ABORT_VALUE_RANGE)
+        elif index == 0x1003 and subindex == 0 and value != 0:
+            raise SdoAbortedError(ABORT_VALUE_RANGE)
+        elif index == 0x605A and not -1 <= value <= 8:
+            raise SdoAbortedError(ABORT_VALUE_RANGE)
+
+    def _check_comm_write(self, index: int, subindex: int, value: int) -> None:
+        if subindex != 1:
+            return
+        cur = self._raw(index, 1)
+        valid_now = not cur & PDO_VALID_BIT
+        if valid_now and not value & PDO_VALID_BIT and (value & 0x7FF) != (cur & 0x7FF):
+            raise SdoAbortedError(ABORT_VALUE_RANGE)   # change COB-ID only while invalid
+
+    def _check_map_write(self, index: int, subindex: int, value: int) -> None:
+        comm = index - 0x200
+        if not self._raw(comm, 1) & PDO_VALID_BIT:
+            raise SdoAbortedError(ABORT_DEVICE_STATE)  # mapping changes need the PDO disabled
+        if subindex == 0:
+            if value > 8:
+                raise SdoAbortedError(ABORT_VALUE_RANGE)
+            bits = 0
+            for s in range(1, value + 1):
+                entry = self._raw(index, s)
+                self._check_entry(entry, receive=index < 0x1A00)
+                bits += entry & 0xFF
+            if bits > 64:
+                raise SdoAbortedError(ABORT_PDO_TOO_LONG)
+        else:
+            if self._raw(index, 0) != 0:
+                raise SdoAbortedError(ABORT_DEVICE_STATE)  # write count 0 before the entries
+            if value:
+                self._check_entry(value, receive=index < 0x1A00)
+
+    def _check_entry(self, entry: int, receive: bool) -> None:
+        idx, sub, bits = entry >> 16, (entry >> 8) & 0xFF, entry & 0xFF
+        if idx not in self._dict:
+            raise SdoAbortedError(ABORT_NOT_IN_OD)
+        obj = self._dict[idx]
+        if not isinstance(obj, ODVariable):
+            if sub not in obj:
+                raise SdoAbortedError(0x06090011)
+            obj = obj[sub]
+        if not obj.pdo_mappable or (receive and not obj.writable) or bits != len(obj):
+            raise SdoAbortedError(ABORT_NOT_MAPPABLE)
+
+    def _after_write(self, index: int, subindex: int) -> None:
+        """After a write is stored: reload PDO maps, run the drive logic."""
+        if index in self._SETTINGS:
+            self._refresh_settings()
+        if 0x1400 <= index <= 0x17FF:
+            self._reload_pdos(("rpdo", (index & 0x1FF) + 1))
+        elif 0x1800 <= index <= 0x1BFF:
+            self._reload_pdos(("tpdo", (index & 0x1FF) + 1))
+        elif index == 0x1016:
+            self._configure_consumers()
+        elif index == 0x1003 and subindex == 0:
+            for s in range(1, 9):
+                self.node.data_store.get(0x1003, {}).pop(s, None)
+        elif self._in_rpdo:
+            return                                   # the RPDO handler applies once at the end
+        elif index == 0x6040:
+            self._apply_controlword(self._raw(0x6040), time.monotonic_ns())
+            self._apply(time.monotonic_ns())
+        elif (index, subindex) == SETPOINT_OBJ[self.family]:
+            t, w = time.monotonic_ns(), time.time_ns()
+            self._setpoint(self._raw(index, subindex), t, w, "sdo")
+        elif index in (0x6060, 0x3001, 0x6410, 0x6076):
+            self._apply(time.monotonic_ns())
+
+    # -- drive logic --------------------------------------------------------------------------
+    def _set_state(self, new: DriveState, transition: int, t_ns: int) -> None:
+        self.state = new
+        self.transitions.append(transition)
+        if new not in _POWERED:
+            self._apply(t_ns)
+
+    def _apply_controlword(self, cw: int, t_ns: int) -> None:
+        with self._lock:
+            prev, self._controlword = self._controlword, cw
+            new, fired = drive_step(self.state, cw, prev, self._qs_c)
+            if 15 in fired:
+                self._clear_fault()
+            for tr in fired:
+                self._set_state(new, tr, t_ns)
+
+    def _setpoint(self, raw: int, t_ns: int, wall_ns: int, source: str) -> None:
+        with self._lock:
+            self._setpoint_raw = raw
+            self._apply(t_ns)
+            self._log.append(SetpointRecord(t_ns, wall_ns, raw, self._commanded, self._applied, source))
+
+    def _apply(self, t_ns: int) -> None:
+        """Recompute the power stage's current and push it to the plant at ``t_ns``."""
+        with self._lock:
+            self._commanded = self.setpoint_to_current(self._setpoint_raw)
+            lim = self.current_limit()
+            amps = max(-lim, min(lim, self._commanded))
+            if self.state not in _POWERED or not self._in_current_mode():
+                amps = 0.0
+            if amps != self._applied or self._applied == 0.0:
+                self.plant.set_current(amps, t_ns)
+            self._applied = amps
+
+    def reapply(self) -> None:
+        """Push the current the power stage drives now into the plant again (after a plant reset)."""
+        self._apply(time.monotonic_ns())
+
+    def _on_rpdo(self, pdo_map: Any) -> None:
+        if self.node.nmt.state != "OPERATIONAL":
+            return
+        t_ns, wall = self._link.rx_mono_ns, self._link.rx_wall_ns
+        if pdo_map.trans_type is not None and pdo_map.trans_type <= 240:
+            self._pending_sync_rpdo.append((pdo_map, bytes(pdo_map.data)))
+            return
+        self._take_rpdo(pdo_map, bytes(pdo_map.data), t_ns, wall)
+
+    def _take_rpdo(self, pdo_map: Any, data: bytes, t_ns: int, wall: int) -> None:
+        sp_key = SETPOINT_OBJ[self.family]
+        with self._lock:
+            self._in_rpdo = True
+            cw = sp = None
+            try:
+                store = self.node.data_store
+                for var in pdo_map.map:
+                    byte0 = var.offset // 8
+                    chunk = data[byte0:byte0 + len(var.od) // 8]
+                    if var.index in self._SETTINGS:       # validated + cached: full path
+                        self.node.set_data(var.index, var.subindex, chunk)
+                    else:                                 # plain process data: just store it
+                        store.setdefault(var.index, {})[var.subindex] = chunk
+                    if var.index == 0x6040:
+                        cw = var.od.decode_raw(chunk)
+                    elif (var.index, var.subindex) == sp_key:
+                        sp = var.od.decode_raw(chunk)
+            finally:
+                self._in_rpdo = False
+            if cw is not None:
+                self._apply_controlword(cw, t_ns)
+            if sp is not None:
+                self._setpoint(sp, t_ns, wall, "rpdo")
+            else:
+                self._apply(t_ns)
+
+    def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if self.node.nmt.state != "OPERATIONAL":
+            return
+        t_ns, wall = self._link.rx_mono_ns, self._link.rx_wall_ns
+        pending, self._pending_sync_rpdo = self._pending_sync_rpdo, []
+        for m, d in pending:
+            self._take_rpdo(m, d, t_ns, wall)
+        live: Optional[dict] = None
+        for m in self.node.tpdo.map.values():
+            if not m.enabled or m.trans_type is None or not 1 <= m.trans_type <= 240:
+                continue
+            n = self._sync_counts.get(id(m), 0) + 1
+            if n < m.trans_type:
+                self._sync_counts[id(m)] = n
+                continue
+            self._sync_counts[id(m)] = 0
+            if live is None:
+                live = self._live(t_ns)
+            values = [live[key] if key in live else od_var.decode_raw(self.node.get_data(*key))
+                      for key, od_var in self._tpdo_layout(m)]
+            self._link.send_message(m.cob_id, self._tpdo_struct(m).pack(*values))
+
+    def _tpdo_layout(self, m: Any) -> list[tuple[tuple[int, int], ODVariable]]:
+        return [((v.index, v.subindex), v.od) for v in m.map]
+
+    def _tpdo_struct(self, m: Any) -> struct.Struct:
+        """Packer of a TPDO's mapped objects (entries are whole objects, checked on mapping)."""
+        key = tuple((v.index, v.subindex) for v in m.map)
+        st = self._tpdo_structs.get(key)
+        if st is None:
+            st = struct.Struct("<" + "".join(v.od.STRUCT_TYPES[v.od.data_type].format.lstrip("<")
+                                             for v in m.map))
+            self._tpdo_structs[key] = st
+        return st
+
+    def _on_sdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if self.node.nmt.state != "STOPPED":          # CiA 301: no SDO in STOPPED
+            self.node.sdo.on_request(can_id, data, timestamp)
+
+    def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        if len(data) < 2:
+            return
+        cmd, nid = data[0], data[1]
+        if nid not in (0, self.node_id):
+            return
+        if cmd == 0x81:
+            self.reset_node()
+        elif cmd == 0x82:
+            self.reset_communication()
+        elif cmd in (0x01, 0x02, 0x80):
+            self.node.nmt.on_command(can_id, data, timestamp)
+
+    def reset_node(self) -> None:
+        """NMT reset node: application and communication back to defaults, boot-up again."""
+        self.node.nmt.stop_heartbeat()
+        self._reset_application()
+        self.boot()
+
+    def reset_communication(self) -> None:
+        """NMT reset communication: 0x1000-0x1FFF back to defaults, boot-up again."""
+        self.node.nmt.stop_heartbeat()
+        for idx in [i for i in self.node.data_store if 0x1000 <= i <= 0x1FFF and i not in (0x1001, 0x1003)]:
+            del self.node.data_store[idx]
+        self.boot()
+
+    # -- heartbeat consumer ---------------------------------------------------------------------
+    def _configure_consumers(self) -> None:
+        """(Re)read 0x1016 and watch the heartbeats it names."""
+        wanted: dict[int, float] = {}
+        for sub in range(1, 5):
+            v = self._raw(0x1016, sub)
+            nid, ms = (v >> 16) & 0x7F, v & 0xFFFF
+            if nid and ms and nid != self.node_id:
+                wanted[nid] = ms / 1000.0
+        if self._link is not None:
+            for nid in set(self._consumers) - set(wanted):
+                self._link.unsubscribe(0x700 + nid, self._on_consumed_heartbeat)
+            for nid in set(wanted) - set(self._consumers):
+                self._link.subscribe(0x700 + nid, self._on_consumed_heartbeat)
+        self._consumers = wanted
+        for nid in list(self._hb_seen):
+            if nid not in wanted:
+                del self._hb_seen[nid]
+        if wanted and (self._consumer_thread is None or not self._consumer_thread.is_alive()):
+            self._consumer_stop.clear()
+            self._consumer_thread = threading.Thread(target=self._watch_consumers, daemon=True,
+                                                     name=f"epos{self.node_id}-hb-consumer")
+            self._consumer_thread.start()
+
+    def _on_consumed_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        nid = can_id - 0x700
+        self._hb_seen[nid] = time.monotonic()
+        self._hb_tripped.discard(nid)
+
+    def _watch_consumers(self) -> None:
+        while not self._consumer_stop.wait(0.002):
+            if not self._consumers:
+                return
+            if self.node.nmt.state not in ("PRE-OPERATIONAL", "OPERATIONAL"):
+                continue
+            now = time.monotonic()
+            for nid, limit in list(self._consumers.items()):
+                seen = self._hb_seen.get(nid)
+                if seen is not None and now - seen > limit and nid not in self._hb_tripped:
+                    self._hb_tripped.add(nid)
+                    self.raise_emcy(0x8130, data=bytes([nid]))   # heartbeat error
+
+    # -- faults -------------------------------------------------------------------------------
+    @staticmethod
+    def error_register_for(code: int) -> int:
+        """CiA 301 error register bits for an EMCY code: bit 0 generic + the code's category."""
+        reg = 0x01
+        top = code & 0xF000
+        reg |= {0x2000: 0x02, 0x3000: 0x04, 0x4000: 0x08, 0x8000: 0x10}.get(top, 0)
+        if code & 0xFF00 == 0xFF00 or top in (0x5000, 0x6000, 0x7000):
+            reg |= 0x80
+        return reg
+
+    def raise_emcy(self, code: int = 0x1000, register: Optional[int] = None,
+                   data: bytes = b"") -> None:
+        """Drive fault: transitions 13/14 to FAULT, current 0, EMCY (code, register) sent."""
+        if not 0x1000 <= code <= 0xFFFF:
+            raise SimConfigError(f"EMCY code must be 0x1000..0xFFFF, got {code:#x}")
+        t = time.monotonic_ns()
+        reg = self.error_register_for(code) if register is None else int(register) & 0xFF
+        with self._lock:
+            if self.state is not State.FAULT:
+                self._set_state(State.FAULT_REACTION_ACTIVE, 13, t)
+                self._set_state(State.FAULT, 14, t)
+            self._fault_code, self._error_register = code, reg
+            hist = self.node.data_store.setdefault(0x1003, {})
+            old = [struct.unpack("<L", hist[s])[0] for s in range(1, 9) if s in hist]
+            new = ([code] + old)[:8]
+            for s, v in enumerate(new, 1):
+                hist[s] = struct.pack("<L", v)
+            hist[0] = bytes([len(new)])
+        if self._link is not None and self.node.nmt.state in ("PRE-OPERATIONAL", "OPERATIONAL"):
+            self.node.emcy.send(code, reg, bytes(data)[:5])
+
+    def _clear_fault(self) -> None:
+        self._fault_code, self._error_register = 0, 0
+        if self._link is not None:
+            self.node.emcy.reset(0)
+
+    def stop_heartbeat(self, stopped: bool = True) -> None:
+        """Fault: stop (or resume) producing heartbeats without changing 0x1017."""
+        self.faults.heartbeat_stopped = bool(stopped)
+
+    def set_sdo_silent(self, silent: bool = True) -> None:
+        """Fault: ignore (or answer again) SDO requests."""
+        self.faults.sdo_silent = bool(silent)
+
+    def set_delay(self, ms: float, direction: str = "both") -> None:
+        """Fault: delay frames to ('rx'), from ('tx') or both ways by ``ms`` milliseconds."""
+        if not (ms >= 0 and math.isfinite(ms)):
+            raise SimConfigError(f"delay must be >= 0 ms, got {ms}")
+        for d in self._directions(direction):
+            setattr(self.faults, f"{d}_delay_s", ms / 1000.0)
+
+    def drop_fraction(self, fraction: float, direction: str = "rx") -> None:
+        """Fault: drop each frame with probability ``fraction`` (0..1)."""
+        if not 0.0 <= fraction <= 1.0:
+            raise SimConfigError(f"drop fraction must be in 0..1, got {fraction}")
+        for d in self._directions(direction):
+            setattr(self.faults, f"{d}_drop_fraction", float(fraction))
+
+    def drop_next(self, n: int, direction: str = "rx") -> None:
+        """Fault: drop the next ``n`` frames."""
+        if int(n) < 0:
+            raise SimConfigError(f"number of frames to drop must be >= 0, got {n}")
+        for d in self._directions(direction):
+            setattr(self.faults, f"{d}_drop_next", int(n))
+
+    def clear_injected_faults(self) -> None:
+        """Remove every injected communication fault (a drive FAULT needs a fault reset)."""
+        for k, v in FaultSettings().__dict__.items():
+            setattr(self.faults, k, v)
+
+    @staticmethod
+    def _directions(direction: str) -> tuple[str, ...]:
+        if direction not in ("rx", "tx", "both"):
+            raise SimConfigError(f"direction must be 'rx', 'tx' or 'both', got {direction!r}")
+        return ("rx", "tx") if direction == "both" else (direction,)
+
+    # -- records ------------------------------------------------------------------------------
+    def setpoint_log(self) -> list[SetpointRecord]:
+        """Every received setpoint so far (oldest first, up to ``log_capacity``)."""
+        with self._lock:
+            return list(self._log)
+
+    def clear_setpoint_log(self) -> None:
+        with self._lock:
+            self._log.clear()
+
+

@@ -1,0 +1,43 @@
+"""Compile (or load from numba's on-disk cache) every planner kernel, so no request pays for it.
+
+``./run setup`` calls this once after installing; the planner node's workers call it at start.
+A cold compile takes tens of seconds to minutes on a 2-core machine; a cached load about 1 s.
+
+    python -m ff_planner.cli.warmup [--quiet]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+
+def warm_all(log=print) -> dict[str, float]:
+    """Warm the 1-DOF and 2-DOF kernels; returns seconds per part."""
+    from ff_planner.optimize import robust1d
+    from ff_planner.optimize import robust2d
+    from ff_planner.model import scara2
+
+    times: dict[str, float] = {}
+    for name, fn in (("arm1dof", robust1d.warmup), ("scara2", scara2.warm_up),
+                     ("robust2d", robust2d.warm_up)):
+        t0 = time.perf_counter()
+        fn()
+        times[name] = time.perf_counter() - t0
+        log(f"[ff] {name} kernels ready in {times[name]:.1f} s")
+    return times
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m ff_planner.cli.warmup", description=__doc__.split("\n")[0])
+    ap.add_argument("--quiet", action="store_true", help="print nothing")
+    args = ap.parse_args(argv)
+    t0 = time.perf_counter()
+    warm_all(log=(lambda *_: None) if args.quiet else (lambda m: print(m, file=sys.stderr)))
+    if not args.quiet:
+        print(f"[ff] planner kernels ready in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

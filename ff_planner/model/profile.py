@@ -1,0 +1,177 @@
+"""The planner's data types: a piecewise-constant current profile, a plan request and its result.
+
+These are what the library, the CLI, the motion file, the ROS messages (via ff_msgs_py) and the
+executor exchange. Units: s, A, rad, rad/s.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Optional, Sequence
+
+import numpy as np
+
+from ff_planner.model.params import Params, ParameterError, default_params, n_joints
+
+DEFAULT_COAST = 0.05  # s, zero-current coast at the end of every move (paper section 4.1.1)
+
+OBJECTIVES = ("robust-derivative", "robust-sampled", "time-optimal", "energy-optimal")
+
+
+class PlanningError(ValueError):
+    """A request the planner cannot serve as asked; the message says what to change."""
+
+    def __init__(self, message: str, code: str = "INVALID_REQUEST") -> None:
+        super().__init__(message)
+        self.code = code  # one of the PlanTrajectory error names: INVALID_REQUEST, UNREACHABLE, ...
+
+
+@dataclass
+class CurrentProfile:
+    """Piecewise-constant motor currents: step i holds ``currents[i]`` on [step_times[i], step_times[i+1]).
+
+    After ``step_times[-1]`` (= tf − coast) the current is zero until ``tf`` and beyond.
+    """
+
+    step_times: np.ndarray          # s, shape (N+1,), step_times[0] = 0
+    currents: np.ndarray            # A, shape (N, n_joints)
+    tf: float                       # s, move time
+    coast: float = DEFAULT_COAST    # s
+
+    def __post_init__(self) -> None:
+        self.step_times = np.asarray(self.step_times, dtype=float).reshape(-1)
+        cur = np.asarray(self.currents, dtype=float)
+        if cur.ndim == 1:
+            cur = cur.reshape(-1, 1)
+        self.currents = cur
+        self.tf = float(self.tf)
+        self.coast = float(self.coast)
+
+    @property
+    def n_steps(self) -> int:
+        return int(self.currents.shape[0])
+
+    @property
+    def n_joints(self) -> int:
+        return int(self.currents.shape[1])
+
+    @classmethod
+    def uniform(cls, currents: Sequence[Sequence[float]] | np.ndarray, tf: float,
+                coast: float = DEFAULT_COAST) -> "CurrentProfile":
+        """Equal-length steps filling [0, tf − coast] (the paper's parameterisation)."""
+        cur = np.asarray(currents, dtype=float)
+        if cur.ndim == 1:
+            cur = cur.reshape(-1, 1)
+        times = np.linspace(0.0, tf - coast, cur.shape[0] + 1)
+        return cls(times, cur, tf, coast)
+
+    def current_at(self, t: float) -> np.ndarray:
+        """Currents (A) commanded at time t (s); zero before 0 and after tf − coast."""
+        if t < self.step_times[0] or t >= self.step_times[-1]:
+            return np.zeros(self.n_joints)
+        i = int(np.searchsorted(self.step_times, t, side="right") - 1)
+        return self.currents[min(i, self.n_steps - 1)].copy()
+
+    def validate(self, i_max: Sequence[float] | None = None) -> None:
+        """Raise PlanningError if the profile is malformed or exceeds the current limits (A)."""
+        if self.step_times.shape[0] != self.n_steps + 1:
+            raise PlanningError(f"need n_steps + 1 = {self.n_steps + 1} step times, "
+                                f"got {self.step_times.shape[0]}")
+        if not (np.all(np.isfinite(self.step_times)) and np.all(np.isfinite(self.currents))):
+            raise PlanningError("step times and currents must be finite")
+        if not math.isfinite(self.tf) or not math.isfinite(self.coast) or self.coast < 0:
+            raise PlanningError("tf and coast must be finite, coast >= 0")
+        if abs(self.step_times[0]) > 1e-12 or np.any(np.diff(self.step_times) <= 0):
+            raise PlanningError("step times must start at 0 and increase strictly")
+        if self.step_times[-1] > self.tf - self.coast + 1e-9:
+            raise PlanningError(f"last step ends at {self.step_times[-1]:.6g} s, after "
+                                f"tf - coast = {self.tf - self.coast:.6g} s")
+        if i_max is not None:
+            lim = np.asarray(i_max, dtype=float).reshape(1, -1)
+            if np.any(np.abs(self.currents) > lim + 1e-9):
+                raise PlanningError(f"currents exceed the limit {lim.ravel().tolist()} A")
+
+
+@dataclass
+class PlanRequest:
+    """What to plan. ``params`` None = the model's paper preset."""
+
+    model: str = "arm1dof"
+    q0: Sequence[float] = (0.0,)             # rad
+    qf: Sequence[float] = (1.0,)             # rad
+    tf: float = 1.0                          # s
+    uncertain: Sequence[str] = ("pv", "pc", "pt")
+    objective: str = "robust-derivative"
+    steps: Optional[int] = None              # per joint; None = 2 + len(uncertain)
+    starts: int = 50
+    seed: int = 0
+    time_budget: float = 30.0                # s
+    coast: float = DEFAULT_COAST             # s
+    params: Optional[Params] = None
+    tol: float = 1e-6                        # robustness tolerance on |dq(tf)/dp| and |q(tf) - qf|
+
+    def resolved_params(self) -> Params:
+        return self.params if self.params is not None else default_params(self.model)
+
+    def n_steps(self) -> int:
+        return int(self.steps) if self.steps else 2 + len(self.uncertain)
+
+    def validate(self) -> None:
+        """Raise PlanningError/ParameterError with what to change; changes nothing."""
+        nj = n_joints(self.model)
+        p = self.resolved_params()
+        if p.model != self.model:
+            raise PlanningError(f"parameters are for model '{p.model}', request is for '{self.model}'")
+        for name, v in (("q0", self.q0), ("qf", self.qf)):
+            if len(v) != nj:
+                raise PlanningError(f"{name} needs {nj} value(s) for model '{self.model}', got {len(v)}")
+            if not all(math.isfinite(float(x)) for x in v):
+                raise PlanningError(f"{name} must be finite, got {list(v)}")
+        for name, v in (("tf", self.tf), ("coast", self.coast), ("time_budget", self.time_budget)):
+            if not math.isfinite(float(v)):
+                raise PlanningError(f"{name} must be finite, got {v}")
+        if self.coast < 0:
+            raise PlanningError(f"coast must be >= 0 s, got {self.coast}")
+        if self.tf <= self.coast:
+            raise PlanningError(f"move time tf = {self.tf} s must exceed the coast of {self.coast} s")
+        if self.objective not in OBJECTIVES:
+            raise PlanningError(f"unknown objective {self.objective!r}; use one of {', '.join(OBJECTIVES)}")
+        bad = [u for u in self.uncertain if u not in p.friction_keys]
+        if bad:
+            raise ParameterError(f"unknown uncertain parameter(s) {bad} for model '{self.model}'; "
+                                 f"choose from {', '.join(p.friction_keys)}")
+        if len(set(self.uncertain)) != len(self.uncertain):
+            raise PlanningError(f"uncertain parameters repeat: {list(self.uncertain)}")
+        n = self.n_steps()
+        if not 1 <= n <= 200:
+            raise PlanningError(f"steps per joint must be between 1 and 200, got {n}")
+        if self.starts < 1 or self.starts > 100000:
+            raise PlanningError(f"starts must be between 1 and 100000, got {self.starts}")
+        if self.time_budget <= 0:
+            raise PlanningError(f"time_budget must be > 0 s, got {self.time_budget}")
+
+
+@dataclass
+class PlanResult:
+    """A planned motion and how it was found. ``robust`` is judged on true derivatives."""
+
+    success: bool                    # a plan meeting the objective's tolerances was found
+    message: str
+    profile: Optional[CurrentProfile]
+    model: str
+    params: Optional[Params]
+    q0: np.ndarray
+    qf: np.ndarray
+    uncertain: list[str]
+    objective: str
+    q_final: np.ndarray = field(default_factory=lambda: np.zeros(0))     # rad, at tf, nominal
+    qd_final: np.ndarray = field(default_factory=lambda: np.zeros(0))    # rad/s, at tf, nominal
+    sensitivities: dict[str, float] = field(default_factory=dict)        # "pc" or "q1/pc2" -> rad per unit
+    robust: bool = False             # every |sensitivity| <= tol (true derivatives)
+    error_code: str = "OK"           # PlanTrajectory error name when not successful
+    best_effort: bool = False        # returned plan did not meet tolerances (labelled as such)
+    starts_tried: int = 0
+    iterations: int = 0
+    solve_time: float = 0.0          # s
+    warm_start: bool = False
+    extra: dict = field(default_factory=dict)   # objective-specific figures (e.g. sampled RMS)

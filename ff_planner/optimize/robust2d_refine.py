@@ -1,0 +1,91 @@
+"""Refine a held-link-2 robust plan for finite friction errors (section 6.2's sampled idea).
+
+Among joint-1 current profiles that keep every ∂q1(tf)/∂p_i = 0, q1(tf) = q1f, the final stop
+inside the coast and link 2 held with margin, SLSQP minimises the sum of squared REST-position
+errors of joint 1 with each uncertain joint-1 friction parameter at ±10 % and ±20 % alone and all
+of them at the ±20 % corners together. Joint 2 is held, so joint-2 friction changes do not move
+either joint while the hold margin lasts. Units: rad, A, s.
+"""
+from __future__ import annotations
+
+import itertools
+import time
+from typing import Sequence
+
+import numpy as np
+from scipy.optimize import minimize
+
+from ff_planner.model import arm1dof
+
+LEVELS = (0.1, 0.2)
+CORNER = 0.2
+
+
+def sample_scales(names: Sequence[str]) -> np.ndarray:
+    """(S, 3) scale factors for (pv, pc, pt) of joint 1."""
+    idx = {"pv": 0, "pc": 1, "pt": 2}
+    rows = []
+    for n in names:
+        for lv in LEVELS:
+            for s in (1.0, -1.0):
+                r = np.ones(3)
+                r[idx[n]] = 1.0 + s * lv
+                rows.append(r)
+    if len(names) > 1:
+        for signs in itertools.product((1.0, -1.0), repeat=len(names)):
+            r = np.ones(3)
+            for n, s in zip(names, signs):
+                r[idx[n]] = 1.0 + s * CORNER
+            rows.append(r)
+    return np.array(rows) if rows else np.ones((1, 3))
+
+
+def rest_errors(hp, x: np.ndarray, scales: np.ndarray) -> np.ndarray:
+    """Joint-1 rest-position errors (rad) at the sampled friction scales."""
+    x = np.ascontiguousarray(x, dtype=float)
+    base = np.array([hp.fr["pv"], hp.fr["pc"], hp.fr["pt"]])
+    out = np.empty(scales.shape[0])
+    for i, sc in enumerate(scales):
+        pv, pc, pt = base * sc
+        q, _, _, _ = arm1dof.sim_core(hp.J, hp.c, pv, pc, pt, hp.times, x, hp.tf, hp.q0, 0.0,
+                                      True, hp.seg, hp.ev)
+        out[i] = q - hp.qf
+    return out
+
+
+def refine_sampled(hp, x0: np.ndarray, names: Sequence[str], deadline: float,
+                   tol: float) -> np.ndarray | None:
+    """Joint-1 currents with smaller sampled rest errors that still meet every constraint of
+    ``hp`` (a robust2d._Joint1Problem with the link-2 hold), or None if no improvement."""
+    scales = sample_scales(names)
+    k = len(hp.names)
+
+    def obj(x):
+        if time.perf_counter() > deadline:
+            raise TimeoutError
+        e = rest_errors(hp, x, scales)
+        return float(e @ e)
+
+    def eq(x):
+        return hp.residuals(x)[: 1 + k] * 1e2
+
+    def ineq(x):
+        xs = np.ascontiguousarray(x, dtype=float)
+        _, vN, _, _ = hp._q(xs, hp.tN, hp.fr["pv"], hp.fr["pc"], hp.fr["pt"])
+        s = abs(vN)
+        _, frac = hp.hold(xs)
+        return np.concatenate([[s - hp.v_lo, hp.v_hi - s], frac - hp.hold_min])
+
+    f0 = obj(x0)
+    try:
+        res = minimize(obj, x0, method="SLSQP", bounds=[(-hp.i_max, hp.i_max)] * len(x0),
+                       constraints=[{"type": "eq", "fun": eq}, {"type": "ineq", "fun": ineq}],
+                       options={"maxiter": 60, "ftol": 1e-12, "eps": 1e-7})
+        x = res.x
+    except TimeoutError:
+        return None
+    # polish the equalities exactly (least squares from the SLSQP point stays nearby)
+    x2, fun, _ = hp.solve(x, max_nfev=40)
+    if float(np.max(np.abs(fun))) > 0.1 * tol or obj(x2) >= f0:
+        return None
+    return x2

@@ -1,0 +1,584 @@
+"""The planner node's logic without ROS: validation, motion library, worker processes, statistics.
+
+``PlannerService.handle(request)`` turns a :class:`PlanRequest` into a :class:`PlanResult` and never
+raises: bad requests come back with ``success=False``, an error code (PlanTrajectory names) and a
+message saying what to change.
+
+Order of work for a valid request:
+1. motion library, exact task (same parameters): a stored plan is returned at once (warm);
+   a stored "no plan here" is returned at once when it is a hard fact (UNREACHABLE) or came from a
+   search at least as thorough (starts) as asked;
+2. a stored task that is the same motion shifted in angle (canonical distance 0) is reused as is;
+3. the nearest stored neighbour within ``warm_max_distance``: re-optimised from its currents
+   without multistart (worker process); if that fails and time is left, a cold solve follows;
+4. otherwise a cold multistart solve in a worker process.
+
+Concurrency: a pool of ``workers`` processes (pebble: a task running past its time budget has its
+worker killed and replaced). At most ``workers − 1`` scara2 (long) plans run or wait in the pool at
+once, so a worker is always left for 1-DOF requests. More than ``max_pending`` requests waiting or
+running, or more than ``max_pending_long`` scara2 ones, are refused at once (TIME_BUDGET_EXHAUSTED,
+"planner overloaded"): a caller's thread never waits behind an unbounded queue, and 2-DOF requests
+can never take every place. Time budgets are counted from the
+moment a request arrives, queueing included.
+"""
+from __future__ import annotations
+
+import importlib
+import math
+import multiprocessing
+import os
+import sqlite3
+import threading
+import time
+import traceback
+from collections import Counter, deque
+from concurrent.futures import TimeoutError as FutureTimeout
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any, Callable, Mapping, Optional, Sequence
+
+import numpy as np
+
+from ff_planner.library.store import (LibraryError, MotionLibrary, MotionRecord, WarmStartUnavailable,
+                      record_from_result, task_key, warm_plan)
+from ff_planner.model.params import MODELS, ParameterError, Params, default_params, preset
+from ff_planner.model.profile import OBJECTIVES, PlanningError, PlanRequest, PlanResult
+
+#: The facade with a warm start (``initial_currents``); one adapter shared with ``ff-library build``.
+DEFAULT_PLAN_ENTRY = "ff_planner.library.build:plan_for_library"
+SHIFT_EPS = 1e-9          # rad / s: canonical distance below which a stored task is the same motion
+LONG_MODELS = ("scara2",)  # models whose plans take long (seconds to minutes)
+
+
+class ServiceConfigError(ValueError):
+    """A planner node configuration that cannot be used; the message says what to change."""
+
+
+@dataclass
+class ServiceConfig:
+    """The planner node's settings (the ROS parameters of config/planner*.yaml)."""
+
+    default_model: str = "arm1dof"
+    presets: dict[str, str] = field(default_factory=lambda: {"arm1dof": "table2", "scara2": "table3"})
+    overrides: dict[str, dict[str, float]] = field(default_factory=dict)   # model -> {key: SI value}
+    default_starts: int = 50
+    default_time_budget: float = 10.0    # s
+    max_time_budget: float = 600.0       # s
+    max_steps: int = 40                  # per joint
+    max_starts: int = 5000
+    max_move_time: float = 60.0          # s
+    coast: float = 0.05                  # s
+    tol: float = 1e-6                    # rad per parameter unit / rad
+    library_path: str = ""               # "" = no motion library
+    use_library: bool = True
+    warm_max_distance: float = 0.5       # canonical distance (rad; tf weighted by time_weight rad/s)
+    time_weight: float = 1.0             # rad per s in the neighbour distance
+    workers: int = 2
+    max_pending: int = 16
+    max_pending_long: int = 0            # scara2 requests waiting or running; 0 = max_pending // 2
+    grace: float = 0.5                   # s beyond the time budget before a worker is killed
+    motion_dir: str = ""                 # "" = no motion files
+    plan_entry: str = DEFAULT_PLAN_ENTRY
+    warmup: bool = True                  # plan a small task in each worker at start (JIT caches)
+
+    def validate(self) -> None:
+        if self.default_model not in MODELS:
+            raise ServiceConfigError(f"default_model {self.default_model!r} is unknown; use one of "
+                                     f"{', '.join(MODELS)}")
+        for model, name in self.presets.items():
+            if model not in MODELS:
+                raise ServiceConfigError(f"preset given for unknown model {model!r}")
+            if preset(name).model != model:
+                raise ServiceConfigError(f"preset {name!r} is for model '{preset(name).model}', not '{model}'")
+        for model in self.overrides:
+            if model not in MODELS:
+                raise ServiceConfigError(f"overrides given for unknown model {model!r}")
+        for name in ("default_starts", "max_steps", "max_starts", "workers", "max_pending"):
+            if int(getattr(self, name)) < 1:
+                raise ServiceConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("default_time_budget", "max_time_budget", "max_move_time", "tol"):
+            v = float(getattr(self, name))
+            if not (math.isfinite(v) and v > 0):
+                raise ServiceConfigError(f"{name} must be a finite number > 0, got {v}")
+        if not (self.coast >= 0 and math.isfinite(self.coast)):
+            raise ServiceConfigError(f"coast must be >= 0 s, got {self.coast}")
+        if ":" not in self.plan_entry:
+            raise ServiceConfigError(f"plan_entry must read 'module:function', got {self.plan_entry!r}")
+
+    def model_params(self, model: str) -> Params:
+        """The node's parameters for ``model``: its preset with the configured overrides."""
+        name = self.presets.get(model)
+        base = preset(name) if name else default_params(model)
+        over = self.overrides.get(model) or {}
+        try:
+            return base.replace(**over) if over else base
+        except ParameterError as exc:
+            raise ServiceConfigError(f"configured overrides for {model}: {exc}") from None
+
+
+# --- results for refusals ---------------------------------------------------------------------
+def _vec(x: Any) -> np.ndarray:
+    try:
+        return np.asarray(list(x), dtype=float).ravel()
+    except (TypeError, ValueError):
+        return np.zeros(0)
+
+
+def failure(request: Optional[PlanRequest], code: str, message: str, **kw: Any) -> PlanResult:
+    """A PlanResult refusing ``request`` with error ``code`` and ``message``."""
+    r = request
+    return PlanResult(success=False, message=message, profile=None,
+                      model=getattr(r, "model", "") or "", params=None,
+                      q0=_vec(getattr(r, "q0", ())), qf=_vec(getattr(r, "qf", ())),
+                      uncertain=list(getattr(r, "uncertain", ()) or ()),
+                      objective=getattr(r, "objective", "") or "", error_code=code, **kw)
+
+
+def error_code_of(exc: BaseException) -> str:
+    """PlanTrajectory error name for an exception raised while reading or validating a request."""
+    if isinstance(exc, PlanningError):
+        return exc.code
+    if isinstance(exc, ParameterError):
+        text = str(exc)
+        if "unknown model" in text:
+            return "UNKNOWN_MODEL"
+        if "unknown" in text:
+            return "UNKNOWN_PARAMETER"
+        return "INVALID_REQUEST"
+    if isinstance(exc, (ValueError, TypeError)):
+        return "INVALID_REQUEST"
+    return "INTERNAL_ERROR"
+
+
+# --- worker side (runs in the pool's processes) ------------------------------------------------
+_PLAN_FN: Optional[Callable] = None
+
+
+def load_entry(entry: str) -> Callable:
+    """'module:function' -> the function."""
+    mod, _, fn = entry.partition(":")
+    return getattr(importlib.import_module(mod), fn)
+
+
+def _worker_init(entry: str, warmup: bool) -> None:
+    """Pool initializer: import the planner and plan one small task (loads JIT caches)."""
+    global _PLAN_FN
+    try:
+        _PLAN_FN = load_entry(entry)
+    except Exception:  # the planner may not be importable; every job will then say so
+        _PLAN_FN = None
+        return
+    if warmup:   # cold and warm 1-DOF plans, k = 1 and 3: loads the compiled code of both paths
+        for unc in (["pc"], ["pv", "pc", "pt"]):
+            try:
+                req = PlanRequest(model="arm1dof", q0=[0.0], qf=[1.0], tf=1.0, uncertain=unc, starts=20,
+                                  time_budget=120.0)
+                res = _PLAN_FN(req)
+                if res.profile is not None:
+                    _PLAN_FN(replace(req, qf=[1.01]), initial_currents=res.profile.currents)
+            except Exception:  # noqa: BLE001 - a planner without warm starts, or none at all
+                pass
+
+
+def _ping() -> int:
+    return os.getpid()
+
+
+def _solve(request: PlanRequest, deadline: float, initial_currents: Optional[np.ndarray],
+           entry: str) -> PlanResult:
+    """One plan in a worker: cold (multistart) or warm (from ``initial_currents``), within ``deadline``
+    (time.monotonic(), shared by all processes on Linux)."""
+    global _PLAN_FN
+    t0 = time.monotonic()
+    left = deadline - t0
+    if left <= 0.0:
+        return failure(request, "TIME_BUDGET_EXHAUSTED",
+                       f"the time budget of {request.time_budget:.3g} s ran out while waiting for a "
+                       f"free worker; raise time_budget or retry later")
+    req = replace(request, time_budget=min(float(request.time_budget), left))
+    try:
+        if _PLAN_FN is None:
+            _PLAN_FN = load_entry(entry)
+        if initial_currents is not None:
+            fake = MotionRecord(task_key="neighbour", model=req.model, params_hash="", objective=req.objective,
+                                uncertain=list(req.uncertain), steps=req.n_steps(), coast=req.coast,
+                                q0=list(req.q0), qf=list(req.qf), tf=req.tf, status="solved",
+                                motion={"currents": np.asarray(initial_currents).tolist()})
+            result = warm_plan(req, fake, plan_fn=_PLAN_FN)
+        else:
+            result = _PLAN_FN(req)
+    except WarmStartUnavailable:
+        raise
+    except PlanningError as exc:
+        result = failure(request, exc.code, str(exc))
+    except ParameterError as exc:
+        result = failure(request, error_code_of(exc), str(exc))
+    except Exception as exc:  # a planner bug must not take the node down; report it
+        tb = traceback.format_exception_only(type(exc), exc)[-1].strip()
+        result = failure(request, "INTERNAL_ERROR", f"planner error: {tb}")
+    result.solve_time = result.solve_time or (time.monotonic() - t0)
+    return result
+
+
+# --- the service ------------------------------------------------------------------------------
+@dataclass
+class RequestFields:
+    """A plan request as it arrives (the PlanTrajectory request fields, plain python)."""
+
+    model: str = ""
+    q0: Sequence[float] = ()
+    qf: Sequence[float] = ()
+    move_time: float = 0.0
+    uncertain: Sequence[str] = ()
+    objective: str = ""
+    steps: int = 0
+    starts: int = 0
+    seed: int = 0
+    time_budget: float = 0.0
+    override_names: Sequence[str] = ()
+    override_values: Sequence[float] = ()
+
+
+class PlannerService:
+    """Serve plan requests (thread-safe; call :meth:`start` first and :meth:`close` at the end)."""
+
+    def __init__(self, config: ServiceConfig, log: Optional[Callable[[str], None]] = None) -> None:
+        config.validate()
+        self.config = config
+        self.log = log or (lambda msg: None)
+        self.params = {m: config.model_params(m) for m in MODELS}
+        self.library: Optional[MotionLibrary] = None
+        try:
+            if config.use_library and config.library_path:
+                self.library = MotionLibrary(config.library_path)
+            if config.motion_dir:
+                Path(config.motion_dir).expanduser().mkdir(parents=True, exist_ok=True)
+        except (LibraryError, sqlite3.Error, OSError) as exc:
+            raise ServiceConfigError(f"cannot open library_path {config.library_path!r} / motion_dir "
+                                     f"{config.motion_dir!r}: {exc}; fix the path or set it to \"\"") from None
+        self._pool = None
+        self._lock = threading.Lock()
+        self._pending = 0
+        self._pending_long = 0
+        self.long_limit = max(1, min(config.max_pending - 1, config.max_pending_long or config.max_pending // 2))
+        self._long_slots = threading.BoundedSemaphore(max(1, config.workers - 1))
+        self._stats: Counter = Counter()
+        self._times: dict[str, deque] = {}
+        self._closed = False
+        self._warm_supported = True   # set False when the planner turns out to lack initial_currents
+
+    # lifecycle
+    def start(self, wait: float = 300.0) -> None:
+        """Start the worker processes (spawned: no fork of a ROS process) and wait until they answer."""
+        from pebble import ProcessPool
+
+        ctx = multiprocessing.get_context("spawn")
+        self._pool = ProcessPool(max_workers=self.config.workers, initializer=_worker_init,
+                                 initargs=(self.config.plan_entry, self.config.warmup), context=ctx)
+        futs = [self._pool.schedule(_ping) for _ in range(self.config.workers)]
+        for f in futs:
+            f.result(timeout=wait)
+
+    def close(self) -> None:
+        self._closed = True
+        if self._pool is not None:
+            self._pool.stop()
+            self._pool.join(timeout=10)
+            self._pool = None
+        if self.library is not None:
+            self.library.close()
+
+    # requests
+    def make_request(self, f: RequestFields) -> PlanRequest:
+        """Fields -> validated PlanRequest; raises PlanningError/ParameterError (see error_code_of)."""
+        model = f.model or self.config.default_model
+        if model not in MODELS:
+            raise ParameterError(f"unknown model {model!r}; known models: {', '.join(MODELS)}")
+        names, values = list(f.override_names), list(f.override_values)
+        if len(names) != len(values):
+            raise PlanningError(f"{len(names)} override names but {len(values)} override values; "
+                                f"give one value per name")
+        params = self.params[model]
+        if names:
+            unknown = [n for n in names if n not in params.keys()]
+            if unknown:
+                raise ParameterError(f"unknown parameter(s) {unknown} for model '{model}'; valid keys "
+                                     f"are: {', '.join(params.keys())}")
+            params = params.replace(**dict(zip(names, values)))
+        objective = f.objective or "robust-derivative"
+        if objective not in OBJECTIVES:
+            raise PlanningError(f"unknown objective {objective!r}; use one of {', '.join(OBJECTIVES)}")
+        c = self.config
+        tf = float(f.move_time)
+        if not math.isfinite(tf) or tf <= 0:
+            raise PlanningError(f"move_time must be a finite number > 0 s, got {tf}")
+        if tf > c.max_move_time:
+            raise PlanningError(f"move_time {tf} s exceeds this planner's limit of {c.max_move_time} s; "
+                                f"split the move or raise max_move_time")
+        budget = float(f.time_budget) if f.time_budget else c.default_time_budget
+        if not math.isfinite(budget) or budget <= 0:
+            raise PlanningError(f"time_budget must be a finite number > 0 s (0 = node default), got {budget}")
+        if budget > c.max_time_budget:
+            raise PlanningError(f"time_budget {budget} s exceeds this planner's limit of "
+                                f"{c.max_time_budget} s; ask for less")
+        starts = int(f.starts) or c.default_starts
+        if starts > c.max_starts:
+            raise PlanningError(f"starts = {starts} exceeds this planner's limit of {c.max_starts}; ask for fewer")
+        uncertain = list(f.uncertain) if len(f.uncertain) else list(params.friction_keys)  # empty = all
+        steps = int(f.steps) or None
+        if steps is not None and steps > c.max_steps:
+            raise PlanningError(f"steps = {steps} per joint exceeds this planner's limit of {c.max_steps}; "
+                                f"ask for fewer (default is 2 + number of uncertain parameters)")
+        req = PlanRequest(model=model, q0=[float(x) for x in f.q0], qf=[float(x) for x in f.qf], tf=tf,
+                          uncertain=uncertain, objective=objective, steps=steps, starts=starts,
+                          seed=int(f.seed), time_budget=budget, coast=c.coast, params=params, tol=c.tol)
+        req.validate()
+        _check_reachable(req)
+        if req.n_steps() > c.max_steps:
+            raise PlanningError(f"{req.n_steps()} steps per joint exceeds this planner's limit of "
+                                f"{c.max_steps}; ask for fewer steps or uncertain parameters")
+        return req
+
+    def handle_fields(self, f: RequestFields) -> PlanResult:
+        """Validate and serve one request; never raises."""
+        t0 = time.monotonic()
+        try:
+            req = self.make_request(f)
+        except Exception as exc:  # noqa: BLE001 - every bad request becomes an answer
+            code = error_code_of(exc)
+            elapsed = time.monotonic() - t0
+            self._count("invalid", code, elapsed)
+            res = failure(None if code == "INTERNAL_ERROR" else _partial(f), code, str(exc))
+            res.extra = {"source": "invalid", "latency": elapsed}
+            return res
+        return self.handle(req, received=t0)
+
+    def handle(self, request: PlanRequest, received: Optional[float] = None) -> PlanResult:
+        """Serve a validated request (see module docstring); never raises."""
+        t0 = received if received is not None else time.monotonic()
+        deadline = t0 + float(request.time_budget)
+        try:
+            result, source = self._serve(request, deadline)
+        except Exception as exc:  # noqa: BLE001 - the node must keep serving
+            tb = traceback.format_exception_only(type(exc), exc)[-1].strip()
+            self.log(f"internal error: {traceback.format_exc()}")
+            result, source = failure(request, "INTERNAL_ERROR", f"planner node error: {tb}"), "error"
+        elapsed = time.monotonic() - t0
+        result.extra = dict(result.extra or {}, source=source, latency=elapsed)
+        self._count(source, result.error_code, elapsed)
+        if result.success and self.config.motion_dir and result.profile is not None:
+            self._write_motion(request, result)
+        return result
+
+    def _serve(self, request: PlanRequest, deadline: float) -> tuple[PlanResult, str]:
+        lib = self.library
+        warm_from = None
+        if lib is not None:
+            rec = lib.lookup(request)
+            if rec is not None and self._usable(rec, request):
+                return rec.to_result(request, message=self._hit_message(rec, False)), "hit"
+            near = lib.nearest(request, k=1, max_distance=self.config.warm_max_distance,
+                               time_weight=self.config.time_weight)
+            if near:
+                dist, rec = near[0]
+                if dist < SHIFT_EPS and self._usable(rec, request):
+                    return rec.to_result(request, message=self._hit_message(rec, True), shift=True), "shift"
+                cur = rec.currents()
+                if (request.objective.startswith("robust") and cur is not None
+                        and cur.shape == (request.n_steps(), len(request.q0))):
+                    warm_from = (dist, rec)   # baselines are closed-form: nothing to warm start
+        if warm_from is not None and self._warm_supported:
+            dist, rec = warm_from
+            result = self._run(request, deadline, rec.currents())
+            if result.error_code == "WARM_UNAVAILABLE":
+                if "initial_currents" in result.message:   # the planner itself cannot warm start
+                    self._warm_supported = False
+                    self.log(f"warm starts disabled: {result.message}")
+                result = None
+            elif result.success:
+                result.warm_start = True
+                result.message = (f"warm start from library entry {rec.task_key} (distance {dist:.3g}); "
+                                  + (result.message or ""))
+                self._store(request, result, "warm", rec.task_key)
+                return result, "warm"
+            elif result.error_code == "TIME_BUDGET_EXHAUSTED" or time.monotonic() >= deadline:
+                return result, "warm"
+            note = f"warm start from {rec.task_key} failed ({result.message if result else 'unavailable'}); "
+        else:
+            note = ""
+        result = self._run(request, deadline, None)
+        if note:
+            result.message = note + (result.message or "")
+        result.warm_start = False
+        self._store(request, result, "cold", None)
+        return result, ("refused" if result.extra.get("refused") else "cold")
+
+    def _usable(self, rec: MotionRecord, request: PlanRequest) -> bool:
+        """May a stored row answer this request without solving?"""
+        if rec.status == "solved":
+            return rec.robust or not request.objective.startswith("robust") or rec.starts_tried >= request.starts
+        if rec.status == "infeasible":
+            return rec.error_code == "UNREACHABLE" or rec.starts_tried >= request.starts
+        return False  # failed rows are transient
+
+    @staticmethod
+    def _hit_message(rec: MotionRecord, shifted: bool) -> str:
+        what = "shifted copy of library entry" if shifted else "library entry"
+        if rec.status == "solved":
+            return f"from the motion library ({what} {rec.task_key}, solved {rec.solved_how})"
+        return f"known from the motion library: no plan here ({rec.error_code}): {rec.reason}"
+
+    def _run(self, request: PlanRequest, deadline: float, initial: Optional[np.ndarray]) -> PlanResult:
+        """Run one plan in the pool, with admission control and the deadline enforced."""
+        if self._pool is None or self._closed:
+            return failure(request, "INTERNAL_ERROR", "planner workers are not running")
+        long = request.model in LONG_MODELS
+        with self._lock:
+            full = self._pending >= self.config.max_pending
+            full_long = long and self._pending_long >= self.long_limit
+            if full or full_long:
+                what = (f"{self._pending_long} long (scara2) plans" if full_long and not full
+                        else f"{self._pending} requests")
+                lim = self.long_limit if full_long and not full else self.config.max_pending
+                r = failure(request, "TIME_BUDGET_EXHAUSTED",
+                            f"planner overloaded: {what} already waiting or running (limit {lim}); "
+                            f"retry later")
+                r.extra = {"refused": True}
+                return r
+            self._pending += 1
+            self._pending_long += int(long)
+        try:
+            if long:
+                left = deadline - time.monotonic()
+                if not self._long_slots.acquire(timeout=max(0.0, left)):
+                    return failure(request, "TIME_BUDGET_EXHAUSTED",
+                                   f"all long-plan workers stayed busy for the whole time budget of "
+                                   f"{request.time_budget:.3g} s; retry later or raise time_budget")
+            try:
+                fut = self._pool.schedule(_solve, args=(request, deadline, initial, self.config.plan_entry),
+                                          timeout=max(0.0, deadline - time.monotonic()) + 2 * self.config.grace)
+                try:
+                    return fut.result(timeout=max(0.0, deadline - time.monotonic()) + self.config.grace)
+                except WarmStartUnavailable as exc:
+                    r = failure(request, "WARM_UNAVAILABLE", str(exc))
+                    return r
+                except FutureTimeout:
+                    fut.cancel()  # pebble: a running task's worker is killed and replaced
+                    with self._lock:
+                        self._stats["workers_killed"] += 1
+                    return failure(request, "TIME_BUDGET_EXHAUSTED",
+                                   f"no plan within the time budget of {request.time_budget:.3g} s; "
+                                   f"raise time_budget, ask for fewer starts, or plan offline (ff-plan)")
+                except Exception as exc:  # noqa: BLE001 - a dead worker, pickling error ...
+                    return failure(request, "INTERNAL_ERROR", f"planner worker failed: {exc!r}")
+            finally:
+                if long:
+                    self._long_slots.release()
+        finally:
+            with self._lock:
+                self._pending -= 1
+                self._pending_long -= int(long)
+
+    def _store(self, request: PlanRequest, result: PlanResult, how: str, warm_from: Optional[str]) -> None:
+        """Put solved and infeasible results in the library (failed ones are transient: not stored)."""
+        if self.library is None:
+            return
+        if not (result.success or result.error_code in ("UNREACHABLE", "NO_ROBUST_PLAN")):
+            return
+        try:
+            rec = record_from_result(request, result, solved_how=how, warm_from=warm_from,
+                                     writer=f"ff_planner node pid {os.getpid()}")
+            self.library.put(rec, request.resolved_params())
+        except (LibraryError, ValueError, OSError) as exc:
+            self.log(f"could not store plan in the motion library: {exc}")
+
+    def _write_motion(self, request: PlanRequest, result: PlanResult) -> None:
+        try:
+            from ff_planner.export.motion_file import write_motion
+
+            path = Path(self.config.motion_dir).expanduser() / f"{task_key(request)}.json"
+            write_motion(path, result)
+            result.extra["motion_file"] = str(path)
+        except Exception as exc:  # noqa: BLE001 - a file problem must not fail the plan
+            self.log(f"could not write motion file: {exc}")
+
+    # statistics
+    def _count(self, source: str, code: str, seconds: float) -> None:
+        with self._lock:
+            self._stats["requests"] += 1
+            self._stats[f"source_{source}"] += 1
+            self._stats[f"code_{code}"] += 1
+            self._times.setdefault(source, deque(maxlen=1000)).append(seconds)
+
+    def stats(self) -> dict[str, Any]:
+        """Counters and latency quantiles (s) per source, for diagnostics."""
+        with self._lock:
+            out: dict[str, Any] = dict(self._stats)
+            out["pending"] = self._pending
+            out["pending_long"] = self._pending_long
+            for src, d in self._times.items():
+                if d:
+                    a = np.fromiter(d, float)
+                    out[f"latency_{src}_p50"] = float(np.percentile(a, 50))
+                    out[f"latency_{src}_p95"] = float(np.percentile(a, 95))
+        out["workers"] = self.config.workers
+        if self.library is not None:
+            try:
+                out.update({f"library_{k}": v for k, v in self.library.stats().items()})
+            except Exception:  # noqa: BLE001
+                pass
+        return out
+
+
+def _check_reachable(request: PlanRequest) -> None:
+    """The planner's reachability bound, in this process (fast UNREACHABLE answers), if available."""
+    try:
+        from ff_planner.optimize.planner import check_reachable
+    except ImportError:
+        return
+    check_reachable(request)
+
+
+def _partial(f: RequestFields) -> PlanRequest:
+    """A PlanRequest-like object echoing what can be read of an invalid request."""
+    return PlanRequest(model=f.model, q0=list(_vec(f.q0)), qf=list(_vec(f.qf)), tf=0.0,
+                       uncertain=list(f.uncertain), objective=f.objective)
+
+
+def config_from_mapping(values: Mapping[str, Any]) -> ServiceConfig:
+    """ServiceConfig from flat node parameters (see config/planner.yaml); unknown names refused.
+
+    Model parameter overrides use ``<model>.params.<key>``, presets ``<model>.preset``.
+    """
+    cfg = ServiceConfig()
+    plain = {f for f in cfg.__dataclass_fields__ if f not in ("presets", "overrides")}
+    presets = dict(cfg.presets)
+    overrides: dict[str, dict[str, float]] = {}
+    unknown = []
+    for name, v in values.items():
+        if name in plain:
+            cur = getattr(cfg, name)
+            try:
+                setattr(cfg, name, type(cur)(v))
+            except (TypeError, ValueError):
+                raise ServiceConfigError(f"parameter {name!r} must be a {type(cur).__name__}, got {v!r}") from None
+            continue
+        parts = name.split(".")
+        if len(parts) == 2 and parts[0] in MODELS and parts[1] == "preset":
+            presets[parts[0]] = str(v)
+        elif len(parts) == 3 and parts[0] in MODELS and parts[1] == "params":
+            if parts[2] not in MODELS[parts[0]].keys():
+                raise ServiceConfigError(f"unknown model parameter {parts[2]!r} in {name!r}; valid keys "
+                                         f"for {parts[0]}: {', '.join(MODELS[parts[0]].keys())}")
+            overrides.setdefault(parts[0], {})[parts[2]] = float(v)
+        else:
+            unknown.append(name)
+    if unknown:
+        raise ServiceConfigError(f"unknown planner parameter(s) {unknown}; valid: {sorted(plain)}, "
+                                 f"<model>.preset, <model>.params.<key> (and for the node: "
+                                 f"diagnostics_period, executor_threads)")
+    cfg.presets, cfg.overrides = presets, overrides
+    cfg.validate()
+    for m in MODELS:
+        cfg.model_params(m)
+    return cfg

@@ -1,0 +1,69 @@
+"""Issue 7's CI integration test: the whole chain across processes.
+
+planner SERVICE → executor ACTION → bridge (lifecycle node) → CAN hub on 127.0.0.1 → simulated EPOS
++ arm whose true Coulomb friction is 20 % above the planner's model. The robust plan must land
+within 0.005 rad of the goal; the non-robust baseline (energy-optimal) must miss by at least 5×
+more.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ff_executor.bringup.stack import Stack, StackOptions
+from ff_executor.ros.client import StackClient
+from ff_executor.bringup.demo import MOTIONS, run_motions
+
+
+@pytest.fixture(scope="module")
+def stack_client(tmp_path_factory):
+    # SCHED_FIFO 10 for the simulated drive and the bridge's scheduler thread where permitted
+    # (else nice -10, else plain): the test runs on shared CI machines
+    stack = Stack(StackOptions(true_scale={"pc": 1.2}, rt_priority=10,
+                               run_dir=str(tmp_path_factory.mktemp("e2e"))), log=lambda s: None)
+    stack.start()
+    client = StackClient(stack.env, "ff_e2e_test")
+    try:
+        yield stack, client
+    finally:
+        client.close()
+        stack.stop()
+
+
+def test_robust_lands_and_baseline_misses_with_coulomb_20_percent_off(stack_client):
+    stack, client = stack_client
+    # timing gate: a robust move whose switch timing at the bridge spread more than 0.3 ms was
+    # disturbed by the (shared) machine, not by friction; it is repeated, at most 5 runs
+    s = run_motions(client, 1.0, 1.0, MOTIONS, log=lambda _m: None, attempts=5, max_spread=3e-4)
+    rob, base = s["robust"], s["baseline"]
+    assert rob["timing_ok"], f"no run met the 0.3 ms switch-timing gate (machine overloaded?): {rob['runs']}"
+    for m in (rob, base):
+        assert m["executed"], m["message"]
+        assert m["setpoints_sent"] >= m["steps"] // 2
+        # >= 10 Hz (as received in this process; single gaps may stretch on a loaded machine)
+        assert m["feedback_messages"] >= 10 and m["feedback_rate_hz"] >= 10.0, m
+        assert m["feedback_gap_max_s"] < 1.0, m
+        # the executor's figure (bridge joint states) agrees with the simulator's ground truth
+        assert m["error"] == pytest.approx(m["error_truth"], abs=2e-4)
+    assert rob["plan_success"] and rob["robust"]
+    assert abs(rob["error_truth"]) <= 0.005, rob
+    assert abs(rob["error"]) <= 0.005, rob
+    assert abs(base["error_truth"]) >= 5 * abs(rob["error_truth"]), (rob["error_truth"],
+                                                                      base["error_truth"])
+    assert np.isfinite(rob["switch_error_s"]["p99"])
+    assert all(p.alive() for p in stack.procs)
+
+
+def test_cancel_mid_move_stops_the_arm_across_the_chain(stack_client):
+    from action_msgs.msg import GoalStatus
+
+    from ff_executor.bringup.demo import plan_request
+
+    stack, client = stack_client
+    resp = client.plan(plan_request("robust-derivative"))
+    client.reset_arm([0.0])
+    mv = client.execute(resp.profile, cancel_after=0.55)
+    assert mv.status == GoalStatus.STATUS_CANCELED, mv.result.message
+    # after the cancel the motor current measured by the bridge goes to zero and stays there
+    t, _, _, eff = mv.joints.arrays()
+    assert eff.size and abs(eff[-1, 0]) < 0.05

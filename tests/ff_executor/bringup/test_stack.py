@@ -1,0 +1,106 @@
+"""ff-bringup: options, generated configuration, and the four processes started and stopped by PID."""
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from ff_executor.bringup.stack import Stack, StackOptions, bridge_config, build_parser, main
+from ff_planner.model.params import ParameterError
+
+
+def test_true_friction_scales_and_sets():
+    o = StackOptions(true_scale={"pc": 1.2}, true_params={"pt": 0.3})
+    assert o.true_friction() == pytest.approx({"pc": 0.228, "pt": 0.3})
+    with pytest.raises(ParameterError, match="unknown parameter"):
+        StackOptions(true_scale={"pz": 1.2}).true_friction()
+    with pytest.raises(ParameterError):
+        StackOptions(true_params={"pc": -1.0}).true_friction()
+
+
+def test_cli_refuses_bad_options_with_exit_2(capsys):
+    assert main(["--true-scale", "pc"]) == 2
+    assert "KEY=VALUE" in capsys.readouterr().err
+    assert main(["--true-param", "pc=abc"]) == 2
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["--model", "nope"])
+
+
+def test_bridge_config_is_valid_for_the_bridge_and_loopback():
+    from ff_hwbridge.drive.config import config_from_mapping
+
+    for model, nj in (("arm1dof", 1), ("scara2", 2)):
+        data = bridge_config(model, "ws://127.0.0.1:50000/")
+        cfg = config_from_mapping(data)
+        assert len(cfg.joints) == nj
+        assert data["bus"]["channel"].startswith("ws://127.0.0.1:")
+
+
+def test_stack_starts_all_four_and_stops_them_by_pid(tmp_path):
+    stack = Stack(StackOptions(true_scale={"pc": 1.2}, run_dir=str(tmp_path)), log=lambda s: None)
+    stack.start()
+    try:
+        names = [p.name for p in stack.procs]
+        assert names == ["ff_sim_driver", "ff_hwbridge", "ff_planner", "ff_executor"]
+        assert all(p.alive() for p in stack.procs)
+        env = stack.env
+        assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+        assert stack.hub_url.startswith("ws://127.0.0.1:")
+        assert stack._has_service("/ff_planner/plan")
+        assert stack._lifecycle_state("ff_hwbridge") == "active"
+        stack.set_true_params({"pc": 0.25})
+        with pytest.raises(ParameterError):
+            stack.set_true_params({"nope": 1.0})
+        procs = list(stack.procs)
+    finally:
+        codes = stack.stop()
+    assert set(codes) == {"ff_sim_driver", "ff_hwbridge", "ff_planner", "ff_executor"}
+    assert not any(p.alive() for p in procs)
+
+
+def test_ff_bringup_stops_everything_when_a_child_dies(tmp_path, ros_env):
+    env = dict(ros_env)
+    proc = subprocess.Popen([sys.executable, "-u", "-m", "ff_executor.bringup.stack", "--no-planner",
+                             "--run-dir", str(tmp_path)], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    try:
+        lines = []
+        end = time.monotonic() + 120
+        while time.monotonic() < end:
+            line = proc.stdout.readline()
+            lines.append(line)
+            if "all up" in line or proc.poll() is not None:
+                break
+        assert any("all up" in l for l in lines), "".join(lines)
+        # kill the executor child (by its PID, found in the log line "ff_executor up ... pid N")
+        pid = int(next(l for l in lines if "ff_executor up" in l).rsplit("pid", 1)[1])
+        os.kill(pid, signal.SIGKILL)
+        out, _ = proc.communicate(timeout=60)
+        assert proc.returncode == 1
+        assert "ff_executor died" in out and "stopped" in out
+        for l in lines:
+            if " up (" in l:
+                child = int(l.rsplit("pid", 1)[1])
+                with pytest.raises(ProcessLookupError):
+                    os.kill(child, 0)
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            proc.wait(30)
+
+
+def test_timed_wrapper_runs_the_module_with_a_fine_switch_interval(tmp_path):
+    mod = tmp_path / "probe_mod.py"
+    mod.write_text("import sys\nprint('interval', round(sys.getswitchinterval() * 1e6), sys.argv[1:])\n")
+    env = dict(os.environ, PYTHONPATH=f"{tmp_path}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")
+    out = subprocess.run([sys.executable, "-m", "ff_executor.bringup.timed", "--switch-interval", "0.0002",
+                          "probe_mod", "--x", "1"], env=env, capture_output=True, text=True, timeout=30)
+    assert out.returncode == 0, out.stderr
+    assert "interval 200 ['--x', '1']" in out.stdout
+    bad = subprocess.run([sys.executable, "-m", "ff_executor.bringup.timed", "--switch-interval", "5",
+                          "probe_mod"], env=env, capture_output=True, text=True, timeout=30)
+    assert bad.returncode != 0 and "switch-interval" in bad.stderr

@@ -1,0 +1,255 @@
+"""The ff_executor node in its own process against a stand-in bridge in the test process.
+
+The stand-in answers the lifecycle get_state service, applies each setpoint exactly at its stamp
+to the planner's exact 1-DOF model (so the final position is predictable to ~1e-9 rad), reports
+applied setpoints, and publishes joint states at 200 Hz.
+"""
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from action_msgs.msg import GoalStatus
+from lifecycle_msgs.msg import State
+from lifecycle_msgs.srv import GetState
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+
+from ff_msgs.action import ExecuteProfile
+from ff_msgs.msg import CurrentSetpoint
+from ff_msgs_py.convert import ns_to_time, profile_to_msg, setpoint_to_tuple
+from ff_executor.ros.client import _safe_action_client_class
+from ff_msgs_py.launch import start_module, wait_for_line
+from ff_planner.model.arm1dof import advance
+from ff_planner.model.params import default_params
+from ff_planner.model.profile import CurrentProfile
+from ff_planner.model.simulate import rest_position
+
+CUR = [-3.70, 2.27, 0.58, 6.94, -4.76]
+PARAMS = default_params("arm1dof")
+
+
+class FakeBridge(Node):
+    """Stand-in for ff_hwbridge: exact physics, setpoints applied at their stamps."""
+
+    def __init__(self, context):
+        super().__init__("fake_bridge", context=context)
+        self.state_label = "active"
+        self.lock = threading.Lock()
+        self.q, self.qd, self.current = 0.0, 0.0, 0.0
+        self.t_sim = None                 # ns, physics time
+        self.pending: list[tuple] = []
+        self.received: list[tuple] = []   # (receive ns, stamp ns, currents, seq, pid, last)
+        self.applied: list[tuple] = []    # (stamp ns, currents)
+        self.create_service(GetState, "~/get_state", self._get_state)
+        qos = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
+        self.create_subscription(CurrentSetpoint, "~/setpoints", self._on_setpoint, qos)
+        self.js_pub = self.create_publisher(JointState, "~/joint_states", 10)
+        self.applied_pub = self.create_publisher(CurrentSetpoint, "~/applied", qos)
+        self.running = True
+        self.thread = threading.Thread(target=self._loop, daemon=True)
+        self.thread.start()
+
+    def now(self) -> int:
+        return self.get_clock().now().nanoseconds
+
+    def _get_state(self, _req, res):
+        res.current_state = State(id=3 if self.state_label == "active" else 2, label=self.state_label)
+        return res
+
+    def _on_setpoint(self, msg):
+        stamp, cur, seq, pid, last = setpoint_to_tuple(msg)
+        with self.lock:
+            self.received.append((self.now(), stamp, cur.tolist(), seq, pid, last))
+            self.pending.append((stamp, seq, float(cur[0]), pid, msg))
+            self.pending.sort(key=lambda x: (x[0], x[1]))
+
+    def reset(self, q=0.0):
+        with self.lock:
+            self.q, self.qd, self.current = q, 0.0, 0.0
+            self.pending.clear()
+            self.received.clear()
+            self.applied.clear()
+            self.t_sim = self.now()
+
+    def _loop(self):
+        k = 0
+        while self.running:
+            now = self.now()
+            with self.lock:
+                if self.t_sim is None:
+                    self.t_sim = now
+                while self.pending and self.pending[0][0] <= now:
+                    stamp, seq, cur, pid, _msg = self.pending.pop(0)
+                    t_apply = max(stamp, self.t_sim)
+                    self.q, self.qd = advance(PARAMS, self.q, self.qd, self.current,
+                                              (t_apply - self.t_sim) / 1e9)
+                    self.t_sim, self.current = t_apply, cur
+                    self.applied.append((stamp, cur))
+                    self.applied_pub.publish(CurrentSetpoint(stamp=ns_to_time(now), currents=[cur],
+                                                             seq=seq, profile_id=pid))
+                self.q, self.qd = advance(PARAMS, self.q, self.qd, self.current,
+                                          (now - self.t_sim) / 1e9)
+                self.t_sim = now
+                q, qd, cur = self.q, self.qd, self.current
+            k += 1
+            if k % 5 == 0:
+                js = JointState(name=["joint1"], position=[q], velocity=[qd], effort=[cur])
+                js.header.stamp = ns_to_time(now)
+                self.js_pub.publish(js)
+            time.sleep(0.001)
+
+
+@pytest.fixture(scope="module")
+def stack(ros_env, tmp_path_factory):
+    advance(PARAMS, 0.0, 0.0, 1.0, 0.01)   # compile/load the model before timing matters
+    cfg = tmp_path_factory.mktemp("exec") / "executor.yaml"
+    cfg.write_text("""ff_executor:
+  ros__parameters:
+    joint_names: ["joint1"]
+    current_limits: [10.0]
+    lead_time: 0.4
+    start_margin: 0.6
+    joint_state_timeout: 2.0
+    bridge_node: "fake_bridge"
+    setpoint_topic: "/fake_bridge/setpoints"
+    joint_state_topic: "/fake_bridge/joint_states"
+    applied_topic: "/fake_bridge/applied"
+    settle_timeout: 2.0
+    feedback_rate: 20.0
+    bridge_timeout: 10.0
+""")
+    proc = start_module("ff_executor_test", "ff_executor.ros.executor_node",
+                        ["--ros-args", "--params-file", str(cfg)], ros_env)
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    bridge = FakeBridge(ctx)
+    client_node = Node("exec_test_client", context=ctx)
+    ex = MultiThreadedExecutor(num_threads=3, context=ctx)
+    ex.add_node(bridge)
+    ex.add_node(client_node)
+    spin = threading.Thread(target=ex.spin, daemon=True)
+    spin.start()
+    try:
+        assert wait_for_line(proc, "ff_executor ready", 30), proc.output()
+        client = _safe_action_client_class()(client_node, ExecuteProfile, "/ff_executor/execute")
+        assert client.wait_for_server(timeout_sec=15), "action server not discovered"
+        yield bridge, client, proc
+    finally:
+        bridge.running = False
+        proc.stop()
+        ex.shutdown()
+        rclpy.shutdown(context=ctx)
+
+
+def wait(future, timeout=15.0):
+    end = time.monotonic() + timeout
+    while not future.done() and time.monotonic() < end:
+        time.sleep(0.01)
+    assert future.done(), "no answer in time"
+    return future.result()
+
+
+def goal_for(currents=CUR, names=("joint1",), q0=0.0, qf=1.0):
+    prof = CurrentProfile.uniform(currents, 1.0)
+    return ExecuteProfile.Goal(profile=profile_to_msg(prof, "arm1dof", [q0], [qf], list(names))), prof
+
+
+def run_goal(client, goal, feedback=None, timeout=15.0):
+    handle = wait(client.send_goal_async(goal, feedback_callback=feedback))
+    assert handle.accepted
+    res = wait(handle.get_result_async(), timeout)
+    return res.status, res.result
+
+
+def test_executes_and_lands_where_the_model_says(stack):
+    bridge, client, proc = stack
+    bridge.reset(0.0)
+    time.sleep(0.2)
+    goal, prof = goal_for()
+    fb = []
+    status, result = run_goal(client, goal, feedback=lambda m: fb.append((time.monotonic(), m.feedback)))
+    assert status == GoalStatus.STATUS_SUCCEEDED, result.message
+    assert result.success
+    expected = float(rest_position(PARAMS, prof, [0.0])[0])
+    assert result.final_position[0] == pytest.approx(expected, abs=1e-6)
+    assert result.position_error[0] == pytest.approx(result.final_position[0] - 1.0, abs=1e-12)
+    assert abs(result.final_velocity[0]) <= 1e-3
+    # one setpoint per switch + the final zero, each handed over before its stamp
+    assert result.setpoints_sent == 6
+    rec = bridge.received
+    assert [r[2][0] for r in rec] == CUR + [0.0] and rec[-1][5]
+    assert all(r[1] - r[0] > 0.1e9 for r in rec), "a setpoint reached the bridge less than 0.1 s early"
+    # timing statistics come from the bridge's reports
+    assert 0.0 <= result.switch_error_p50 <= result.switch_error_max < 0.05
+    # feedback at >= 10 Hz during the move, carrying the commanded currents
+    times = np.array([t for t, _ in fb])
+    assert len(fb) >= 12 and np.diff(times).max() < 0.15
+    seen = {round(m.commanded_currents[0], 2) for _, m in fb}
+    assert {-3.7, 6.94} <= seen
+    assert all(len(m.measured_positions) == 1 for _, m in fb[3:])
+    assert proc.alive()
+
+
+@pytest.mark.parametrize("kind, text", [
+    ("limit", "limit"), ("joints", "do not match"), ("inactive", "not 'active'"),
+    ("not_at_q0", "move the arm to q0")])
+def test_refuses_with_a_reason_and_sends_nothing(stack, kind, text):
+    bridge, client, _ = stack
+    bridge.reset(0.5 if kind == "not_at_q0" else 0.0)
+    bridge.state_label = "inactive" if kind == "inactive" else "active"
+    time.sleep(0.3)
+    try:
+        goal, _ = goal_for(currents=[1.0, 12.0, -1.0] if kind == "limit" else CUR,
+                           names=("elbow",) if kind == "joints" else ("joint1",))
+        status, result = run_goal(client, goal)
+    finally:
+        bridge.state_label = "active"
+    assert status == GoalStatus.STATUS_ABORTED and not result.success
+    assert result.message.startswith("refused:") and text in result.message, result.message
+    time.sleep(0.2)
+    assert bridge.received == []
+
+
+def test_second_goal_is_refused_while_one_runs(stack):
+    bridge, client, _ = stack
+    bridge.reset(0.0)
+    time.sleep(0.1)
+    goal, _ = goal_for()
+    first = wait(client.send_goal_async(goal))
+    time.sleep(0.2)
+    status, result = run_goal(client, goal)
+    assert status == GoalStatus.STATUS_ABORTED and "another goal is running" in result.message
+    done = wait(first.get_result_async())
+    assert done.status == GoalStatus.STATUS_SUCCEEDED, done.result.message
+    assert len(bridge.received) == 6      # only the first goal's setpoints
+
+
+def test_cancel_sends_zero_current_at_once(stack):
+    bridge, client, _ = stack
+    bridge.reset(0.0)
+    time.sleep(0.1)
+    goal, _ = goal_for()
+    handle = wait(client.send_goal_async(goal))
+    time.sleep(0.9)                                    # start margin 0.6 s + ~0.3 s of motion
+    t_cancel = bridge.now()
+    wait(handle.cancel_goal_async())
+    res = wait(handle.get_result_async())
+    assert res.status == GoalStatus.STATUS_CANCELED, res.result.message
+    zeros = [r for r in bridge.received if r[5]]
+    assert zeros and zeros[0][2] == [0.0]
+    assert zeros[0][1] - t_cancel < 0.3e9                # stamped (practically) at once
+    time.sleep(0.6)
+    assert bridge.current == 0.0
+    # setpoints the bridge had queued still apply (it does not drop its queue), but each is
+    # overridden by a zero 1 us later
+    after = sorted(a for a in bridge.applied if a[0] >= zeros[0][1])
+    for (t0, c0), (t1, _c1) in zip(after, after[1:]):
+        if c0 != 0.0:
+            assert t1 - t0 <= 1000, (t0, c0, t1)
+    assert after[-1][1] == 0.0

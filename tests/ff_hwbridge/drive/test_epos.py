@@ -1,0 +1,219 @@
+"""EposMaster against a minimal canopen LocalNode drive on a python-can virtual bus, in-process.
+
+The stand-in drive (``MiniEpos``) is test-only: SDO server (canopen), boot-up on NMT reset,
+PDO maps reloaded from its object dictionary when written, RPDO controlword through the CiA 402
+tables, TPDOs on SYNC, heartbeat, EMCY + Fault on request. Its "physics" is a trivial integrator
+(the product's simulated drive uses the planner's model; this only checks the protocol).
+"""
+from __future__ import annotations
+
+import struct
+import threading
+import time
+
+import can
+import canopen
+import pytest
+
+from ff_hwbridge.protocol import cia402
+from ff_hwbridge.protocol.cia402 import State
+from ff_hwbridge.drive.config import load_config
+from ff_hwbridge.drive.epos import EposError, EposMaster
+from ff_hwbridge.protocol.epos_od import build_object_dictionary
+from ff_hwbridge.protocol.units import DriveUnits
+
+from tests.support.canopen_helpers import configure_and_enable, open_network, unique_channel, waiter
+
+from tests.support.mini_drive import FMT, MiniEpos
+
+
+def _config(channel: str, family: str = "epos4", n: int = 1, **over):
+    joints = [{"name": f"joint{i + 1}", "node_id": i + 1, "family": family, "current_limit": 10.0,
+               "units": {"nominal_current": 3.0, "torque_constant": 0.0267, "counts_per_rev": 2048,
+                         "gear_ratio": 54}} for i in range(n)]
+    data = {"bus": {"interface": "virtual", "channel": channel}, "joints": joints,
+            "sync_period": 0.005, "heartbeat_producer_ms": 10, "heartbeat_timeout": 0.3,
+            "setpoint_timeout": 0.1, "boot_timeout": 2.0, "sdo_timeout": 2.0}
+    data.update(over)
+    return load_config(data)
+
+
+@pytest.fixture
+def rig(request):
+    family, n = getattr(request, "param", ("epos4", 1))
+    channel = unique_channel("ff-test")
+    cfg = _config(channel, family, n)
+    drives = [MiniEpos(channel, j.node_id, j.units) for j in cfg.joints]
+    master = EposMaster(cfg)
+    master.connect()
+    yield master, drives
+    master.disconnect()
+    for d in drives:
+        d.close()
+
+
+_wait = waiter(2.0)
+
+
+@pytest.mark.parametrize("rig", [("epos4", 1), ("epos2", 2)], indirect=True)
+def test_configure_sets_mode_heartbeat_and_pdo_maps(rig):
+    master, drives = rig
+    master.configure()
+    for d in drives:
+        d.maps()
+        fam = d.family
+        assert int(d.node.sdo[0x6060].raw) == (10 if fam == "epos4" else -3)
+        assert int(d.node.sdo[0x1017].raw) == 10
+        assert _wait(lambda: d.node.nmt.state == "OPERATIONAL")
+        sp = 0x6071 if fam == "epos4" else 0x2030
+        assert d.rpdo_map == [(0x6040, 0), (sp, 0)]
+        assert d.tpdo1_map == [(0x6041, 0), (0x6064, 0)]
+        cur = (0x30D1, 2) if fam == "epos4" else (0x6078, 0)
+        assert d.tpdo2_map == [(0x606C, 0), cur]
+        assert int(d.node.sdo[0x1400][2].raw) == 255
+        assert int(d.node.sdo[0x1800][2].raw) == 1 and int(d.node.sdo[0x1801][2].raw) == 1
+        assert d.rpdo_cob == 0x200 + d.id and d.tpdo_cobs == [0x180 + d.id, 0x280 + d.id]
+        limit = int(d.node.sdo[0x3001][2].raw if fam == "epos4" else d.node.sdo[0x6410][2].raw)
+        assert limit == 10000
+    assert _wait(lambda: all(s is State.SWITCH_ON_DISABLED for s in master.states()))
+
+
+def test_enable_sequence_goes_through_transitions_2_3_4(rig):
+    master, drives = rig
+    configure_and_enable(master)
+    assert drives[0].transitions[-3:] == [2, 3, 4]
+    sent = master.command_currents([1.5])
+    assert sent.currents[0] == pytest.approx(1.5)
+    assert _wait(lambda: drives[0].setpoint_raw == 500)       # 1.5 A / 3 A nominal = 500 ‰
+    assert _wait(lambda: abs(master.feedback()[0].current - 1.5) < 1e-9)
+    assert master.feedback()[0].velocity > 0
+    master.disable()
+    assert master.wait_for_state(State.SWITCHED_ON, 2.0)
+    assert drives[0].transitions[-1] == 5
+    assert drives[0].setpoint_raw == 0
+
+
+def test_command_is_clamped_to_limit(rig):
+    master, drives = rig
+    configure_and_enable(master)
+    sent = master.command_currents([1e9])
+    assert sent.currents[0] == pytest.approx(10.0) and sent.reason
+    assert _wait(lambda: drives[0].setpoint_raw == 3333)      # floor(10 A / 3 A * 1000)
+    master.command_currents([float("nan")])
+    assert _wait(lambda: drives[0].setpoint_raw == 0)
+    assert max(abs(sp) for _, sp in drives[0].rx_log) <= 3333
+
+
+def test_emcy_latches_safe_state_and_fault_reset_recovers(rig):
+    master, drives = rig
+    configure_and_enable(master)
+    master.command_currents([2.0])
+    drives[0].raise_fault(0x2310)
+    assert _wait(lambda: master.latched, 1.0)
+    assert "EMCY" in master.fault_reason and "0x2310" in master.fault_reason
+    n = len(drives[0].rx_log)
+    master.command_currents([5.0])                           # refused while latched
+    assert _wait(lambda: len(drives[0].rx_log) > n)
+    assert all(sp == 0 for _, sp in drives[0].rx_log[n - 1:])
+    with pytest.raises(EposError):
+        master.enable()
+    master.fault_reset()
+    assert not master.latched
+    assert master.wait_for_state(State.OPERATION_ENABLED, 2.0)
+    assert 15 in drives[0].transitions
+
+
+def test_heartbeat_loss_latches_safe_state(rig):
+    master, drives = rig
+    configure_and_enable(master)
+    master.command_currents([1.0])
+    drives[0].stop_heartbeat()
+    assert _wait(lambda: master.latched, 2.0)
+    assert "heartbeat lost" in master.fault_reason
+    assert _wait(lambda: drives[0].state is State.QUICK_STOP_ACTIVE)
+    assert drives[0].transitions[-1] == 11
+    assert drives[0].setpoint_raw == 0
+
+
+def test_setpoint_watchdog_and_feedback_loss(rig):
+    master, drives = rig
+    configure_and_enable(master)
+    master.note_setpoint(motion_running=True)
+    master.command_currents([1.0])
+    assert _wait(lambda: master.latched, 2.0)
+    assert "setpoint watchdog" in master.fault_reason
+    master.fault_reset()
+    assert master.wait_for_state(State.OPERATION_ENABLED, 2.0)
+    drives[0].answer_sync = False                            # drive stops sending TPDOs
+    assert _wait(lambda: master.latched, 2.0)
+    assert "feedback lost" in master.fault_reason
+
+
+def test_missing_node_gives_clear_error():
+    channel = unique_channel("ff-test")
+    master = EposMaster(_config(channel, boot_timeout=0.2))
+    master.connect()
+    try:
+        with pytest.raises(EposError, match="no boot-up"):
+            master.configure()
+    finally:
+        master.disconnect()
+
+
+def test_node_leaving_operational_or_rebooting_latches(rig):
+    master, drives = rig
+    configure_and_enable(master)
+    assert _wait(lambda: master.status()["joint1.nmt"] == "OPERATIONAL")
+    drives[0].node.nmt.send_command(0x02)                    # the drive goes to NMT STOPPED
+    assert _wait(lambda: master.latched, 2.0)
+    assert "left OPERATIONAL" in master.fault_reason
+    # fault reset sets the node up again (NMT reset communication, SDO, PDO, start)
+    master.fault_reset()
+    assert master.wait_for_state(State.OPERATION_ENABLED, 3.0), master.events
+    assert drives[0].node.nmt.state == "OPERATIONAL"
+    drives[0].node.nmt.send_command(0x82)                    # spontaneous reboot: boot-up frame
+    drives[0].node.nmt.send_command(0x80)
+    assert _wait(lambda: master.latched, 2.0)
+    assert "rebooted" in master.fault_reason
+
+
+def test_lost_quick_stop_is_repeated_and_lost_setpoint_heals(rig):
+    master, drives = rig
+    configure_and_enable(master)
+    master.command_currents([1.5])
+    assert _wait(lambda: drives[0].setpoint_raw == 500)
+    drives[0].drop_rx = True                                 # every RPDO to the drive is lost
+    master.quick_stop("test: quick stop")
+    time.sleep(0.05)
+    assert drives[0].state is State.OPERATION_ENABLED and drives[0].setpoint_raw == 500
+    drives[0].drop_rx = False                                # frames flow again
+    assert _wait(lambda: drives[0].state is State.QUICK_STOP_ACTIVE and drives[0].setpoint_raw == 0)
+    master.fault_reset()
+    assert master.wait_for_state(State.OPERATION_ENABLED, 2.0)
+    drives[0].drop_rx = True
+    master.command_currents([0.6])                           # this setpoint is lost ...
+    time.sleep(0.02)
+    drives[0].drop_rx = False
+    assert _wait(lambda: drives[0].setpoint_raw == 200)      # ... and healed by the refresh
+
+
+def test_master_heartbeat_is_produced_and_consumed_by_the_drive():
+    channel = unique_channel("ff-test")
+    cfg = _config(channel, master_heartbeat_ms=20)
+    drive = MiniEpos(channel, 1, cfg.joints[0].units)
+    seen = []
+    drive.net.subscribe(0x77F, lambda cid, data, ts: seen.append(bytes(data)))
+    master = EposMaster(cfg)
+    master.connect()
+    try:
+        master.configure()
+        assert int(drive.node.sdo[0x1016][1].raw) == (127 << 16) | 60
+        assert _wait(lambda: len(seen) >= 3)
+        assert set(seen) == {b"\x05"}
+        master.disconnect()
+        n = len(seen)
+        time.sleep(0.1)
+        assert len(seen) <= n + 1                              # stops with the master
+    finally:
+        master.disconnect()
+        drive.close()

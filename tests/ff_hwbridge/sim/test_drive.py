@@ -1,0 +1,396 @@
+"""The emulated EPOS as a CANopen slave, driven by a plain canopen RemoteNode / raw frames
+on an in-process virtual bus."""
+from __future__ import annotations
+
+import itertools
+import struct
+import time
+
+import canopen
+import pytest
+from canopen.sdo import SdoAbortedError, SdoCommunicationError
+
+from ff_hwbridge.protocol.cia402 import State
+from ff_hwbridge.sim.drive import DriveConfig, SimConfigError, SimEpos, build_object_dictionary
+
+from tests.support.canopen_helpers import open_network, waiter
+
+_chan = itertools.count()
+
+
+wait_for = waiter(3.0)
+
+
+class Rig:
+    """Drive on one canopen Network, master (RemoteNode + frame recorder) on another."""
+
+    def __init__(self, family="epos4", node_id=1, plant=None, **cfg):
+        chan = f"test-sim-epos-{next(_chan)}"
+        self.cfg = DriveConfig(node_id=node_id, family=family, **cfg)
+        self.net_s, self.net_m = open_network(chan), open_network(chan)
+        self.frames: list[tuple[float, int, bytes]] = []
+        self.net_m.notifier.add_listener(self)  # records every frame the master sees
+        self.drive = SimEpos(self.cfg, plant)
+        self.drive.attach(self.net_s)
+        self.node = canopen.RemoteNode(node_id, build_object_dictionary(self.cfg))
+        self.node.sdo.RESPONSE_TIMEOUT = 2.0         # generous: the machine is shared
+        self.net_m.add_node(self.node)
+
+    # can.Listener protocol
+    def on_message_received(self, msg):
+        self.frames.append((time.monotonic(), msg.arbitration_id, bytes(msg.data)))
+
+    __call__ = on_message_received
+
+    def stop(self):
+        pass
+
+    def on_error(self, exc):
+        pass
+
+    def seen(self, can_id):
+        return [d for _, i, d in self.frames if i == can_id]
+
+    def configure_contract_pdos(self):
+        n, sp = self.node, (0x6071 if self.cfg.family == "epos4" else 0x2030)
+        cur = (0x30D1, 2) if self.cfg.family == "epos4" else (0x6078, 0)
+        n.rpdo.read()
+        n.tpdo.read()
+        r = n.rpdo[1]
+        r.clear(); r.add_variable(0x6040); r.add_variable(sp); r.trans_type = 255; r.enabled = True
+        t1 = n.tpdo[1]
+        t1.clear(); t1.add_variable(0x6041); t1.add_variable(0x6064); t1.trans_type = 1; t1.enabled = True
+        t2 = n.tpdo[2]
+        t2.clear(); t2.add_variable(0x606C); t2.add_variable(*cur); t2.trans_type = 1; t2.enabled = True
+        t2.cob_id = 0x280 + self.cfg.node_id
+        n.rpdo[1].save(); n.tpdo[1].save(); n.tpdo[2].save()
+
+    def rpdo(self, cw, sp=0):
+        self.net_m.send_message(0x200 + self.cfg.node_id, struct.pack("<Hh", cw, sp))
+
+    def enable(self, mode=None):
+        self.node.sdo[0x6060].raw = mode if mode is not None else (10 if self.cfg.family == "epos4" else -3)
+        self.node.nmt.send_command(0x01)
+        assert wait_for(lambda: self.drive.nmt_state == "OPERATIONAL")
+        for cw in (0x06, 0x07, 0x0F):
+            self.rpdo(cw)
+        assert wait_for(lambda: self.drive.state is State.OPERATION_ENABLED)
+
+    def close(self):
+        self.drive.close()
+        self.net_m.disconnect()
+        self.net_s.disconnect()
+
+
+@pytest.fixture
+def rig():
+    r = Rig()
+    r.drive.boot()
+    yield r
+    r.close()
+
+
+def test_bootup_heartbeat_and_nmt(rig):
+    assert wait_for(lambda: rig.seen(0x701) == [b"\x00"])
+    assert rig.drive.nmt_state == "PRE-OPERATIONAL"
+    rig.node.sdo[0x1017].raw = 10
+    assert wait_for(lambda: len(rig.seen(0x701)) >= 4)
+    assert rig.seen(0x701)[-1] == b"\x7f"
+    rig.node.nmt.send_command(0x01)
+    assert wait_for(lambda: rig.seen(0x701)[-1] == b"\x05")
+    rig.node.nmt.send_command(0x02)
+    assert wait_for(lambda: rig.seen(0x701)[-1] == b"\x04")
+    rig.node.nmt.send_command(0x80)
+    assert wait_for(lambda: rig.seen(0x701)[-1] == b"\x7f")
+
+
+def test_reset_node_and_communication(rig):
+    rig.node.sdo[0x1017].raw = 10
+    rig.node.sdo[0x6060].raw = 10
+    rig.frames.clear()
+    rig.node.nmt.send_command(0x82)                      # reset communication
+    assert wait_for(lambda: b"\x00" in rig.seen(0x701))
+    time.sleep(0.05)
+    assert rig.seen(0x701) == [b"\x00"]                  # 0x1017 back to 0: no heartbeat
+    assert rig.node.sdo[0x6060].raw == 10                # application untouched
+    rig.node.nmt.send_command(0x81)                      # reset node
+    assert wait_for(lambda: rig.seen(0x701).count(b"\x00") == 2)
+    assert rig.node.sdo[0x6060].raw == 0
+    assert rig.drive.nmt_state == "PRE-OPERATIONAL"
+
+
+def test_sdo_motor_data_and_modes(rig):
+    sdo = rig.node.sdo
+    assert sdo[0x3001][1].raw == 3000                    # mA
+    assert sdo[0x3001][2].raw == 10000
+    assert sdo[0x3001][5].raw == 26700                   # µNm/A
+    assert sdo[0x6076].raw == round(3000 * 26.7)        # µNm = mA · µNm/A / 1000
+    assert sdo[0x1018][1].raw == 0xFB
+    with pytest.raises(SdoAbortedError) as e:
+        sdo[0x6060].raw = 7                              # not an EPOS4 mode
+    assert e.value.code == 0x06090030
+    sdo[0x6060].raw = 10
+    assert sdo[0x6061].raw == 10
+    with pytest.raises(SdoAbortedError):
+        sdo[0x6041].raw = 1                              # read-only
+    with pytest.raises(SdoAbortedError) as e:
+        sdo.download(0x6099, 0, b"\x00")
+    assert e.value.code == 0x06020000
+
+
+def test_pdo_remap_is_reloaded_and_guarded(rig):
+    rig.configure_contract_pdos()
+    d = rig.drive.node
+    assert [(v.index, v.subindex) for v in d.rpdo[1].map] == [(0x6040, 0), (0x6071, 0)]
+    assert [(v.index, v.subindex) for v in d.tpdo[2].map] == [(0x606C, 0), (0x30D1, 2)]
+    assert d.tpdo[2].enabled and d.tpdo[2].cob_id == 0x281 and d.tpdo[2].trans_type == 1
+    with pytest.raises(SdoAbortedError) as e:                # PDO valid: mapping locked
+        rig.node.sdo[0x1600][0].raw = 0
+    assert e.value.code == 0x08000022
+    rig.node.sdo[0x1400][1].raw = 0x80000201               # disable
+    with pytest.raises(SdoAbortedError) as e:
+        rig.node.sdo[0x1600][1].raw = 0x60410010             # count not 0 yet
+    rig.node.sdo[0x1600][0].raw = 0
+    with pytest.raises(SdoAbortedError) as e:                # statusword is not an RPDO object
+        rig.node.sdo[0x1600][1].raw = 0x60410010
+    assert e.value.code == 0x06040041
+
+
+def test_cia402_transitions_by_controlword(rig):
+    d, sdo = rig.drive, rig.node.sdo
+    sdo[0x6060].raw = 10
+    assert d.state is State.SWITCH_ON_DISABLED
+    for cw, state in ((0x06, State.READY_TO_SWITCH_ON), (0x07, State.SWITCHED_ON),
+                      (0x0F, State.OPERATION_ENABLED), (0x07, State.SWITCHED_ON),
+                      (0x0F, State.OPERATION_ENABLED), (0x06, State.READY_TO_SWITCH_ON),
+                      (0x0F, State.OPERATION_ENABLED), (0x00, State.SWITCH_ON_DISABLED)):
+        sdo[0x6040].raw = cw
+        assert d.state is state, (hex(cw), d.state)
+        assert sdo[0x6041].raw & 0x6F == {State.READY_TO_SWITCH_ON: 0x21, State.SWITCHED_ON: 0x23,
+                                          State.OPERATION_ENABLED: 0x27}.get(state, sdo[0x6041].raw & 0x6F)
+    assert d.transitions == [2, 3, 4, 5, 4, 8, 3, 4, 9]
+    # quick stop, maxon default option 2: current 0, then SWITCH ON DISABLED when stopped (12)
+    for cw in (0x06, 0x0F, 0x02):
+        sdo[0x6040].raw = cw
+    assert sdo[0x6041].raw & 0x4F == 0x40
+    assert d.transitions[-2:] == [11, 12]
+    # option 6: stay in QUICK STOP ACTIVE, enable operation again (16)
+    sdo[0x605A].raw = 6
+    for cw in (0x06, 0x0F, 0x02):
+        sdo[0x6040].raw = cw
+    assert d.state is State.QUICK_STOP_ACTIVE and sdo[0x6041].raw & 0x6F == 0x07
+    sdo[0x6040].raw = 0x0F
+    assert d.state is State.OPERATION_ENABLED and d.transitions[-1] == 16
+
+
+def test_setpoint_applied_on_arrival_and_clamped(rig):
+    rig.configure_contract_pdos()
+    rig.enable()
+    d = rig.drive
+    rig.rpdo(0x0F, 500)                                  # 500 ‰ of 3 A nominal
+    assert wait_for(lambda: len(d.setpoint_log()) >= 4 and d.applied_current == pytest.approx(1.5))
+    rec = d.setpoint_log()[-1]
+    assert rec.raw == 500 and rec.source == "rpdo" and rec.commanded == pytest.approx(1.5)
+    assert abs(rec.wall_ns - time.time_ns()) < 5e9 and rec.mono_ns <= time.monotonic_ns()
+    rig.rpdo(0x0F, -5000)                                # -15 A asked, limit 10 A
+    assert wait_for(lambda: d.applied_current == pytest.approx(-10.0))
+    assert d.setpoint_log()[-1].commanded == pytest.approx(-15.0)
+    rig.rpdo(0x07, 500)                                  # disable operation: no current
+    assert wait_for(lambda: d.state is State.SWITCHED_ON)
+    assert d.applied_current == 0.0
+
+
+def test_no_current_outside_current_mode():
+    r = Rig()
+    try:
+        r.drive.boot()
+        r.configure_contract_pdos()
+        r.enable(mode=9)                                 # CSV: the sim drives no current
+        r.rpdo(0x0F, 500)
+        assert wait_for(lambda: len(r.drive.setpoint_log()) >= 4)
+        assert r.drive.applied_current == 0.0
+        assert not r.node.sdo[0x6041].raw & (1 << 12)
+    finally:
+        r.close()
+
+
+def test_epos2_current_mode_in_milliamps():
+    r = Rig(family="epos2", node_id=2)
+    try:
+        r.drive.boot()
+        r.configure_contract_pdos()
+        assert r.node.sdo[0x6410][2].raw == 10000
+        r.enable()
+        r.rpdo(0x0F, 2500)                               # mA
+        assert wait_for(lambda: r.drive.applied_current == pytest.approx(2.5))
+        r.net_m.sync.transmit()
+        assert wait_for(lambda: len(r.seen(0x282)) >= 1)
+        rpm, ma = struct.unpack("<ih", r.seen(0x282)[-1])
+        assert ma == 2500 and rpm == 0
+    finally:
+        r.close()
+
+
+class MovingPlant:
+    """Stand-in plant: joint at a fixed speed, current echoed."""
+
+    def __init__(self):
+        self.i = 0.0
+
+    def set_current(self, current, t_ns):
+        self.i = current
+
+    def sample(self, t_ns):
+        return 1.0, 0.5, self.i
+
+
+def test_tpdos_on_sync_only_when_operational():
+    r = Rig(plant=MovingPlant(), gear_ratio=54.0, counts_per_rev=4096)
+    try:
+        r.drive.boot()
+        r.configure_contract_pdos()
+        r.net_m.sync.transmit()
+        time.sleep(0.05)
+        assert r.seen(0x181) == []                       # PRE-OPERATIONAL: no PDOs
+        r.enable()
+        r.rpdo(0x0F, 1000)
+        n0 = len(r.seen(0x181))
+        for _ in range(3):
+            r.net_m.sync.transmit()
+        assert wait_for(lambda: len(r.seen(0x181)) == n0 + 3 and len(r.seen(0x281)) == 3)
+        sw, pos = struct.unpack("<Hi", r.seen(0x181)[-1])
+        rpm, ma = struct.unpack("<ii", r.seen(0x281)[-1])
+        assert sw & 0x6F == 0x27
+        assert pos == round(1.0 * 54 / (2 * 3.141592653589793) * 4096)
+        assert rpm == round(0.5 * 54 * 60 / (2 * 3.141592653589793))
+        assert ma == 3000
+        r.node.nmt.send_command(0x02)                    # STOPPED: no more PDOs
+        assert wait_for(lambda: r.drive.nmt_state == "STOPPED")
+        n1 = len(r.seen(0x181))
+        r.net_m.sync.transmit()
+        time.sleep(0.05)
+        assert len(r.seen(0x181)) == n1
+        r.node.sdo.RESPONSE_TIMEOUT = 0.2
+        with pytest.raises(SdoCommunicationError):       # no SDO in STOPPED either
+            r.node.sdo[0x6060].raw
+    finally:
+        r.close()
+
+
+def test_emcy_fault_and_fault_reset(rig):
+    rig.configure_contract_pdos()
+    rig.enable()
+    rig.rpdo(0x0F, 500)
+    assert wait_for(lambda: rig.drive.applied_current > 0)
+    rig.drive.raise_emcy(0x2310)                         # over-current
+    assert wait_for(lambda: len(rig.seen(0x81)) == 1)
+    code, reg = struct.unpack_from("<HB", rig.seen(0x81)[0])
+    assert code == 0x2310 and reg & 0x03 == 0x03         # generic + current
+    assert rig.drive.applied_current == 0.0
+    sw = rig.node.sdo[0x6041].raw
+    assert sw & 0x4F == 0x08
+    assert rig.node.sdo[0x1001].raw == reg
+    assert rig.node.sdo[0x1003][1].raw == 0x2310
+    rig.rpdo(0x0F, 500)                                  # setpoints ignored while in FAULT
+    time.sleep(0.02)
+    assert rig.drive.applied_current == 0.0
+    rig.rpdo(0x80)                                       # fault reset (rising edge)
+    assert wait_for(lambda: rig.drive.state is State.SWITCH_ON_DISABLED)
+    assert wait_for(lambda: len(rig.seen(0x81)) == 2)
+    assert struct.unpack_from("<HB", rig.seen(0x81)[1]) == (0, 0)
+    assert rig.node.sdo[0x1001].raw == 0
+    for cw in (0x06, 0x0F):
+        rig.rpdo(cw, 500)
+    assert wait_for(lambda: rig.drive.applied_current == pytest.approx(1.5))
+
+
+def test_fault_heartbeat_stop_and_resume(rig):
+    rig.node.sdo[0x1017].raw = 10
+    assert wait_for(lambda: len(rig.seen(0x701)) >= 3)
+    rig.drive.stop_heartbeat()
+    time.sleep(0.03)
+    n = len(rig.seen(0x701))
+    time.sleep(0.1)
+    assert len(rig.seen(0x701)) == n
+    rig.drive.stop_heartbeat(False)
+    assert wait_for(lambda: len(rig.seen(0x701)) >= n + 3)
+
+
+def test_fault_sdo_silent(rig):
+    rig.drive.set_sdo_silent()
+    rig.node.sdo.RESPONSE_TIMEOUT = 0.3
+    with pytest.raises(SdoCommunicationError):
+        rig.node.sdo[0x6060].raw
+    rig.drive.set_sdo_silent(False)
+    assert rig.node.sdo[0x6060].raw == 0
+
+
+def test_fault_drop_next_and_fraction(rig):
+    rig.configure_contract_pdos()
+    rig.enable()
+    d = rig.drive
+    d.clear_setpoint_log()
+    d.drop_next(3)
+    for k in range(5):
+        rig.rpdo(0x0F, 100 + k)
+    assert wait_for(lambda: len(d.setpoint_log()) == 2)
+    assert [r.raw for r in d.setpoint_log()] == [103, 104]
+    assert d.link_stats.rx_dropped == 3
+    d.drop_fraction(1.0)
+    rig.rpdo(0x0F, 7)
+    time.sleep(0.03)
+    assert len(d.setpoint_log()) == 2
+    d.clear_injected_faults()
+    d.drop_next(2, "tx")                                 # the drive's next 2 frames are lost
+    rig.net_m.sync.transmit()                            # TPDO1 + TPDO2 dropped
+    rig.net_m.sync.transmit()
+    assert wait_for(lambda: len(rig.seen(0x281)) == 1)
+    time.sleep(0.02)
+    assert len(rig.seen(0x281)) == 1 and d.link_stats.tx_dropped == 2
+
+
+def test_fault_delay_rx(rig):
+    rig.configure_contract_pdos()
+    rig.enable()
+    d = rig.drive
+    d.set_delay(30, "rx")
+    t0 = time.monotonic_ns()
+    rig.rpdo(0x0F, 321)
+    assert wait_for(lambda: d.setpoint_log()[-1].raw == 321)
+    assert d.setpoint_log()[-1].mono_ns - t0 >= 29e6      # applied when it "arrived", late
+    d.set_delay(0)
+
+
+def test_bad_settings_are_refused():
+    with pytest.raises(SimConfigError, match="node_id"):
+        DriveConfig(node_id=0)
+    with pytest.raises(SimConfigError, match="family"):
+        DriveConfig(family="epos3")
+    d = SimEpos(DriveConfig())
+    with pytest.raises(SimConfigError, match="fraction"):
+        d.drop_fraction(1.5)
+    with pytest.raises(SimConfigError, match="direction"):
+        d.set_delay(1, "up")
+    with pytest.raises(SimConfigError, match="EMCY code"):
+        d.raise_emcy(0x10)
+
+
+def test_heartbeat_consumer_faults_on_a_silent_master(rig):
+    rig.configure_contract_pdos()
+    rig.node.sdo[0x1016][1].raw = (127 << 16) | 100      # consume node 127's heartbeat, 100 ms
+    task = rig.net_m.send_periodic(0x77F, [0x05], 0.005)
+    try:
+        rig.enable()
+        rig.rpdo(0x0F, 500)
+        assert wait_for(lambda: rig.drive.applied_current == pytest.approx(1.5))
+        time.sleep(0.1)
+        assert rig.drive.state is State.OPERATION_ENABLED  # heartbeats keep coming
+    finally:
+        task.stop()
+    assert wait_for(lambda: rig.drive.state is State.FAULT)
+    assert time.monotonic() - rig.drive._hb_seen[127] >= 0.1     # not before the timeout
+    assert rig.drive.applied_current == 0.0
+    assert wait_for(lambda: any(d[:2] == b"\x30\x81" for d in rig.seen(0x81)))   # EMCY 0x8130
+    rig.node.sdo[0x1016][1].raw = 0                       # consumer off, then fault reset
+    rig.rpdo(0x80)
+    assert wait_for(lambda: rig.drive.state is State.SWITCH_ON_DISABLED)

@@ -1,0 +1,93 @@
+"""Round trips between ff_msgs messages and the planner's dataclasses / numpy."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ff_msgs.msg import CurrentProfile as CurrentProfileMsg
+from ff_msgs.srv import PlanTrajectory
+from ff_msgs_py import convert
+from ff_planner.model.params import ParameterError, default_params
+from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult
+
+
+def test_profile_round_trip_2dof():
+    prof = CurrentProfile.uniform([[1.0, -2.0], [3.5, 4.0], [-5.0, 0.25]], tf=1.2, coast=0.05)
+    msg = convert.profile_to_msg(prof, "scara2", [-0.5, 0.0], [0.5, 0.0])
+    assert msg.joint_names == ["joint1", "joint2"] and msg.n_steps == 3
+    back = convert.msg_to_profile(msg)
+    np.testing.assert_array_equal(back.currents, prof.currents)
+    np.testing.assert_array_equal(back.step_times, prof.step_times)
+    assert back.tf == 1.2 and back.coast == 0.05
+    # the id is a content hash: same motion, same id; different currents, different id
+    assert msg.profile_id == convert.profile_to_msg(prof, "scara2", [-0.5, 0.0], [0.5, 0.0]).profile_id
+    prof.currents[0, 0] += 1e-3
+    assert msg.profile_id != convert.profile_to_msg(prof, "scara2", [-0.5, 0.0], [0.5, 0.0]).profile_id
+
+
+def test_inconsistent_profile_msg_is_refused():
+    msg = CurrentProfileMsg(joint_names=["j"], n_steps=3, currents=[1.0, 2.0], step_times=[0, 0.1, 0.2, 0.3])
+    with pytest.raises(ValueError, match="currents"):
+        convert.msg_to_profile(msg)
+    msg = CurrentProfileMsg(joint_names=["j"], n_steps=2, currents=[1.0, 2.0], step_times=[0, 0.1])
+    with pytest.raises(ValueError, match="step times"):
+        convert.msg_to_profile(msg)
+
+
+def test_time_round_trip():
+    for ns in (0, 1, 999_999_999, 1_000_000_000, 1_732_000_123_456_789):
+        assert convert.time_to_ns(convert.ns_to_time(ns)) == ns
+    with pytest.raises(ValueError):
+        convert.ns_to_time(-1)
+
+
+def test_setpoint_round_trip():
+    msg = convert.setpoint_msg(5_000_000_123, [1.5, -2.0], 7, "abc", last=True)
+    stamp, cur, seq, pid, last = convert.setpoint_to_tuple(msg)
+    assert stamp == 5_000_000_123 and seq == 7 and pid == "abc" and last
+    np.testing.assert_array_equal(cur, [1.5, -2.0])
+
+
+def test_request_round_trip_with_overrides():
+    params = default_params("arm1dof").replace(pc=0.25, J=0.2)
+    req = PlanRequest(model="arm1dof", q0=[0.1], qf=[1.1], tf=0.9, uncertain=["pc"],
+                      objective="robust-sampled", steps=4, starts=12, seed=3, time_budget=2.5,
+                      params=params)
+    msg = convert.request_to_msg(req)
+    assert sorted(msg.override_names) == ["J", "pc"]
+    back = convert.request_from_msg(msg)
+    assert back.params == params
+    assert (back.model, list(back.q0), list(back.qf), back.tf) == ("arm1dof", [0.1], [1.1], 0.9)
+    assert (back.objective, back.steps, back.starts, back.seed, back.time_budget) == (
+        "robust-sampled", 4, 12, 3, 2.5)
+    back.validate()
+
+
+def test_request_defaults_and_bad_override():
+    msg = PlanTrajectory.Request(model="arm1dof", q0=[0.0], qf=[1.0], move_time=1.0, uncertain=["pc"])
+    req = convert.request_from_msg(msg, defaults=PlanRequest(starts=7, time_budget=4.0))
+    assert req.steps is None and req.n_steps() == 3 and req.starts == 7 and req.time_budget == 4.0
+    assert req.objective == "robust-derivative"
+    msg.override_names, msg.override_values = ["nope"], [1.0]
+    with pytest.raises(ParameterError, match="nope"):
+        convert.request_from_msg(msg)
+    msg.override_names, msg.override_values = ["pc"], []
+    with pytest.raises(ParameterError, match="override"):
+        convert.request_from_msg(msg)
+
+
+def test_result_to_response():
+    prof = CurrentProfile.uniform([1.0, -1.0, 0.5], tf=1.0)
+    result = PlanResult(success=False, message="no robust plan", profile=prof, model="arm1dof",
+                        params=default_params("arm1dof"), q0=np.array([0.0]), qf=np.array([1.0]),
+                        uncertain=["pc"], objective="robust-derivative", q_final=np.array([0.99]),
+                        qd_final=np.array([0.0]), sensitivities={"pc": 1e-3}, error_code="NO_ROBUST_PLAN",
+                        best_effort=True, starts_tried=5, iterations=40, solve_time=0.01)
+    res = convert.result_to_response(result, PlanTrajectory.Response())
+    assert not res.success and res.error_code == PlanTrajectory.Response.NO_ROBUST_PLAN
+    assert list(res.sensitivity_names) == ["pc"] and list(res.sensitivity_values) == [1e-3]
+    assert list(res.q_final) == [0.99] and res.profile.n_steps == 3 and not res.robust
+    np.testing.assert_array_equal(convert.msg_to_profile(res.profile).currents, prof.currents)
+    # every error name maps onto the service's constant of the same name
+    for name, value in convert.ERROR_CODES.items():
+        assert getattr(PlanTrajectory.Response, name) == value

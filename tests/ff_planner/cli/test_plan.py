@@ -1,0 +1,136 @@
+"""ff-plan: exit codes, one-line errors (never a traceback), outputs."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from ff_planner.cli.plan import main
+from ff_planner.export.motion_file import read_motion
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--tf", "nan"], "--tf must be a finite"),
+    (["--q0", "nan"], "finite"),
+    (["--qf", "inf"], "finite"),
+    (["--qf", "abc"], "not a number"),
+    (["--tf", "0.05"], "must exceed the coast"),
+    (["--tf", "0.03"], "must exceed the coast"),
+    (["--qf", "40"], "UNREACHABLE"),
+    (["--uncertain", "pq"], "unknown uncertain parameter"),
+    (["--uncertain", "pc", "px"], "px"),
+    (["--set", "foo=1"], "unknown parameter"),
+    (["--set", "pc=-1"], "must be >= 0"),
+    (["--set", "pc"], "KEY=VALUE"),
+    (["--steps", "0"], "--steps must be >= 1"),
+    (["--steps", "-3"], "--steps must be >= 1"),
+    (["--model", "scara2", "--qf", "1"], "needs 2 value"),
+    (["--model", "robot"], "invalid choice"),
+    (["--objective", "fast"], "invalid choice"),
+    (["--params", "/nonexistent.yaml"], "no such file"),
+    (["--preset", "table3", "--model", "arm1dof"], "for model 'scara2'"),
+    (["-o", "/nonexistent-dir/x.json"], "does not exist"),
+    (["--bogus"], "unrecognized arguments"),
+])
+def test_bad_input_one_line_exit_2(argv, needle, capsys):
+    assert main(argv) == 2
+    out, err = capsys.readouterr()
+    assert out == ""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("ff-plan: error")
+    assert needle in lines[0]
+    assert "Traceback" not in err
+
+
+def test_bad_params_yaml(tmp_path, capsys):
+    f = tmp_path / "p.yaml"
+    f.write_text("model: arm1dof\nparams: {pc: [1, 2}\n")
+    assert main(["--params", str(f)]) == 2
+    assert "cannot read" in capsys.readouterr().err
+    f.write_text("model: arm1dof\nparams: {pz: 1}\n")
+    assert main(["--params", str(f)]) == 2
+    assert "pz" in capsys.readouterr().err
+
+
+def test_time_optimal_writes_motion_and_plot(tmp_path, capsys):
+    out, png = tmp_path / "m.json", tmp_path / "m.png"
+    rc = main(["--objective", "time-optimal", "--qf", "0.8", "-o", str(out), "--plot", str(png)])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "time-optimal" in text and "wrote" in text
+    m = read_motion(out)
+    assert m.qf[0] == 0.8 and m.extra["objective"] == "time-optimal"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_json_summary_and_params_file(tmp_path, capsys):
+    f = tmp_path / "p.yaml"
+    f.write_text("preset: table2\nparams: {pc: 0.2}\n")
+    rc = main(["--params", str(f), "--objective", "energy-optimal", "--steps", "20", "--json",
+               "-o", str(tmp_path / "e.json")])
+    assert rc == 0
+    d = json.loads(capsys.readouterr().out)
+    assert d["objective"] == "energy-optimal" and d["success"] and not d["robust"]
+    assert read_motion(tmp_path / "e.json").params.pc == 0.2
+    assert abs(d["q_final"][0] - 1.0) < 1e-8
+
+
+def test_help_via_subprocess():
+    r = subprocess.run([sys.executable, "-m", "ff_planner.cli.plan", "--help"], capture_output=True,
+                       text=True, timeout=60)
+    assert r.returncode == 0
+    for flag in ("--q0", "--qf", "--tf", "--uncertain", "--objective", "--steps", "--starts",
+                 "--seed", "--time-budget", "--output", "--plot"):
+        assert flag in r.stdout
+
+
+def test_unreachable_via_subprocess_no_traceback():
+    r = subprocess.run([sys.executable, "-m", "ff_planner.cli.plan", "--qf", "1e3"],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert r.stderr.count("\n") == 1 and "UNREACHABLE" in r.stderr
+
+
+def test_config_files_load_and_flags_override(tmp_path, capsys):
+    from pathlib import Path
+
+    from ff_planner.cli.plan import build_parser, make_request
+
+    cfgdir = Path(__file__).resolve().parents[3] / "config"
+    files = sorted(cfgdir.glob("plan_*.yaml"))
+    assert len(files) >= 3
+    for f in files:   # every shipped example parses into a valid request
+        req = make_request(build_parser().parse_args(["--config", str(f)]))
+        req.validate()
+    req = make_request(build_parser().parse_args(
+        ["--config", str(cfgdir / "plan_arm1dof_k3.yaml"), "--qf", "0.5", "--steps", "7"]))
+    assert req.qf == (0.5,) and req.steps == 7 and req.starts == 100
+    assert req.uncertain == ("pv", "pc", "pt") and req.params.pc == 0.19
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("task: {qf: [1.0], speed: 3}\n")
+    assert main(["--config", str(bad)]) == 2
+    assert "speed" in capsys.readouterr().err
+    bad.write_text("plan: {steps: 0}\n")
+    assert main(["--config", str(bad)]) == 2
+    assert "--steps must be >= 1" in capsys.readouterr().err
+    bad.write_text("task: {tf: .nan}\n")
+    assert main(["--config", str(bad)]) == 2
+    assert "finite" in capsys.readouterr().err
+
+
+def test_progress_printer_is_quiet_at_first_then_throttled():
+    import io
+
+    from ff_planner.cli.plan import ProgressPrinter
+
+    out = io.StringIO()
+    pp = ProgressPrinter(delay=0.0, every=3600.0, stream=out)
+    pp({"starts_done": 10, "best": 1e-3, "stage": "joint1"})
+    pp({"starts_done": 20, "best": 1e-4})          # within the throttle window: dropped
+    text = out.getvalue()
+    assert pp.lines == 1 and "starts_done=10" in text and "best=0.001" in text and "stage=joint1" in text
+    quiet = ProgressPrinter(delay=3600.0, stream=out)
+    quiet({"starts_done": 1})
+    assert quiet.lines == 0

@@ -1,0 +1,125 @@
+"""plan(): validation with error codes, the reachability check, dispatch, best-effort labels."""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+import ff_planner.optimize.planner as planner
+from ff_planner.model.params import PRESETS
+from ff_planner.optimize.planner import check_reachable, plan, reach
+from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
+
+
+@pytest.mark.parametrize("kw, code, needle", [
+    (dict(q0=(float("nan"),)), "INVALID_REQUEST", "finite"),
+    (dict(qf=(math.inf,)), "INVALID_REQUEST", "finite"),
+    (dict(tf=0.05), "INVALID_REQUEST", "must exceed the coast"),
+    (dict(tf=0.01), "INVALID_REQUEST", "must exceed the coast"),
+    (dict(tf=float("nan")), "INVALID_REQUEST", "finite"),
+    (dict(steps=-1), "INVALID_REQUEST", "steps per joint"),
+    (dict(uncertain=("pq",)), "UNKNOWN_PARAMETER", "pq"),
+    (dict(model="arm7"), "UNKNOWN_MODEL", "arm7"),
+    (dict(objective="fastest"), "INVALID_REQUEST", "objective"),
+    (dict(qf=(1.0, 2.0)), "INVALID_REQUEST", "qf needs 1"),
+    (dict(starts=0), "INVALID_REQUEST", "starts"),
+])
+def test_bad_requests_raise_clear_planning_errors(kw, code, needle):
+    with pytest.raises(PlanningError) as ei:
+        plan(PlanRequest(**kw))
+    assert ei.value.code == code
+    assert needle in str(ei.value)
+
+
+def test_unreachable_goal_names_the_reachable_distance():
+    bound = reach(PRESETS["table2"], 1.0)[0]
+    assert 15.0 < bound < 25.0
+    with pytest.raises(PlanningError) as ei:
+        plan(PlanRequest(qf=(bound + 0.1,)))
+    assert ei.value.code == "UNREACHABLE"
+    assert f"{bound:.4g} rad" in str(ei.value)
+    # weaker motor -> smaller reach; a short move time too
+    weak = PRESETS["table2"].replace(i_max=1.0)
+    assert reach(weak, 1.0)[0] < bound and reach(PRESETS["table2"], 0.5)[0] < bound
+    # a current limit below breakaway moves nothing
+    assert reach(PRESETS["table2"].replace(i_max=0.1), 1.0)[0] == 0.0
+    with pytest.raises(PlanningError, match="unreachable"):
+        plan(PlanRequest(qf=(0.01,), params=PRESETS["table2"].replace(i_max=0.1)))
+
+
+def test_scara2_reach_bound_is_sound_against_simulation():
+    from ff_planner.model.simulate import simulate
+
+    p = PRESETS["table3"]
+    tf = 0.3
+    bound = reach(p, tf)
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        prof = CurrentProfile.uniform(rng.choice([-10.0, 10.0], (3, 2)), tf, 0.0)
+        r = simulate(p, prof, [0.0, 0.0], trajectory=True)
+        assert np.max(np.abs(r.q)) <= bound[0]
+    req = PlanRequest(model="scara2", q0=(0.0, 0.0), qf=(bound[0] + 1.0, 0.0), tf=tf,
+                      uncertain=("pc1",))
+    with pytest.raises(PlanningError) as ei:
+        check_reachable(req)
+    assert ei.value.code == "UNREACHABLE" and "joint 1" in str(ei.value)
+
+
+def test_dispatches_baselines():
+    r = plan(PlanRequest(objective="time-optimal"))
+    assert r.success and r.objective == "time-optimal" and r.profile.n_steps == 2
+    assert r.extra["reach_bound"][0] > 1.0
+
+
+def _fake_result(request, success):
+    prof = CurrentProfile.uniform([[1.0]] * 3, request.tf)
+    return PlanResult(success=success, message="fake", profile=prof, model=request.model,
+                      params=request.resolved_params(), q0=np.zeros(1), qf=np.ones(1),
+                      uncertain=list(request.uncertain), objective=request.objective)
+
+
+def test_failed_plans_are_labelled_best_effort(monkeypatch):
+    monkeypatch.setattr(planner, "_dispatch", lambda req: lambda r, p: _fake_result(r, False))
+    r = plan(PlanRequest())
+    assert not r.success and r.best_effort and r.error_code == "NO_ROBUST_PLAN"
+    assert "best plan found" in r.message
+
+
+def test_late_results_are_labelled(monkeypatch):
+    def slow(req, progress):
+        time.sleep(0.05)
+        return _fake_result(req, False)
+
+    monkeypatch.setattr(planner, "_dispatch", lambda req: slow)
+    r = plan(PlanRequest(time_budget=0.01))
+    assert r.error_code == "TIME_BUDGET_EXHAUSTED" and r.extra["over_time_budget"]
+    assert r.best_effort
+
+
+def test_progress_is_passed_through(monkeypatch):
+    seen = []
+
+    def fn(req, progress):
+        progress({"starts_done": 1})
+        return _fake_result(req, True)
+
+    monkeypatch.setattr(planner, "_dispatch", lambda req: fn)
+    r = plan(PlanRequest(), progress=seen.append)
+    assert r.success and not r.best_effort and seen == [{"starts_done": 1}]
+
+
+def test_robust_k3_plan_through_the_facade_meets_issue_3():
+    """1-DOF, k = 3, 0 -> 1 rad in 1 s: true derivatives <= 1e-6, on target, at rest."""
+    from ff_planner.model.sensitivity import sensitivities
+
+    r = plan(PlanRequest(uncertain=("pv", "pc", "pt"), steps=5, starts=100, seed=0))
+    assert r.success and r.robust and not r.best_effort and r.error_code == "OK"
+    p = r.params
+    cen = sensitivities(p, r.profile, [0.0], ["pv", "pc", "pt"], method="central", rel_step=1e-6)
+    ex = sensitivities(p, r.profile, [0.0], ["pv", "pc", "pt"], method="exact")
+    for n in ("pv", "pc", "pt"):
+        assert abs(cen[n]) <= 1e-6 and abs(ex[n]) <= 1e-6 and abs(r.sensitivities[n]) <= 1e-6
+    assert abs(r.q_final[0] - 1.0) <= 1e-6 and r.qd_final[0] == 0.0
+    assert np.max(np.abs(r.profile.currents)) <= p.i_max

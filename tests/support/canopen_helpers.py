@@ -1,0 +1,56 @@
+"""Shared set-up for the ff_hwbridge tests: waiting on a condition, unique python-can virtual
+channels, canopen Networks that close quickly, free loopback ports, the simulated rig process."""
+from __future__ import annotations
+
+import time
+import uuid
+from typing import Callable
+
+import canopen
+
+from ff_hwbridge.sim.rig_process import RigProcess, free_port  # noqa: F401  (re-exported for tests)
+
+
+def waiter(default_timeout: float = 2.0, interval: float = 0.002) -> Callable[..., bool]:
+    """``wait(pred, timeout=default_timeout)``: poll ``pred`` every ``interval`` s until it is
+    true (-> True) or ``timeout`` s have passed (-> its last value)."""
+
+    def wait(pred: Callable[[], object], timeout: float = default_timeout) -> bool:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if pred():
+                return True
+            time.sleep(interval)
+        return bool(pred())
+
+    return wait
+
+
+wait_for = waiter()
+
+
+def unique_channel(prefix: str = "ff-test") -> str:
+    """A python-can virtual channel name no other test uses."""
+    return f"{prefix}-{uuid.uuid4().hex[:8]}"
+
+
+def open_network(channel: str, interface: str = "virtual", notifier_cycle: float = 0.05,
+                 bus=None) -> canopen.Network:
+    """A connected canopen Network on ``channel`` (or on ``bus``) whose disconnect is quick."""
+    net = canopen.Network(bus)
+    net.NOTIFIER_CYCLE = notifier_cycle
+    if bus is None:
+        net.connect(interface=interface, channel=channel)
+    else:
+        net.connect()
+    return net
+
+
+def configure_and_enable(master, timeout: float = 2.0) -> None:
+    """SDO/PDO set-up, NMT start and the enable sequence of an ``EposMaster``; asserts that every
+    drive reaches OPERATION ENABLED within ``timeout`` s."""
+    from ff_hwbridge.protocol.cia402 import State
+
+    master.configure()
+    master.enable()
+    assert master.wait_for_state(State.OPERATION_ENABLED, timeout), master.fault_reason
