@@ -22,8 +22,8 @@ import time
 
 import numpy as np
 
-from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.drive.epos import EposMaster
+from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.sim.rig_process import RigProcess, rig_master_config
 
 FAULTS = {

@@ -34,10 +34,10 @@ import time
 
 import numpy as np
 
-from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.drive.epos import EposMaster
-from ff_hwbridge.sim.rig_process import RigProcess, free_port, rig_master_config
 from ff_hwbridge.drive.scheduler import StampScheduler
+from ff_hwbridge.protocol.cia402 import State
+from ff_hwbridge.sim.rig_process import RigProcess, free_port, rig_master_config
 
 
 def pct(a: np.ndarray) -> dict[str, float]:

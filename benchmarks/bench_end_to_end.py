@@ -21,9 +21,9 @@ import time
 
 import numpy as np
 
+from ff_executor.bringup.demo import run_motions
 from ff_executor.bringup.stack import Stack, StackOptions
 from ff_executor.ros.client import StackClient
-from ff_executor.bringup.demo import run_motions
 from ff_msgs_py.convert import msg_to_profile
 from ff_planner.model.params import default_params, friction_scaled
 from ff_planner.model.simulate import rest_position

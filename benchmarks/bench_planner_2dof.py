@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import os
 import statistics
+import sys
 import time
 
 import numpy as np

@@ -26,7 +26,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from ff_msgs_py.launch import ros_environment, apply_ros_environment, start_module, wait_for_line  # noqa: E402
+from ff_msgs_py.launch import apply_ros_environment, ros_environment, start_module, wait_for_line  # noqa: E402
 
 
 def _node(env, folder: Path, name: str, **params) -> object:

@@ -8,7 +8,6 @@ import pytest
 
 from ff_msgs_py.launch import apply_ros_environment, free_domain_id, ros_environment
 
-
 _USED_DOMAINS: set[int] = set()
 
 
@@ -60,3 +59,18 @@ def rclpy_node(ros_env):
     finally:
         node.destroy_node()
         rclpy.shutdown(context=ctx)
+
+
+@pytest.fixture(scope="session")
+def robust_plan_1dof():
+    """The canonical robust plan: 1-DOF table 2 arm, 0 → 1 rad in 1 s, pv, pc, pt uncertain, N = 5.
+
+    Planned once per test session (the facade's defaults, 3000 starts, seed 0); read-only.
+    """
+    from ff_planner.model.profile import PlanRequest
+    from ff_planner.optimize.planner import plan
+
+    result = plan(PlanRequest(model="arm1dof", q0=[0.0], qf=[1.0], tf=1.0, uncertain=["pv", "pc", "pt"],
+                              starts=3000, seed=0))
+    assert result.success and result.robust, result.message
+    return result

@@ -27,9 +27,8 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ff_planner.model.params import ParameterError
-
 from ff_executor.bringup.stack import BringupError, Stack, StackOptions, _kv
+from ff_planner.model.params import ParameterError
 
 MOTIONS = (("robust", "robust-derivative"), ("baseline", "energy-optimal"))
 

@@ -30,7 +30,6 @@ joint-state period — and labelled so in the log.
 """
 from __future__ import annotations
 
-import math
 import sys
 import threading
 import time
@@ -39,23 +38,34 @@ from typing import Optional
 
 import numpy as np
 import rclpy
+from lifecycle_msgs.srv import GetState
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
-from rclpy.qos import QoSProfile, ReliabilityPolicy, HistoryPolicy
+from sensor_msgs.msg import JointState
 
+from ff_executor.engine.engine import (
+    NS,
+    EngineConfig,
+    Motion,
+    ProfileRejected,
+    SettleDetector,
+    Stream,
+    StreamRunner,
+    build_setpoints,
+    check_profile,
+    check_start_state,
+    estimate_applied_times,
+    resolve_start,
+    timing_stats,
+)
 from ff_msgs.action import ExecuteProfile
 from ff_msgs.msg import CurrentSetpoint
 from ff_msgs_py.convert import msg_to_profile, setpoint_msg, time_to_ns
 from ff_msgs_py.threads import in_thread
-from lifecycle_msgs.srv import GetState
-from sensor_msgs.msg import JointState
-
-from ff_executor.engine.engine import (NS, EngineConfig, Motion, ProfileRejected, SettleDetector, Stream,
-                     StreamRunner, build_setpoints, check_profile, check_start_state,
-                     estimate_applied_times, resolve_start, timing_stats)
 
 READY_LINE = "ff_executor ready"
 

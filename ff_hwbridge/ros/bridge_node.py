@@ -44,10 +44,10 @@ from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.signals import SignalHandlerOptions
 
-from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.drive.config import BridgeConfig, ConfigError, config_from_mapping, load_config, with_bus
 from ff_hwbridge.drive.epos import EposError, EposMaster
 from ff_hwbridge.drive.scheduler import StampScheduler
+from ff_hwbridge.protocol.cia402 import State
 
 READY_LINE = "ff_hwbridge ready"
 NODE_NAME = "ff_hwbridge"
@@ -256,9 +256,10 @@ class BridgeNode(LifecycleNode):
     # --- interfaces -------------------------------------------------------------------------------
     def _make_interfaces(self) -> None:
         from diagnostic_msgs.msg import DiagnosticArray
-        from ff_msgs.msg import CurrentSetpoint
         from sensor_msgs.msg import JointState
         from std_srvs.srv import Trigger
+
+        from ff_msgs.msg import CurrentSetpoint
 
         self._pub_js = self.create_publisher(JointState, "~/joint_states", 10)
         self._pub_applied = self.create_publisher(CurrentSetpoint, "~/applied", 100)

@@ -32,11 +32,10 @@ from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from ff_planner.model.params import ParameterError, check_model, default_params, preset
-
 from ff_hwbridge.sim.can_hub import CanConfigError, CanHub, start_hub
 from ff_hwbridge.sim.drive import SimConfigError, SimEpos
 from ff_hwbridge.sim.rig import RigConfig, SimRig
+from ff_planner.model.params import ParameterError, check_model, default_params, preset
 
 READY_LINE = "ff_sim_driver ready"
 

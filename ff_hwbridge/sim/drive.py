@@ -57,12 +57,9 @@ from canopen import objectdictionary as od
 from canopen.objectdictionary import ObjectDictionary, ODVariable
 from canopen.sdo import SdoAbortedError
 
-from ff_hwbridge.protocol import cia402
-
-from ff_hwbridge.protocol import epos_od
+from ff_hwbridge.protocol import cia402, epos_od
 from ff_hwbridge.protocol.cia402 import Command, State
-from ff_hwbridge.protocol.epos_od import (CURRENT_MODE, MAXON_VENDOR_ID, PDO_VALID_BIT,  # noqa: F401
-                                 MotorData)
+from ff_hwbridge.protocol.epos_od import CURRENT_MODE, MAXON_VENDOR_ID, PDO_VALID_BIT, MotorData  # noqa: F401
 from ff_hwbridge.protocol.units import FAMILIES, DriveUnits
 
 _NUMBER_TYPES = od.NUMBER_TYPES

@@ -23,12 +23,10 @@ import time
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Optional, Sequence
 
-from ff_planner.model.params import Arm1DofParams, ParameterError, default_params, n_joints
-
-from ff_hwbridge.sim.can_hub import CanHub, open_network, start_hub
 from ff_hwbridge.sim.arm import AdvanceFn, Params, SimArm
+from ff_hwbridge.sim.can_hub import CanHub, open_network, start_hub
 from ff_hwbridge.sim.drive import DriveConfig, SimConfigError, SimEpos
-
+from ff_planner.model.params import Arm1DofParams, ParameterError, default_params, n_joints
 
 #: Thread switch interval for simulator processes (s). Python's default 5 ms lets the hub's and
 #: the heartbeat's threads hold the CAN receive thread off for whole milliseconds; measured here

@@ -24,8 +24,8 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
-from ff_planner.library.store import LibraryError, MotionLibrary, MotionRecord, canonical_coords, params_hash
 from ff_planner.library.grid import GridError, describe, expand, load_grid
+from ff_planner.library.store import LibraryError, MotionLibrary, MotionRecord
 from ff_planner.model.params import ParameterError
 
 GROUP_FIELDS = ("model", "params_hash", "objective", "uncertain", "steps", "coast")

@@ -15,7 +15,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ff_planner.model.params import (DEFAULT_PRESET, MODELS, PRESETS, ParameterError, load_params, preset)
+from ff_planner.model.params import DEFAULT_PRESET, MODELS, PRESETS, ParameterError, load_params, preset
 from ff_planner.model.profile import DEFAULT_COAST, OBJECTIVES, PlanningError, PlanRequest
 
 PROG = "ff-plan"
@@ -342,7 +342,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         _check_writable(args.output, "-o")
         _check_writable(args.plot, "--plot")
         request = make_request(args)
-        from ff_planner.optimize.planner import plan   # after argument checks: keeps --help and errors fast
+        from ff_planner.optimize.planner import plan  # after argument checks: keeps --help and errors fast
 
         result = plan(request, None if args.quiet else ProgressPrinter())
         if args.output and result.profile is not None:

@@ -209,7 +209,7 @@ def validate_motion_dict(d: Any) -> Motion:
     if not tf > coast >= 0.0:
         raise MotionFileError(f"need tf > coast >= 0, got tf = {tf}, coast = {coast}")
     profile = CurrentProfile(times, currents, tf, coast)
-    i_max = [getattr(params, "i_max")] if nj == 1 else [params.i_max1, params.i_max2]
+    i_max = [params.i_max] if nj == 1 else [params.i_max1, params.i_max2]
     try:
         profile.validate(i_max)
     except PlanningError as e:

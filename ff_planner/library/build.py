@@ -40,16 +40,14 @@ import time
 import traceback
 from collections import Counter, deque
 from dataclasses import dataclass, field, replace
-from pathlib import Path
-from typing import Any, Callable, Iterable, Optional, TextIO
+from typing import Any, Callable, Optional, TextIO
 
 import numpy as np
 
-from ff_planner.library.store import (MotionLibrary, MotionRecord, WarmStartUnavailable, record_from_result,
-                      warm_plan)
 from ff_planner.library.grid import Grid, GridSpec, GridTask, continuation_tree, describe, expand, load_grid
-from ff_planner.service.planner_service import error_code_of, failure, load_entry
+from ff_planner.library.store import MotionLibrary, MotionRecord, WarmStartUnavailable, record_from_result, warm_plan
 from ff_planner.model.profile import PlanningError, PlanRequest, PlanResult
+from ff_planner.service.planner_service import error_code_of, failure, load_entry
 
 #: The plan function a build calls by default ("module:function"; must accept ``initial_currents``
 #: for continuation — see :func:`plan_for_library`).

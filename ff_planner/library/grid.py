@@ -45,7 +45,7 @@ import numpy as np
 
 from ff_planner.library.store import canonical_coords, task_key
 from ff_planner.model.params import MODELS, ParameterError, Params, default_params, n_joints, preset
-from ff_planner.model.profile import OBJECTIVES, DEFAULT_COAST, PlanningError, PlanRequest
+from ff_planner.model.profile import DEFAULT_COAST, OBJECTIVES, PlanningError, PlanRequest
 
 _KEYS = ("model", "preset", "params", "objective", "uncertain", "steps", "coast", "starts", "seed",
          "time_budget", "tol", "q0", "qf", "tf", "zero_moves", "max_tasks", "name")

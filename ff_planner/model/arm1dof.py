@@ -20,9 +20,10 @@ from typing import Optional, Sequence
 import numpy as np
 from numba import njit
 
-from ff_planner.model.series1d import phi12_value, psi_value
+from ff_planner.core.results import SimResult
 from ff_planner.model.params import Arm1DofParams
 from ff_planner.model.profile import CurrentProfile
+from ff_planner.model.series1d import phi12_value, psi_value
 
 # event kinds recorded by the simulator
 EV_BREAKAWAY = 1   # leaves rest (start, or a current switch while stuck)
@@ -237,7 +238,6 @@ def simulate_arm1dof(params: Arm1DofParams, profile: CurrentProfile, q0: float,
     With ``trajectory``: samples every ``dt`` s on [0, t_end] (default tf) plus every event and
     switch time; t, q, qd, current arrays (s, rad, rad/s, A, current shape (M, 1)).
     """
-    from ff_planner.model.simulate import SimResult
 
     times, cur = _profile_arrays(profile)
     cap = 3 * (cur.shape[0] + 3) + 4

@@ -12,9 +12,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, ClassVar, Mapping, Union
 
-
-class ParameterError(ValueError):
-    """A parameter name or value that the model cannot accept; the message says what to change."""
+from ff_planner.core.errors import ParameterError
 
 
 @dataclass(frozen=True)
@@ -44,7 +42,7 @@ class _ParamsBase:
         if unknown:
             raise ParameterError(
                 f"unknown parameter(s) {', '.join(map(repr, unknown))} for model "
-                f"'{self.model}'; valid keys are: {', '.join(valid)}")
+                f"'{self.model}'; valid keys are: {', '.join(valid)}", code="UNKNOWN_PARAMETER")
         clean: dict[str, float] = {}
         for k, v in overrides.items():
             try:
@@ -165,7 +163,8 @@ def n_joints(model: str) -> int:
 def check_model(model: str) -> str:
     """Return ``model`` if it is known, else raise ParameterError naming the known ones."""
     if model not in MODELS:
-        raise ParameterError(f"unknown model {model!r}; known models: {', '.join(MODELS)}")
+        raise ParameterError(f"unknown model {model!r}; known models: {', '.join(MODELS)}",
+                             code="UNKNOWN_MODEL")
     return model
 
 
@@ -177,7 +176,8 @@ def default_params(model: str) -> Params:
 def preset(name: str) -> Params:
     """A named preset ('table1', 'table2', 'table3')."""
     if name not in PRESETS:
-        raise ParameterError(f"unknown preset {name!r}; known presets: {', '.join(PRESETS)}")
+        raise ParameterError(f"unknown preset {name!r}; known presets: {', '.join(PRESETS)}",
+                             code="UNKNOWN_PARAMETER")
     return PRESETS[name]
 
 
@@ -214,5 +214,5 @@ def friction_scaled(params: Params, scale: Mapping[str, float]) -> Params:
     unknown = [k for k in scale if k not in params.keys()]
     if unknown:
         raise ParameterError(f"unknown parameter(s) {unknown} for model '{params.model}'; "
-                             f"valid keys are: {', '.join(params.keys())}")
+                             f"valid keys are: {', '.join(params.keys())}", code="UNKNOWN_PARAMETER")
     return params.replace(**{k: getattr(params, k) * float(s) for k, s in scale.items()})

@@ -11,19 +11,12 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ff_planner.model.params import Params, ParameterError, default_params, n_joints
+from ff_planner.core.errors import PlanningError
+from ff_planner.model.params import ParameterError, Params, default_params, n_joints
 
 DEFAULT_COAST = 0.05  # s, zero-current coast at the end of every move (paper section 4.1.1)
 
 OBJECTIVES = ("robust-derivative", "robust-sampled", "time-optimal", "energy-optimal")
-
-
-class PlanningError(ValueError):
-    """A request the planner cannot serve as asked; the message says what to change."""
-
-    def __init__(self, message: str, code: str = "INVALID_REQUEST") -> None:
-        super().__init__(message)
-        self.code = code  # one of the PlanTrajectory error names: INVALID_REQUEST, UNREACHABLE, ...
 
 
 @dataclass

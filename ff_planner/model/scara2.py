@@ -38,6 +38,8 @@ from dataclasses import dataclass
 from typing import Optional, Sequence
 
 import numpy as np
+
+from ff_planner.core.results import SimResult
 from numba import njit
 
 from ff_planner.model.params import ParameterError, Scara2Params
@@ -581,29 +583,15 @@ def _simulate_raw(params, profile, q0, qd0, trajectory=False, *, h=DEFAULT_H, se
     return out
 
 
-def _to_simresult(sim: Scara2Sim, profile: CurrentProfile):
-    try:
-        from ff_planner.model.simulate import SimResult  # written by [planner-1dof]
-    except Exception:  # pragma: no cover - until simulate.py lands
-        return sim
-    import inspect
-
-    names = set(inspect.signature(SimResult).parameters)
-    kw = {}
-    for k in ("q_f", "qd_f", "t", "q", "qd", "current"):
-        if k in names:
-            kw[k] = getattr(sim, k)
-    if "events" in names and sim.t is not None:
+def _to_simresult(sim: Scara2Sim, profile: CurrentProfile) -> SimResult:
+    """The model-independent SimResult of a scara2 simulation (events named stick1, reverse2, ...)."""
+    events: list = []
+    if sim.t is not None and sim.event_kind is not None:
         kinds = {1: "stick", 2: "reverse", 3: "breakaway"}
-        kw["events"] = [(float(tt), f"{kinds[int(kk) // 10]}{int(kk) % 10 + 1}")
-                        for tt, kk in zip(sim.t, sim.event_kind) if kk]
-    res = SimResult(**kw)
-    for k in ("q_rest", "t_rest", "stuck_tf", "n_events"):
-        try:
-            setattr(res, k, getattr(sim, k))
-        except Exception:  # frozen/slots dataclass
-            pass
-    return res
+        events = [(float(tt), f"{kinds[int(kk) // 10]}{int(kk) % 10 + 1}")
+                  for tt, kk in zip(sim.t, sim.event_kind) if kk]
+    return SimResult(q_f=sim.q_f, qd_f=sim.qd_f, t=sim.t, q=sim.q, qd=sim.qd, current=sim.current,
+                     events=events)
 
 
 def rest_position_scara2(params: Scara2Params, profile: CurrentProfile, q0: Sequence[float],

@@ -18,7 +18,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ff_planner.model.params import Params, ParameterError
+from ff_planner.model.params import ParameterError, Params
 from ff_planner.model.profile import CurrentProfile
 
 METHODS = ("exact", "central", "forward")

@@ -23,8 +23,8 @@ import math
 import numpy as np
 from numba import njit
 
-from ff_planner.model.arm1dof_derivatives import N_ROWS, NP, Q_, TSTOP_, V_, VC_, hd_sim
 from ff_planner.model.arm1dof import sim_core
+from ff_planner.model.arm1dof_derivatives import N_ROWS, NP, Q_, TSTOP_, V_, VC_, hd_sim
 
 # status codes of one start
 OK, NO_CONVERGENCE, ABANDONED, KINK, BAD_START = 0, 1, 2, 3, 4

@@ -12,9 +12,9 @@ from typing import Callable, Optional
 
 import numpy as np
 
-from ff_planner.optimize.baselines import plan_baseline, reach_1dof
 from ff_planner.model.params import Arm1DofParams, ParameterError, Params, Scara2Params
 from ff_planner.model.profile import PlanningError, PlanRequest, PlanResult
+from ff_planner.optimize.baselines import plan_baseline, reach_1dof
 
 Progress = Optional[Callable[[dict], None]]
 

@@ -38,11 +38,11 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from ff_planner.optimize import lm1d as _lm1d
-from ff_planner.model.arm1dof_derivatives import NP, Q_, VC_, hd_sim, workspace
 from ff_planner.model.arm1dof import FRICTION, friction_scale
+from ff_planner.model.arm1dof_derivatives import NP, Q_, VC_, hd_sim, workspace
 from ff_planner.model.params import Arm1DofParams
-from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult, PlanningError
+from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
+from ff_planner.optimize import lm1d as _lm1d
 
 Progress = Optional[Callable[[dict], None]]
 

@@ -30,11 +30,9 @@ from typing import Callable, Optional
 import numpy as np
 from scipy.optimize import least_squares
 
-from ff_planner.model import arm1dof
-
-from ff_planner.model import scara2
+from ff_planner.model import arm1dof, scara2
 from ff_planner.model.params import Arm1DofParams, Scara2Params
-from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult, PlanningError
+from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
 
 Progress = Optional[Callable[[dict], None]]
 

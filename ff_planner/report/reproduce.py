@@ -21,7 +21,7 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
-from ff_planner.model.params import Arm1DofParams, PRESETS, friction_scaled
+from ff_planner.model.params import PRESETS, Arm1DofParams, friction_scaled
 from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
 
 PAPER = {
@@ -436,7 +436,7 @@ def _motion_file_check(rep: Report, res: PlanResult) -> None:
     rep.add("### The plan as a motion file, re-simulated independently", "",
             "[motion_k3.json](motion_k3.json) (ff-motion/1) re-read and re-simulated by "
             "`verify_motion` from the file's own numbers, with friction scaled as listed. "
-            f"Central derivatives recomputed from the file: "
+            "Central derivatives recomputed from the file: "
             + ", ".join(f"{k} {v:+.1e}" for k, v in cen.items())
             + f"; nominal q(tf) differs from the file's prediction by {rec['prediction_mismatch']:.1e} rad.",
             "")
@@ -545,9 +545,9 @@ def _fmt_opt(x) -> str:
 def section_table4(rep: Report) -> None:
     from matplotlib.figure import Figure
 
-    from ff_planner.optimize.baselines import R_TERMINAL, finite_differences
     from ff_planner.export.plotting import _save, _step_xy
     from ff_planner.model.simulate import simulate
+    from ff_planner.optimize.baselines import R_TERMINAL, finite_differences
 
     p = PRESETS["table2"]
     rep.add("## 5. Time- and energy-optimal motions: section 6.5, table 4, Fig. 11", "",

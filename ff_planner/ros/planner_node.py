@@ -22,7 +22,6 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from ff_msgs.srv import PlanTrajectory
 from ff_msgs_py.convert import error_response, result_to_response
-
 from ff_planner.service.planner_service import PlannerService, RequestFields, ServiceConfigError, config_from_mapping
 
 NODE_ONLY = ("diagnostics_period", "executor_threads")

@@ -39,8 +39,15 @@ from typing import Any, Callable, Mapping, Optional, Sequence
 
 import numpy as np
 
-from ff_planner.library.store import (LibraryError, MotionLibrary, MotionRecord, WarmStartUnavailable,
-                      record_from_result, task_key, warm_plan)
+from ff_planner.library.store import (
+    LibraryError,
+    MotionLibrary,
+    MotionRecord,
+    WarmStartUnavailable,
+    record_from_result,
+    task_key,
+    warm_plan,
+)
 from ff_planner.model.params import MODELS, ParameterError, Params, default_params, preset
 from ff_planner.model.profile import OBJECTIVES, PlanningError, PlanRequest, PlanResult
 

@@ -1,7 +1,6 @@
 """Foundation smoke test: an ff_msgs service served by another process, called over DDS on loopback."""
 from __future__ import annotations
 
-import rclpy
 from rclpy.executors import SingleThreadedExecutor
 
 from ff_msgs.srv import PlanTrajectory

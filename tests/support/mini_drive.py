@@ -3,7 +3,6 @@ from __future__ import annotations
 
 import struct
 import threading
-import time
 
 import can
 import canopen
@@ -12,7 +11,6 @@ from ff_hwbridge.protocol import cia402
 from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.protocol.epos_od import build_object_dictionary
 from ff_hwbridge.protocol.units import DriveUnits
-
 from tests.support.canopen_helpers import open_network
 
 FMT = {0x6040: "H", 0x6041: "H", 0x6071: "h", 0x2030: "h", 0x6064: "i", 0x606C: "i",

@@ -10,9 +10,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ff_executor.bringup.demo import MOTIONS, run_motions
 from ff_executor.bringup.stack import Stack, StackOptions
 from ff_executor.ros.client import StackClient
-from ff_executor.bringup.demo import MOTIONS, run_motions
 
 
 @pytest.fixture(scope="module")

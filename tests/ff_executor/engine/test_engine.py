@@ -6,9 +6,21 @@ import math
 import numpy as np
 import pytest
 
-from ff_executor.engine.engine import (NS, EngineConfig, ProfileRejected, Setpoint, SettleDetector, Stream,
-                                StreamRunner, build_setpoints, check_profile, check_start_state,
-                                estimate_applied_times, resolve_start, timing_stats)
+from ff_executor.engine.engine import (
+    NS,
+    EngineConfig,
+    ProfileRejected,
+    Setpoint,
+    SettleDetector,
+    Stream,
+    StreamRunner,
+    build_setpoints,
+    check_profile,
+    check_start_state,
+    estimate_applied_times,
+    resolve_start,
+    timing_stats,
+)
 from ff_planner.model.profile import CurrentProfile
 
 CUR = [-3.70, 2.27, 0.58, 6.94, -4.76]

@@ -20,10 +20,10 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
+from ff_executor.ros.client import _safe_action_client_class
 from ff_msgs.action import ExecuteProfile
 from ff_msgs.msg import CurrentSetpoint
 from ff_msgs_py.convert import ns_to_time, profile_to_msg, setpoint_to_tuple
-from ff_executor.ros.client import _safe_action_client_class
 from ff_msgs_py.launch import start_module, wait_for_line
 from ff_planner.model.arm1dof import advance
 from ff_planner.model.params import default_params

@@ -7,24 +7,15 @@ tables, TPDOs on SYNC, heartbeat, EMCY + Fault on request. Its "physics" is a tr
 """
 from __future__ import annotations
 
-import struct
-import threading
 import time
 
-import can
-import canopen
 import pytest
 
-from ff_hwbridge.protocol import cia402
-from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.drive.config import load_config
 from ff_hwbridge.drive.epos import EposError, EposMaster
-from ff_hwbridge.protocol.epos_od import build_object_dictionary
-from ff_hwbridge.protocol.units import DriveUnits
-
-from tests.support.canopen_helpers import configure_and_enable, open_network, unique_channel, waiter
-
-from tests.support.mini_drive import FMT, MiniEpos
+from ff_hwbridge.protocol.cia402 import State
+from tests.support.canopen_helpers import configure_and_enable, unique_channel, waiter
+from tests.support.mini_drive import MiniEpos
 
 
 def _config(channel: str, family: str = "epos4", n: int = 1, **over):

@@ -9,7 +9,6 @@ import time
 import pytest
 
 from ff_hwbridge.protocol.units import DriveUnits
-
 from tests.support.canopen_helpers import unique_channel, waiter
 
 
@@ -56,11 +55,11 @@ _wait = waiter(3.0, 0.005)
 
 def test_lifecycle_setpoints_faults_and_reset(bridge):
     from diagnostic_msgs.msg import DiagnosticArray
-    from ff_msgs.msg import CurrentSetpoint
     from lifecycle_msgs.msg import State as LcState
     from sensor_msgs.msg import JointState
     from std_srvs.srv import Trigger
 
+    from ff_msgs.msg import CurrentSetpoint
     from ff_msgs_py.convert import setpoint_msg
 
     node, client, drive = bridge

@@ -10,10 +10,9 @@ import time
 
 import pytest
 
-from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.drive.epos import EposError, EposMaster
+from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.sim.rig_process import RigProcess, rig_master_config
-
 from tests.support.canopen_helpers import configure_and_enable, waiter
 
 HB_MS = 10

@@ -13,7 +13,6 @@ from std_srvs.srv import Trigger
 
 from ff_hwbridge.sim.drive import DriveConfig, build_object_dictionary
 from ff_msgs_py.launch import start_module, wait_for_line
-
 from tests.support.canopen_helpers import free_port, open_network
 
 

@@ -10,13 +10,11 @@ import numpy as np
 import pytest
 
 from ff_hwbridge.sim.arm import SimArm
-from ff_hwbridge.sim.rig import RigConfig, SimRig
 from ff_hwbridge.sim.drive import SimConfigError
-
-from tests.support.canopen_helpers import open_network
-from ff_planner.model import arm1dof
-from ff_planner.model import scara2
+from ff_hwbridge.sim.rig import RigConfig, SimRig
+from ff_planner.model import arm1dof, scara2
 from ff_planner.model.params import ParameterError, preset
+from tests.support.canopen_helpers import open_network
 
 
 class FakeClock:

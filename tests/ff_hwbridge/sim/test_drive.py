@@ -12,7 +12,6 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.sim.drive import DriveConfig, SimConfigError, SimEpos, build_object_dictionary
-
 from tests.support.canopen_helpers import open_network, waiter
 
 _chan = itertools.count()

@@ -11,13 +11,13 @@ import threading
 import time
 
 import numpy as np
-import psutil   # a dependency of dask.distributed
+import psutil  # a dependency of dask.distributed
 import pytest
 
-from ff_planner.library.store import MotionLibrary
-from ff_planner.library.build import build_library, plan_for_library, start_local_cluster
 from ff_planner.cli.library import main as cli_main
+from ff_planner.library.build import build_library, plan_for_library, start_local_cluster
 from ff_planner.library.grid import GridError, continuation_tree, expand, load_grid, parse_grid
+from ff_planner.library.store import MotionLibrary
 from ff_planner.model.profile import PlanRequest
 
 # 1-DOF, Coulomb uncertainty (k = 1, N = 3): robust plans exist almost everywhere and are fast.

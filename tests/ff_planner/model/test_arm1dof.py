@@ -5,13 +5,15 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from ff_planner.core.results import SimResult
 from ff_planner.model.arm1dof import advance, final_state
 from ff_planner.model.friction import breaks_away, friction_torque
 from ff_planner.model.params import preset
 from ff_planner.model.profile import CurrentProfile, PlanningError
-from ff_planner.model.simulate import SimResult, rest_position, simulate
+from ff_planner.model.simulate import rest_position, simulate
 
 T2 = preset("table2")
 T1 = preset("table1")

@@ -51,7 +51,6 @@ def test_forward_dynamics_energy_balance():
 def test_link2_held_is_exact_1dof_joint1():
     """Link 2 held by stiction: joint 1 follows the exact 1-DOF model with J = A (arm1dof)."""
     from ff_planner.model import arm1dof
-
     from ff_planner.optimize.robust2d import joint2_hold_currents
 
     prof1 = CurrentProfile.uniform([[4.0], [-1.0], [-4.0]], 0.6)
@@ -116,7 +115,8 @@ def test_advance_matches_simulation():
 
 
 def test_simulate_dispatch_and_rest_position():
-    from ff_planner.model.simulate import SimResult, rest_position, simulate
+    from ff_planner.core.results import SimResult
+    from ff_planner.model.simulate import rest_position, simulate
 
     r = simulate(P, GENERIC, Q0, trajectory=True)
     assert isinstance(r, SimResult) and r.q.shape[1] == 2 and r.t[0] == 0.0

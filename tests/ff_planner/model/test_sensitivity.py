@@ -116,7 +116,8 @@ def test_api_methods_agree_and_forward_is_the_paper_quotient():
         sensitivities(T2, prof, [0.0], method="magic")
 
 
-from hypothesis import given, settings, strategies as st  # noqa: E402
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st
 
 
 @settings(max_examples=25, deadline=None)

@@ -9,8 +9,8 @@ import pytest
 
 import ff_planner.optimize.planner as planner
 from ff_planner.model.params import PRESETS
-from ff_planner.optimize.planner import check_reachable, plan, reach
 from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
+from ff_planner.optimize.planner import check_reachable, plan, reach
 
 
 @pytest.mark.parametrize("kw, code, needle", [

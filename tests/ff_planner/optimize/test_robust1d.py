@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from ff_planner.model.params import preset
-from ff_planner.model.profile import PlanRequest, PlanningError
-from ff_planner.optimize.robust1d import plan_robust_1dof, sample_scales, stop_speed_bound
+from ff_planner.model.profile import PlanningError, PlanRequest
 from ff_planner.model.simulate import rest_position, simulate
+from ff_planner.optimize.robust1d import plan_robust_1dof, sample_scales, stop_speed_bound
 
 T2 = preset("table2")
 

@@ -7,9 +7,9 @@ import pytest
 
 from ff_planner.model.arm1dof import derivatives
 from ff_planner.model.params import preset
-from ff_planner.model.profile import PlanRequest, PlanningError
-from ff_planner.optimize.robust1d import CHANGES, plan_robust_1dof, solve_block, verify
+from ff_planner.model.profile import PlanningError, PlanRequest
 from ff_planner.model.simulate import rest_position, simulate
+from ff_planner.optimize.robust1d import CHANGES, plan_robust_1dof, solve_block, verify
 
 T2 = preset("table2")
 

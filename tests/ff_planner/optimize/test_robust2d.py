@@ -67,8 +67,8 @@ def test_tiny_budget_reports_clearly():
 
 
 def test_robust_sampled_keeps_true_robustness_and_reduces_sampled_error(plan):
-    from ff_planner.optimize.robust2d_refine import rest_errors, sample_scales
     from ff_planner.optimize.robust2d import _Joint1Problem, joint1_params
+    from ff_planner.optimize.robust2d_refine import rest_errors, sample_scales
 
     req0, res0, _ = plan
     req = PlanRequest(model="scara2", q0=(-0.5, 0.0), qf=(0.5, 0.0), tf=1.0,

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from ff_planner.model.params import PRESETS
-from ff_planner.report.reproduce import PAPER, coulomb_example, main, run
 from ff_planner.model.simulate import simulate
+from ff_planner.report.reproduce import PAPER, coulomb_example, main, run
 
 
 def test_coulomb_example_has_the_quarter_half_quarter_sign_pattern():

@@ -11,7 +11,6 @@ import json
 import math
 import os
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -287,7 +286,12 @@ def test_service_config_refuses_unknown_names():
 
 
 def test_configured_parameters_reach_the_plan(tmp_path):
-    from ff_planner.service.planner_service import PlannerService, RequestFields, ServiceConfigError, config_from_mapping
+    from ff_planner.service.planner_service import (
+        PlannerService,
+        RequestFields,
+        ServiceConfigError,
+        config_from_mapping,
+    )
 
     cfg = config_from_mapping({"arm1dof.params.pc": 0.25, "library_path": str(tmp_path / "l.sqlite")})
     svc = PlannerService(cfg)
