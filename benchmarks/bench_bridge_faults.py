@@ -1,6 +1,6 @@
 """Bridge benchmark: time from an injected drive fault to the bridge's safe state, and recovery.
 
-Starts the simulated rig (``python -m ff_hwbridge.sim.rig --host-hub PORT``, own process, CAN hub
+Starts the simulated rig (``python -m ff_hwbridge.cli.sim_rig --host-hub PORT``, own process, CAN hub
 on 127.0.0.1), connects an :class:`~ff_hwbridge.drive.epos.EposMaster`, enables the drive with a small
 current, then per repetition injects a fault through the rig's stdin (EMCY, heartbeat stop,
 dropped TPDOs/heartbeats), waits for the latch, clears the fault and calls ``fault_reset()``.
@@ -67,10 +67,15 @@ def main() -> int:
                 while not master.latched and time.monotonic() - t_inj < 5.0:
                     time.sleep(0.0005)
                 if master.latched:
-                    t_latch = [t for t, text in master.events if text.startswith("safe state")][-1]
-                    lat.append((t_latch - t_inj) * 1000.0)
-                    reasons.add(master.fault_reason.split(":")[0])
-                    time.sleep(0.01)          # the latch is visible before its reaction is sent
+                    # the latch is visible before its reaction is sent; the event (stamped at
+                    # the latch) is listed once the zero-current reaction went out
+                    latches: list[float] = []
+                    while not latches and time.monotonic() - t_inj < 5.0:
+                        latches = [t for t, text in master.events
+                                   if t >= t_inj and text.startswith("safe state")]
+                        time.sleep(0.0005)
+                    lat.append((latches[-1] - t_inj) * 1000.0)
+                    reasons.add(str(master.fault_reason).split(":")[0])
                     zero_after += int(master.applied_currents()[0] == 0.0)
                 sim.send(clear)
                 time.sleep(0.2)

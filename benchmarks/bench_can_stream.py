@@ -1,21 +1,21 @@
 """Benchmark: sustained 1 kHz current-setpoint stream, bridge master -> simulated EPOS, across
 processes over the loopback CAN hub. Prints one JSON object.
 
-Process A (child): ``python -m ff_hwbridge.sim.rig --host-hub PORT`` (hub + emulated EPOS4 +
+Process A (child): ``python -m ff_hwbridge.cli.sim_rig --host-hub PORT`` (hub + emulated EPOS4 +
 arm), recording every setpoint's arrival (wall clock ns). Process B (this one): the bridge's
 ``EposMaster`` (SDO/PDO set-up, SYNC at 1 kHz, heartbeat and TPDO monitoring) and its
-``StampScheduler``, which sends each setpoint at its stamp (1 ms apart).
+``SetpointPlayer`` (the bridge node's path: guard, units, RPDO at each stamp, 1 ms apart).
 
 Figures:
 - ``lost``: setpoints sent by the master minus setpoints that arrived at the drive (goal 0);
 - ``switch_error_us``: applied (arrival at the simulated drive) − stamp, p50 / p99 / max / min;
   ``jitter_us``: the same minus its median (a common delay is harmless to a profile; the spread
   between switches moves the final position) — goal p99 <= 250 µs;
-- ``sent_error_us``: the scheduler's own send time − stamp (the master side alone);
+- ``sent_error_us``: the player's own send time − stamp (the master side alone);
 - ``transport_us``: arrival at the drive − the master's send time (hub + simulated drive);
 - ``feedback``: TPDO statusword/position frames the master received vs SYNCs sent.
 
-Master-side options: ``--rt-priority`` (SCHED_FIFO of the scheduler thread), ``--switch-interval``
+Master-side options: ``--rt-priority`` (SCHED_FIFO of the player's thread), ``--switch-interval``
 (this process's thread switch interval), ``--spin-margin``, ``--prepare on|off`` (clamp + unit
 conversion before the stamp, as the bridge node does, or all at the stamp).
 
@@ -35,7 +35,7 @@ import time
 import numpy as np
 
 from ff_hwbridge.drive.epos import EposMaster
-from ff_hwbridge.drive.scheduler import StampScheduler
+from ff_hwbridge.drive.player import PlayerConfig, SetpointPlayer
 from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.sim.rig_process import RigProcess, free_port, rig_master_config
 
@@ -54,7 +54,7 @@ def main() -> int:
     ap.add_argument("--sync-period", type=float, default=0.001, help="s")
     ap.add_argument("--family", default="epos4", choices=("epos4", "epos2"))
     ap.add_argument("--sim-switch-interval", type=float, default=0.0005,
-                    help="s, python thread switch interval in the simulator (sim_rig's default)")
+                    help="s, python thread switch interval in the simulator (the rig CLI default)")
     ap.add_argument("--sim-rt-priority", type=int, default=0,
                     help="run the simulator process under SCHED_FIFO at this priority (chrt -f)")
     ap.add_argument("--rt-priority", "--master-rt-priority", dest="rt_priority", type=int,
@@ -78,7 +78,7 @@ def main() -> int:
     record = os.path.join(tempfile.mkdtemp(prefix="ff-bench-can-"), "sim.json")
     hub = None
     if a.hub == "process":
-        hub = subprocess.Popen([sys.executable, "-u", "-m", "ff_hwbridge.sim.can_hub", "--port", str(port)],
+        hub = subprocess.Popen([sys.executable, "-u", "-m", "ff_hwbridge.cli.can_hub", "--port", str(port)],
                                stdout=subprocess.PIPE, text=True)
         hub.stdout.readline()
     load_before = os.getloadavg()
@@ -107,14 +107,10 @@ def main() -> int:
         # small alternating currents (±0.3 A pattern): unique-enough raw values, arm barely moves
         n = int(a.duration * a.rate)
         pattern = [(((k * 37) % 61) - 30) * 0.01 for k in range(n)]   # period 61, |I| <= 0.3 A
-        if a.prepare == "on":      # item k: prepared ahead, sent at the stamp
-            sched = StampScheduler(lambda stamp, prepared: master.send_prepared(prepared),
-                                   spin_margin=cfg.spin_margin, rt_priority=a.rt_priority,
-                                   prepare=lambda k: master.prepare_currents([pattern[k]]))
-        else:                      # item k: clamp, convert and send at the stamp
-            sched = StampScheduler(lambda stamp, k: master.command_currents([pattern[k]]),
-                                   spin_margin=cfg.spin_margin, rt_priority=a.rt_priority)
-        sched.start()
+        # the bridge node's path; --prepare off: clamp, convert and send all at the stamp
+        player = SetpointPlayer(master, PlayerConfig(spin_margin=cfg.spin_margin,
+                                                     rt_priority=a.rt_priority,
+                                                     prepare_ahead=a.prepare == "on")).start()
         t0 = time.time_ns() + 500_000_000
         period = int(1e9 / a.rate)
         stamps = [t0 + k * period for k in range(n)]
@@ -123,18 +119,18 @@ def main() -> int:
         while submitted < n:                       # feed ~100 ms ahead, like the bridge node
             horizon = time.time_ns() + 100_000_000
             while submitted < n and stamps[submitted] < horizon:
-                sched.submit(stamps[submitted], submitted)
-                master.note_setpoint(motion_running=True)
+                player.submit(stamps[submitted], [pattern[submitted]], seq=submitted,
+                              profile_id="bench")     # a motion: feeds the setpoint watchdog
                 submitted += 1
             time.sleep(0.02)
-        while sched.pending:
+        while player.pending:
             time.sleep(0.01)
         time.sleep(0.2)
         tpdos, window = tpdo_count["n"] - sync0, time.monotonic() - tw0
-        sent_stats = sched.stats().as_dict()
-        sent_at = {stamp: sent for stamp, sent in sched.records}
-        rt_active = sched.rt_active
-        sched.stop()
+        sent_stats = player.stats().as_dict()
+        sent_at = {stamp: sent for stamp, sent in player.records()}
+        rt_active = player.rt_active
+        player.close()
         latched = master.fault_reason
         master.disable()
         time.sleep(0.05)

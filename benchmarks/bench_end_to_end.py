@@ -39,7 +39,9 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     scales = [float(s) for s in a.scales.split(",")]
     model = default_params("arm1dof")
-    log = (lambda s: print(s, file=sys.stderr, flush=True))
+    def log(s: str) -> None:
+        print(s, file=sys.stderr, flush=True)
+
     rows = []
     t0 = time.monotonic()
     with Stack(StackOptions(rt_priority=10), log=log) as stack:   # SCHED_FIFO where permitted

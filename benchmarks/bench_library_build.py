@@ -47,14 +47,14 @@ QUICK = {"qf": {"start": 0.8, "stop": 1.1, "step": 0.1}, "tf": [1.0, 1.1]}
 def _warm_workers(client) -> float:
     """Import the planner and plan small tasks in every worker (JIT caches); returns s."""
     def warm() -> int:
-        from ff_planner.library.build import plan_for_library
         from ff_planner.model.profile import PlanRequest
+        from ff_planner.optimize.planner import plan
 
         for obj, unc, n in (("robust-derivative", ["pc"], None), ("robust-derivative", ["pv", "pc", "pt"], 5),
                             ("robust-sampled", ["pv", "pc", "pt"], 6)):
             try:
-                plan_for_library(PlanRequest(q0=[0.0], qf=[1.0], tf=1.0, uncertain=unc, steps=n, starts=50,
-                                             objective=obj, time_budget=30))
+                plan(PlanRequest(q0=[0.0], qf=[1.0], tf=1.0, uncertain=unc, steps=n, starts=50,
+                                 objective=obj, time_budget=30))
             except Exception:
                 pass
         return os.getpid()

@@ -41,7 +41,9 @@ def main() -> None:
     warm_s = warm_up()   # compile/load kernels first: user requests never pay for it
 
     P = Scara2Params()
-    out: dict = {"objective": args.objective, "machine": "2-core dev box shared with other jobs (see load_average_1min)", "import_s": import_s, "warm_up_s": warm_s, "section_4_2": []}
+    out: dict = {"objective": args.objective,
+                 "machine": "2-core dev box shared with other jobs (see load_average_1min)",
+                 "import_s": import_s, "warm_up_s": warm_s, "section_4_2": []}
 
     def run(q0, qf, seed, budget):
         req = PlanRequest(model="scara2", q0=tuple(q0), qf=tuple(qf), tf=1.0,

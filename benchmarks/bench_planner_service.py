@@ -121,7 +121,8 @@ def main() -> None:
         out["cold"] = _quant([t for t, r in cold if r is not None and r.success])
         out["cold"]["robust"] = sum(bool(r and r.success and r.robust) for _, r in cold)
         out["cold"]["no_plan"] = sum(bool(r and not r.success) for _, r in cold)
-        out["cold"]["failed_examples"] = sorted({r.message[:120] for _, r in cold if r is not None and not r.success})[:3]
+        failed = {r.message[:120] for _, r in cold if r is not None and not r.success}
+        out["cold"]["failed_examples"] = sorted(failed)[:3]
         out["cold"]["planner_solve_time_p50_s"] = float(np.median([r.solve_time for _, r in cold if r]))
         out["cold"]["goal_p50_s"] = 0.1
 

@@ -113,7 +113,7 @@ def run_on_stack(ctrls: list[dict], log) -> dict:
                 for k, c in enumerate(ctrls):
                     prof = CurrentProfile.uniform(c["currents_A"], TF)
                     msg = profile_to_msg(prof, "arm1dof", [0.0], [QF], pid=f"s5-{k}-{pc}")
-                    for attempt in range(1, ATTEMPTS + 1):   # timing gate, see the docstring
+                    for attempt in range(1, ATTEMPTS + 1):  # noqa: B007 - read after the loop; timing gate, see the docstring
                         client.reset_arm([0.0])
                         mv = client.execute(msg)
                         if mv.switch_spread <= GATE_S:
@@ -180,7 +180,9 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     params = default_params("arm1dof")
     n = 8 if a.quick else 32
-    log = (lambda s: print(s, file=sys.stderr, flush=True))
+    def log(s: str) -> None:
+        print(s, file=sys.stderr, flush=True)
+
     ctrls = controllers(n, params)
     out = {"benchmark": "section5_grid", "paper": PAPER, "true_pc_Nm": list(PCS),
            "model": "table2 (pc = 0.19 Nm nominal)", "tf_s": TF, "qf_rad": QF,

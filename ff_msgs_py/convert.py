@@ -1,7 +1,8 @@
 """Conversions between ff_msgs messages and numpy arrays / the planner's dataclasses.
 
-Pure functions; they import the generated ``ff_msgs`` types lazily so that the planner library
-itself never needs ROS. Times: ``builtin_interfaces/Time`` <-> float seconds or integer ns.
+Pure functions. Times: ``builtin_interfaces/Time`` <-> integer ns. PlanTrajectory error codes:
+:data:`ERROR_CODES` maps each name of ``ff_planner.core.errors.ERROR_NAMES`` to the interface
+constant of the same name, so the numbers are defined once, in ``srv/PlanTrajectory.srv``.
 """
 from __future__ import annotations
 
@@ -10,10 +11,24 @@ import json
 from typing import Any, Sequence
 
 import numpy as np
+from builtin_interfaces.msg import Time
 
+from ff_msgs.msg import CurrentProfile as CurrentProfileMsg
+from ff_msgs.msg import CurrentSetpoint
+from ff_msgs.srv import PlanTrajectory
+from ff_planner.core.errors import ERROR_NAMES
+from ff_planner.model.params import ParameterError, default_params, n_joints
 from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult
 
-DEFAULT_JOINT_NAMES = {"arm1dof": ["joint1"], "scara2": ["joint1", "joint2"]}
+
+# --- joint names ------------------------------------------------------------------------------
+def default_joint_names(model: str, fallback: int) -> list[str]:
+    """``joint1 .. jointN``, N = the model's joint count (``fallback`` for an unknown model)."""
+    try:
+        nj = n_joints(model)
+    except ParameterError:
+        nj = fallback
+    return [f"joint{j + 1}" for j in range(nj)]
 
 
 # --- time -------------------------------------------------------------------------------------
@@ -24,8 +39,6 @@ def time_to_ns(stamp: Any) -> int:
 
 def ns_to_time(ns: int):
     """Integer nanoseconds (>= 0) -> builtin_interfaces/Time."""
-    from builtin_interfaces.msg import Time
-
     ns = int(ns)
     if ns < 0:
         raise ValueError(f"time must be >= 0 ns, got {ns}")
@@ -33,7 +46,8 @@ def ns_to_time(ns: int):
 
 
 # --- profile ----------------------------------------------------------------------------------
-def profile_id(profile: CurrentProfile, model: str, q0: Sequence[float], qf: Sequence[float]) -> str:
+def profile_id(profile: CurrentProfile, model: str, q0: Sequence[float] | np.ndarray,
+               qf: Sequence[float] | np.ndarray) -> str:
     """A short content hash naming a profile (same motion -> same id)."""
     blob = json.dumps({"m": model, "q0": list(map(float, q0)), "qf": list(map(float, qf)),
                        "t": profile.step_times.tolist(), "i": profile.currents.tolist(),
@@ -41,13 +55,12 @@ def profile_id(profile: CurrentProfile, model: str, q0: Sequence[float], qf: Seq
     return hashlib.sha1(blob.encode()).hexdigest()[:16]
 
 
-def profile_to_msg(profile: CurrentProfile, model: str, q0: Sequence[float], qf: Sequence[float],
-                   joint_names: Sequence[str] | None = None, pid: str | None = None):
+def profile_to_msg(profile: CurrentProfile, model: str, q0: Sequence[float] | np.ndarray,
+                   qf: Sequence[float] | np.ndarray, joint_names: Sequence[str] | None = None,
+                   pid: str | None = None) -> CurrentProfileMsg:
     """CurrentProfile dataclass -> ff_msgs/msg/CurrentProfile (currents flattened row-major)."""
-    from ff_msgs.msg import CurrentProfile as CurrentProfileMsg
-
-    names = list(joint_names) if joint_names is not None else DEFAULT_JOINT_NAMES.get(
-        model, [f"joint{j + 1}" for j in range(profile.n_joints)])
+    names = (list(joint_names) if joint_names is not None
+             else default_joint_names(model, profile.n_joints))
     if len(names) != profile.n_joints:
         raise ValueError(f"{len(names)} joint names for a {profile.n_joints}-joint profile")
     return CurrentProfileMsg(
@@ -75,8 +88,6 @@ def msg_to_profile(msg: Any) -> CurrentProfile:
 # --- setpoints --------------------------------------------------------------------------------
 def setpoint_msg(stamp_ns: int, currents: Sequence[float], seq: int, pid: str = "", last: bool = False):
     """Build ff_msgs/msg/CurrentSetpoint taking effect at ``stamp_ns`` (ROS clock, ns)."""
-    from ff_msgs.msg import CurrentSetpoint
-
     return CurrentSetpoint(stamp=ns_to_time(stamp_ns), currents=[float(c) for c in currents],
                            seq=int(seq), profile_id=pid, last=bool(last))
 
@@ -94,8 +105,6 @@ def request_from_msg(req: Any, defaults: PlanRequest | None = None, params=None)
     Parameter overrides are applied to ``params`` (or the model's preset); a ParameterError names
     an unknown key. Nothing here plans: call ``request.validate()`` next.
     """
-    from ff_planner.model.params import ParameterError, default_params
-
     d = defaults or PlanRequest()
     if len(req.override_names) != len(req.override_values):
         raise ParameterError(f"{len(req.override_names)} override names but "
@@ -113,9 +122,6 @@ def request_from_msg(req: Any, defaults: PlanRequest | None = None, params=None)
 
 def request_to_msg(request: PlanRequest):
     """PlanRequest -> PlanTrajectory.Request (overrides = every parameter that differs from preset)."""
-    from ff_msgs.srv import PlanTrajectory
-    from ff_planner.model.params import default_params
-
     p = request.resolved_params()
     ref = default_params(request.model).to_dict()
     over = {k: v for k, v in p.to_dict().items() if v != ref[k]}
@@ -127,8 +133,8 @@ def request_to_msg(request: PlanRequest):
         override_values=list(over.values()))
 
 
-ERROR_CODES = {"OK": 0, "INVALID_REQUEST": 1, "UNKNOWN_MODEL": 2, "UNKNOWN_PARAMETER": 3,
-               "UNREACHABLE": 4, "NO_ROBUST_PLAN": 5, "TIME_BUDGET_EXHAUSTED": 6, "INTERNAL_ERROR": 7}
+#: PlanTrajectory error name -> the interface constant of that name (PlanTrajectory.Response).
+ERROR_CODES: dict[str, int] = {name: int(getattr(PlanTrajectory.Response, name)) for name in ERROR_NAMES}
 
 
 def result_to_response(result: PlanResult, response: Any, joint_names: Sequence[str] | None = None):

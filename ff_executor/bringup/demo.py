@@ -27,21 +27,23 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ff_executor.bringup.stack import BringupError, Stack, StackOptions, _kv
+from ff_executor.bringup.stack import BringupError, Stack, StackOptions, parse_key_values
+from ff_executor.ros.client import StackCallError, StackClient
+from ff_msgs.srv import PlanTrajectory
 from ff_planner.model.params import ParameterError
 
 MOTIONS = (("robust", "robust-derivative"), ("baseline", "energy-optimal"))
 
 
-def plan_request(objective: str, qf: float = 1.0, tf: float = 1.0, starts: int = 0, seed: int = 1):
-    from ff_msgs.srv import PlanTrajectory
-
+def plan_request(objective: str, qf: float = 1.0, tf: float = 1.0, starts: int = 0,
+                 seed: int = 1) -> PlanTrajectory.Request:
+    """The demo's 1-DOF request: 0 → ``qf`` rad in ``tf`` s, pv, pc, pt uncertain."""
     return PlanTrajectory.Request(model="arm1dof", q0=[0.0], qf=[qf], move_time=tf,
                                   uncertain=["pv", "pc", "pt"], objective=objective,
                                   starts=starts, seed=seed)
 
 
-def run_motions(client, qf: float = 1.0, tf: float = 1.0, motions=MOTIONS, log=print,
+def run_motions(client: StackClient, qf: float = 1.0, tf: float = 1.0, motions=MOTIONS, log=print,
                 attempts: int = 1, max_spread: Optional[float] = None) -> dict:
     """Plan each motion via the service and execute it on the simulated arm; returns a summary.
 
@@ -169,10 +171,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Optional[Sequence[str]] = None) -> int:
     a = build_parser().parse_args(argv)
     try:
-        scale = _kv(a.true_scale, "--true-scale") if a.true_scale or a.true_param else {"pc": 1.2}
+        scale = parse_key_values(a.true_scale, "--true-scale") if a.true_scale or a.true_param else {"pc": 1.2}
         if not 0 <= a.rt_priority <= 99:
             raise ValueError(f"--rt-priority must be 0..99, got {a.rt_priority}")
-        opts = StackOptions(true_scale=scale, true_params=_kv(a.true_param, "--true-param"),
+        opts = StackOptions(true_scale=scale, true_params=parse_key_values(a.true_param, "--true-param"),
                             run_dir=a.run_dir, rt_priority=a.rt_priority)
         true = opts.true_friction()
     except (ParameterError, ValueError) as exc:
@@ -181,8 +183,6 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if not (math.isfinite(a.qf) and math.isfinite(a.tf) and a.tf > 0.05):
         print("ff-demo: --qf must be finite and --tf > 0.05 s", file=sys.stderr)
         return 2
-    from ff_executor.ros.client import StackCallError, StackClient
-
     print(f"ff-demo: robust vs baseline, 0 -> {a.qf} rad in {a.tf} s; the simulated arm's true "
           f"friction: {true} (the planner's model: paper table 2)", flush=True)
     try:

@@ -41,10 +41,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Mapping, Optional, Sequence
 
+import rclpy
 import yaml
+from lifecycle_msgs.srv import GetState
+from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
 
-from ff_msgs_py.launch import NodeProcess, ros_environment, start_module
-from ff_planner.model.params import ParameterError, default_params, n_joints
+from ff_msgs_py.launch import NodeProcess, apply_ros_environment, ros_environment, start_module
+from ff_planner.model.params import ParameterError, default_params
+from ff_planner.model.registry import MODELS, model_spec
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIG_DIR = REPO / "config"
@@ -69,7 +77,7 @@ class StackOptions:
     hub_port: int = 0                          # 0 = a free port on 127.0.0.1
     domain_id: Optional[int] = None            # None = random per run
     run_dir: Optional[str] = None              # logs, generated parameter files, motion library
-    executor_params: Optional[str] = None      # default config/executor.yaml (or _scara2)
+    executor_params: Optional[str] = None      # default config/executor.yaml + the model's joints
     planner_params: Optional[str] = None       # default config/planner.yaml
     # the simulated stack runs on shared machines: hand setpoints to the bridge 0.3 s ahead
     executor_overrides: Mapping[str, object] = field(
@@ -116,9 +124,10 @@ def _params_file(path: Path, node: str, params: Mapping[str, object]) -> Path:
 def bridge_config(model: str, hub_url: str) -> dict:
     """The bridge's config (ff_hwbridge.drive.config) for the simulated drives on the hub."""
     p = default_params(model)
+    nj = model_spec(model).n_joints
     joints = []
-    for j in range(n_joints(model)):
-        sfx = "" if model == "arm1dof" else str(j + 1)
+    for j in range(nj):
+        sfx = "" if nj == 1 else str(j + 1)    # parameter keys: "kt" (1 joint), "kt1", "kt2", ...
         joints.append({"name": f"joint{j + 1}", "node_id": j + 1, "family": "epos4",
                        "current_limit": float(getattr(p, "i_max" + sfx)),
                        "units": {"nominal_current": NOMINAL_CURRENT,
@@ -148,34 +157,28 @@ class Stack:
         self.hub_port = self.options.hub_port or free_port()
         self.procs: list[NodeProcess] = []
         self._renice: list[NodeProcess] = []
-        self._ctx = None
-        self._node = None
+        self._ctx: Optional[Context] = None
+        self._node: Optional[Node] = None
 
     @property
     def hub_url(self) -> str:
         return f"ws://127.0.0.1:{self.hub_port}/"
 
     # --- the graph probe (this process's own rclpy context) ----------------------------------
-    def _probe(self):
+    def _probe(self) -> Node:
         if self._node is None:
-            import rclpy
-            from rclpy.node import Node
-
-            from ff_msgs_py.launch import apply_ros_environment
-
             apply_ros_environment(self.env)
             self._ctx = rclpy.Context()
             rclpy.init(context=self._ctx)
             self._node = Node(f"ff_bringup_{os.getpid()}", context=self._ctx)
         return self._node
 
-    def _has_service(self, name: str) -> bool:
+    def has_service(self, name: str) -> bool:
+        """True if a service ``name`` (fully qualified) is in the stack's ROS graph."""
         return any(n == name for n, _ in self._probe().get_service_names_and_types())
 
-    def _lifecycle_state(self, node_name: str) -> Optional[str]:
-        from lifecycle_msgs.srv import GetState
-        from rclpy.executors import SingleThreadedExecutor
-
+    def lifecycle_state(self, node_name: str) -> Optional[str]:
+        """The lifecycle state label of ``node_name`` (e.g. "active"), None if it does not answer."""
         node = self._probe()
         cli = node.create_client(GetState, f"/{node_name}/get_state")
         try:
@@ -250,42 +253,41 @@ class Stack:
         o = self.options
         model = o.model
         true = o.true_friction()
-        nj = n_joints(model)
+        nj = model_spec(model).n_joints
         q0 = [float(x) for x in (o.q0 or [0.0] * nj)]
         self.log(f"ff-bringup: run folder {self.run_dir}, ROS_DOMAIN_ID={self.env['ROS_DOMAIN_ID']} "
                  f"(loopback only), CAN hub {self.hub_url}")
         self.log(f"  simulated arm: {model}, true friction differs from the model by {true or 'nothing'}")
         try:
             if o.separate_hub:
-                p = self._start("ff_can_hub", "ff_hwbridge.sim.can_hub", ["--port", str(self.hub_port)],
+                p = self._start("ff_can_hub", "ff_hwbridge.cli.can_hub", ["--port", str(self.hub_port)],
                                 timing=True)
                 self._wait(p, lambda: "CAN hub on" in p.output(), "serving on 127.0.0.1")
             sim = {"model": model, "host_hub": not o.separate_hub, "hub_port": self.hub_port,
                    "bus.interface": "remote", "bus.channel": self.hub_url,
                    "node_ids": list(range(1, nj + 1)), "q0": q0, "counts_per_rev": COUNTS_PER_REV,
                    "nominal_current": NOMINAL_CURRENT, "ground_truth_rate": 100.0,
-                   # arm1dof.advance is exact for any step; the SCARA integrates numerically
-                   "physics_step": 1e-3 if model == "arm1dof" else 1e-4}
+                   "physics_step": default_params(model).plant_step}
             sim.update({f"true_params.{k}": v for k, v in true.items()})
             sim.update(o.sim_overrides)
             pf = _params_file(self.run_dir / "sim_driver.yaml", "ff_sim_driver", sim)
             p = self._start("ff_sim_driver", "ff_hwbridge.ros.sim_driver_node",
                             ["--ros-args", "--params-file", str(pf)], timing=True)
-            self._wait(p, lambda: self._has_service("/ff_sim_driver/reset"), "service ~/reset")
+            self._wait(p, lambda: self.has_service("/ff_sim_driver/reset"), "service ~/reset")
 
             bcfg = self.run_dir / "bridge.yaml"
             bdata = bridge_config(model, self.hub_url)
             if o.rt_priority:
                 bdata["scheduler_rt_priority"] = int(o.rt_priority)
             bcfg.write_text(yaml.safe_dump(bdata, sort_keys=False))
-            bp = {"config_file": str(bcfg)}
+            bp: dict[str, object] = {"config_file": str(bcfg)}
             bp.update(o.bridge_overrides)
             pf = _params_file(self.run_dir / "bridge_params.yaml", "ff_hwbridge", bp)
             for attempt in (1, 2):   # a busy machine can stall the first enable sequence
                 p = self._start("ff_hwbridge", "ff_hwbridge.ros.bridge_node",
                                 ["--autostart", "--ros-args", "--params-file", str(pf)], timing=True)
                 try:
-                    self._wait(p, lambda: self._lifecycle_state("ff_hwbridge") == "active",
+                    self._wait(p, lambda: self.lifecycle_state("ff_hwbridge") == "active",
                                "lifecycle state active")
                     break
                 except BringupError as exc:
@@ -296,24 +298,26 @@ class Stack:
                     p.stop()
 
             if o.planner:
-                pp = {"library_path": str(self.run_dir / "motions.sqlite")}
+                pp: dict[str, object] = {"library_path": str(self.run_dir / "motions.sqlite")}
                 pp.update(o.planner_overrides)
                 base = o.planner_params or str(CONFIG_DIR / "planner.yaml")
                 over = _params_file(self.run_dir / "planner_overrides.yaml", "ff_planner", pp)
                 p = self._start("ff_planner", "ff_planner.ros.planner_node",
                                 ["--ros-args", "--params-file", base, "--params-file", str(over)])
-                self._wait(p, lambda: self._has_service("/ff_planner/plan"), "service ~/plan")
+                self._wait(p, lambda: self.has_service("/ff_planner/plan"), "service ~/plan")
 
             if o.executor:
-                default = "executor.yaml" if model == "arm1dof" else "executor_scara2.yaml"
-                base = o.executor_params or str(CONFIG_DIR / default)
+                base = o.executor_params or str(CONFIG_DIR / "executor.yaml")
+                ep: dict[str, object] = {}
+                if o.executor_params is None:   # the default file's joints are the 1-DOF arm's
+                    ep["joint_names"] = [j["name"] for j in bdata["joints"]]
+                ep.update(o.executor_overrides)
                 args = ["--ros-args", "--params-file", base]
-                if o.executor_overrides:
-                    over = _params_file(self.run_dir / "executor_overrides.yaml", "ff_executor",
-                                        dict(o.executor_overrides))
+                if ep:
+                    over = _params_file(self.run_dir / "executor_overrides.yaml", "ff_executor", ep)
                     args += ["--params-file", str(over)]
                 p = self._start("ff_executor", "ff_executor.ros.executor_node", args, timing=True)
-                self._wait(p, lambda: self._has_service("/ff_executor/execute/_action/send_goal"),
+                self._wait(p, lambda: self.has_service("/ff_executor/execute/_action/send_goal"),
                            "action ~/execute")
         except BaseException:
             self.stop()
@@ -323,10 +327,6 @@ class Stack:
 
     def set_true_params(self, values: Mapping[str, float], timeout: float = 10.0) -> None:
         """Change the simulated arm's true parameters at runtime (``true_params.<key>``, SI)."""
-        from rcl_interfaces.msg import Parameter, ParameterType, ParameterValue
-        from rcl_interfaces.srv import SetParameters
-        from rclpy.executors import SingleThreadedExecutor
-
         default_params(self.options.model).replace(**values)   # refuse unknown keys early
         node = self._probe()
         cli = node.create_client(SetParameters, "/ff_sim_driver/set_parameters")
@@ -361,8 +361,6 @@ class Stack:
             codes[p.name] = p.stop()
         self.procs = []
         if self._node is not None:
-            import rclpy
-
             self._node.destroy_node()
             self._node = None
             if self._ctx is not None and self._ctx.ok():
@@ -377,7 +375,8 @@ class Stack:
         self.stop()
 
 
-def _kv(items: Sequence[str], what: str) -> dict[str, float]:
+def parse_key_values(items: Sequence[str], what: str) -> dict[str, float]:
+    """``["pc=1.2", ...]`` -> ``{"pc": 1.2, ...}``; ParameterError naming ``what`` on a bad item."""
     out = {}
     for item in items:
         if "=" not in item:
@@ -394,7 +393,7 @@ def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="ff-bringup", description=__doc__.splitlines()[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
                                  epilog="\n".join(__doc__.splitlines()[2:6]))
-    ap.add_argument("--model", default="arm1dof", choices=("arm1dof", "scara2"))
+    ap.add_argument("--model", default="arm1dof", choices=MODELS)
     ap.add_argument("--true-scale", action="append", default=[], metavar="KEY=FACTOR",
                     help="scale a true friction parameter of the simulated arm, e.g. pc=1.2")
     ap.add_argument("--true-param", action="append", default=[], metavar="KEY=VALUE",
@@ -414,8 +413,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     """Console script ``ff-bringup``: start the stack, wait for Ctrl-C or a dying child, stop all."""
     a = build_parser().parse_args(argv)
     try:
-        opts = StackOptions(model=a.model, true_scale=_kv(a.true_scale, "--true-scale"),
-                            true_params=_kv(a.true_param, "--true-param"), planner=not a.no_planner,
+        opts = StackOptions(model=a.model, true_scale=parse_key_values(a.true_scale, "--true-scale"),
+                            true_params=parse_key_values(a.true_param, "--true-param"), planner=not a.no_planner,
                             hub_port=a.hub_port, domain_id=a.domain_id, run_dir=a.run_dir,
                             start_timeout=a.start_timeout, rt_priority=a.rt_priority)
         opts.true_friction()

@@ -10,11 +10,24 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Mapping, Optional, Sequence
+from typing import Any, Mapping, Optional, Sequence
 
 import numpy as np
+import rclpy
+from action_msgs.msg import GoalStatus
+from rclpy.action import ActionClient
+from rclpy.executors import MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
 
-NS = 1_000_000_000
+from ff_executor.engine import NS
+from ff_msgs.action import ExecuteProfile
+from ff_msgs.msg import CurrentSetpoint
+from ff_msgs.srv import PlanTrajectory
+from ff_msgs_py.convert import ns_to_time, time_to_ns
+from ff_msgs_py.launch import apply_ros_environment
 
 
 class StackCallError(RuntimeError):
@@ -30,7 +43,8 @@ class Recording:
     qd: list = field(default_factory=list)
     effort: list = field(default_factory=list)
 
-    def arrays(self, t0: float = 0.0):
+    def arrays(self, t0: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(t − t0 s, q rad, qd rad/s, effort A) as arrays, one row per sample."""
         return (np.asarray(self.t) - t0, np.asarray(self.q), np.asarray(self.qd),
                 np.asarray(self.effort))
 
@@ -40,7 +54,7 @@ class MoveOutcome:
     """What one execution gave: the action result, feedback count, and the recordings."""
 
     status: int
-    result: object                 # ExecuteProfile.Result
+    result: Any                    # ExecuteProfile.Result
     feedback: int
     feedback_period_max: float     # s, longest gap between feedback messages (as received here)
     feedback_rate: float           # Hz, messages / time between the first and the last
@@ -59,84 +73,68 @@ class MoveOutcome:
 
     @property
     def succeeded(self) -> bool:
-        from action_msgs.msg import GoalStatus
-
+        """True if the goal succeeded and its result says so."""
         return self.status == GoalStatus.STATUS_SUCCEEDED and bool(self.result.success)
 
 
-def _safe_action_client_class():
-    """rclpy's ActionClient registers a request's future only after sending it; a response taken
+class SafeActionClient(ActionClient):
+    """An rclpy ActionClient whose responses cannot overtake their requests.
+
+    rclpy's ActionClient registers a request's future only after sending it; a response taken
     by another executor thread in between is dropped ("Ignoring unexpected goal response") and
-    the caller waits forever. Serialise the two paths with one lock."""
-    from rclpy.action import ActionClient
+    the caller waits forever. One lock serialises the two paths.
+    """
 
-    class SafeActionClient(ActionClient):
-        def __init__(self, *args, **kwargs) -> None:
-            self._ff_lock = threading.RLock()
-            super().__init__(*args, **kwargs)
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self._ff_lock = threading.RLock()
+        super().__init__(*args, **kwargs)
 
-        def send_goal_async(self, *args, **kwargs):
-            with self._ff_lock:
-                return super().send_goal_async(*args, **kwargs)
+    def send_goal_async(self, *args: Any, **kwargs: Any) -> Any:
+        with self._ff_lock:
+            return super().send_goal_async(*args, **kwargs)
 
-        def _cancel_goal_async(self, *args, **kwargs):
-            with self._ff_lock:
-                return super()._cancel_goal_async(*args, **kwargs)
+    def _cancel_goal_async(self, *args: Any, **kwargs: Any) -> Any:
+        with self._ff_lock:
+            return super()._cancel_goal_async(*args, **kwargs)
 
-        def _get_result_async(self, *args, **kwargs):
-            with self._ff_lock:
-                return super()._get_result_async(*args, **kwargs)
+    def _get_result_async(self, *args: Any, **kwargs: Any) -> Any:
+        with self._ff_lock:
+            return super()._get_result_async(*args, **kwargs)
 
-        async def execute(self, taken_data):
-            with self._ff_lock:   # wait until a request in flight has registered its future
-                pass
-            return await super().execute(taken_data)
-
-    return SafeActionClient
+    async def execute(self, taken_data: Any) -> Any:
+        with self._ff_lock:   # wait until a request in flight has registered its future
+            pass
+        return await super().execute(taken_data)
 
 
 class StackClient:
     """rclpy node + executor thread in this process; apply the stack's env before creating it."""
 
     def __init__(self, env: Mapping[str, str], name: str = "ff_client") -> None:
-        import rclpy
-        from rclpy.executors import MultiThreadedExecutor
-        from rclpy.node import Node
-        from rclpy.qos import QoSProfile, ReliabilityPolicy
-        from sensor_msgs.msg import JointState
-        from std_srvs.srv import Trigger
-
-        from ff_msgs.action import ExecuteProfile
-        from ff_msgs.srv import PlanTrajectory
-        from ff_msgs_py.launch import apply_ros_environment
-
         apply_ros_environment(env)
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx)
         self.node = Node(name, context=self.ctx)
         self.plan_client = self.node.create_client(PlanTrajectory, "/ff_planner/plan")
         self.reset_client = self.node.create_client(Trigger, "/ff_sim_driver/reset")
-        self.action = _safe_action_client_class()(self.node, ExecuteProfile, "/ff_executor/execute")
+        self.action = SafeActionClient(self.node, ExecuteProfile, "/ff_executor/execute")
         qos = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
         self._lock = threading.Lock()
         self._truth: Optional[Recording] = None
         self._joints: Optional[Recording] = None
-        self.last_truth: Optional[tuple] = None     # (t, q, qd)
+        self.last_truth: Optional[tuple[float, np.ndarray, np.ndarray]] = None   # (t s, q rad, qd rad/s)
         self.node.create_subscription(JointState, "/ff_sim_driver/ground_truth",
                                       lambda m: self._on_js(m, "truth"), qos)
         self.node.create_subscription(JointState, "/ff_hwbridge/joint_states",
                                       lambda m: self._on_js(m, "joints"), qos)
-        from ff_msgs.msg import CurrentSetpoint
-        from ff_msgs_py.convert import time_to_ns
+        self._stamps: dict[tuple[str, int], tuple[int, tuple[float, ...]]] = {}
+        self._applied: dict[tuple[str, int], int] = {}
 
-        self._stamps: dict = {}
-        self._applied: dict = {}
-
-        def on_setpoint(m) -> None:
+        def on_setpoint(m: CurrentSetpoint) -> None:
             with self._lock:
                 self._stamps[(m.profile_id, m.seq)] = (time_to_ns(m.stamp), tuple(m.currents))
 
-        def on_applied(m) -> None:
+        def on_applied(m: CurrentSetpoint) -> None:
             with self._lock:
                 self._applied[(m.profile_id, m.seq)] = time_to_ns(m.stamp)
 
@@ -149,8 +147,7 @@ class StackClient:
         self._spin.start()
 
     def close(self) -> None:
-        import rclpy
-
+        """Stop the executor thread, destroy the node and shut the context down."""
         self.executor.shutdown()
         self.node.destroy_node()
         if self.ctx.ok():
@@ -163,9 +160,10 @@ class StackClient:
         self.close()
 
     def now(self) -> float:
+        """This node's ROS clock (s)."""
         return self.node.get_clock().now().nanoseconds / NS
 
-    def _on_js(self, msg, which: str) -> None:
+    def _on_js(self, msg: JointState, which: str) -> None:
         # the publisher's stamp (when the sample was taken); the receive time only if unstamped
         stamp = msg.header.stamp.sec * NS + msg.header.stamp.nanosec
         t = stamp / NS if stamp else self.now()
@@ -183,7 +181,7 @@ class StackClient:
                 rec.effort.append(eff)
 
     @staticmethod
-    def _wait(future, timeout: float, what: str):
+    def _wait(future: Any, timeout: float, what: str) -> Any:
         end = time.monotonic() + timeout
         while not future.done() and time.monotonic() < end:
             time.sleep(0.005)
@@ -192,7 +190,7 @@ class StackClient:
         return future.result()
 
     # --- calls --------------------------------------------------------------------------------
-    def plan(self, request, timeout: float = 120.0):
+    def plan(self, request: PlanTrajectory.Request, timeout: float = 120.0) -> PlanTrajectory.Response:
         """Call /ff_planner/plan with a PlanTrajectory.Request; returns the response."""
         if not self.plan_client.wait_for_service(timeout_sec=15.0):
             raise StackCallError("the planner service /ff_planner/plan is not available")
@@ -201,31 +199,26 @@ class StackClient:
     def reset_arm(self, q0: Sequence[float] = (0.0,), timeout: float = 10.0,
                   rest_velocity: float = 1e-6) -> None:
         """Put the simulated arm back (sim driver's ~/reset) and wait until it reads q0 at rest."""
-        from std_srvs.srv import Trigger
-
         if not self.reset_client.wait_for_service(timeout_sec=10.0):
             raise StackCallError("the simulated driver's /ff_sim_driver/reset is not available")
         res = self._wait(self.reset_client.call_async(Trigger.Request()), timeout, "reset")
         if not res.success:
             raise StackCallError(f"reset refused: {res.message}")
         end = time.monotonic() + timeout
-        q0 = np.asarray(q0, dtype=float)
+        target = np.asarray(q0, dtype=float)
         while time.monotonic() < end:
             with self._lock:
                 lt = self.last_truth
-            if lt is not None and lt[0] > self.now() - 0.5 and np.allclose(lt[1], q0, atol=1e-6) \
+            if lt is not None and lt[0] > self.now() - 0.5 and np.allclose(lt[1], target, atol=1e-6) \
                     and np.all(np.abs(lt[2]) <= rest_velocity):
                 time.sleep(0.2)   # let the bridge's joint states catch up too
                 return
             time.sleep(0.02)
-        raise StackCallError(f"the simulated arm did not come back to {q0.tolist()} at rest")
+        raise StackCallError(f"the simulated arm did not come back to {target.tolist()} at rest")
 
-    def execute(self, profile_msg, timeout: float = 30.0, start_time_ns: int = 0,
+    def execute(self, profile_msg: Any, timeout: float = 30.0, start_time_ns: int = 0,
                 cancel_after: Optional[float] = None) -> MoveOutcome:
         """Send an ExecuteProfile goal and record ground truth and joint states until the result."""
-        from ff_msgs.action import ExecuteProfile
-        from ff_msgs_py.convert import ns_to_time
-
         if not self.action.wait_for_server(timeout_sec=15.0):
             raise StackCallError("the executor action /ff_executor/execute is not available")
         fb_times: list[float] = []

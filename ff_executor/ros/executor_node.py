@@ -1,6 +1,6 @@
 """ROS 2 node ``ff_executor``: the action server ``~/execute`` (ff_msgs/action/ExecuteProfile).
 
-A thin adapter around :mod:`ff_executor.engine.engine`. For each goal it
+A thin adapter around :mod:`ff_executor.engine`. For each goal it
 
 1. checks the profile (joint names, current limits, times, step count) and that the bridge's
    lifecycle state is *active* (``/<bridge_node>/get_state``) and the arm is at rest at q0;
@@ -34,7 +34,7 @@ import sys
 import threading
 import time
 from collections import deque
-from typing import Optional
+from typing import Any, Callable, Optional
 
 import numpy as np
 import rclpy
@@ -47,14 +47,16 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 
-from ff_executor.engine.engine import (
+from ff_executor.engine import (
     NS,
     EngineConfig,
     Motion,
     ProfileRejected,
+    Setpoint,
     SettleDetector,
     Stream,
     StreamRunner,
+    TimingStats,
     build_setpoints,
     check_profile,
     check_start_state,
@@ -99,7 +101,7 @@ PARAMETERS = {
 class ExecutorNode(Node):
     """Node ``ff_executor`` serving ``~/execute``; see the module docstring."""
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, **kwargs: Any) -> None:
         super().__init__("ff_executor", **kwargs)
         for name, (default, _desc) in PARAMETERS.items():
             self.declare_parameter(name, default)
@@ -121,7 +123,7 @@ class ExecutorNode(Node):
         self._pos: Optional[np.ndarray] = None    # rad, bridge joint order
         self._vel: Optional[np.ndarray] = None    # rad/s
         self._state_t = 0                         # ns (ROS clock) of the last joint state
-        self._effort_log: Optional[deque] = None  # (t_ns, effort) while a move runs
+        self._effort_log: Optional[deque[tuple[int, np.ndarray]]] = None  # (t ns, effort A) while a move runs
         self._applied: dict[tuple[str, int], int] = {}
         self._active_stream: Optional[Stream] = None
 
@@ -144,7 +146,7 @@ class ExecutorNode(Node):
             goal_callback=self._on_goal, cancel_callback=self._on_cancel,
             callback_group=ReentrantCallbackGroup())
 
-    def _p(self, name: str):
+    def _p(self, name: str) -> Any:
         return self.get_parameter(name).value
 
     def _now_ns(self) -> int:
@@ -174,12 +176,12 @@ class ExecutorNode(Node):
         with self._state_lock:
             self._applied[(msg.profile_id, int(msg.seq))] = time_to_ns(msg.stamp)
 
-    def _state(self):
+    def _state(self) -> tuple[Optional[np.ndarray], Optional[np.ndarray], int]:
         with self._state_lock:
             return self._pos, self._vel, self._state_t
 
     # --- goal handling ------------------------------------------------------------------------
-    def _on_goal(self, goal_request) -> GoalResponse:
+    def _on_goal(self, goal_request: ExecuteProfile.Goal) -> GoalResponse:
         if self._p("refuse_mode") == "reject":
             reason = self._refusal(goal_request, check_busy=True)[1]
             if reason:
@@ -187,7 +189,7 @@ class ExecutorNode(Node):
                 return GoalResponse.REJECT
         return GoalResponse.ACCEPT
 
-    def _on_cancel(self, _goal_handle) -> CancelResponse:
+    def _on_cancel(self, _goal_handle: Any) -> CancelResponse:
         self.get_logger().info("cancel requested: zero current now")
         return CancelResponse.ACCEPT
 
@@ -207,7 +209,7 @@ class ExecutorNode(Node):
         return (f"another goal is running (profile {self._running_id!r}); this executor runs one "
                 "motion at a time and does not queue: wait for its result or cancel it")
 
-    def _refusal(self, goal, check_busy: bool) -> tuple[Optional[Motion], str]:
+    def _refusal(self, goal: ExecuteProfile.Goal, check_busy: bool) -> tuple[Optional[Motion], str]:
         """(motion, "") if the goal may run, else (None, reason)."""
         if check_busy and self._busy.locked():
             return None, self._busy_reason()
@@ -235,11 +237,13 @@ class ExecutorNode(Node):
             return None, str(exc)
         return motion, ""
 
-    def _finish(self, goal_handle, success: bool, message: str, motion: Optional[Motion] = None,
-                stream: Optional[Stream] = None, start_delay: float = 0.0, how: str = "succeed"):
+    def _finish(self, goal_handle: Any, success: bool, message: str, motion: Optional[Motion] = None,
+                stream: Optional[Stream] = None, start_delay: float = 0.0,
+                how: str = "succeed") -> ExecuteProfile.Result:
+        """End the goal (``how``: succeed / abort / canceled) with a result carrying the final state."""
         res = ExecuteProfile.Result(success=success, message=message)
         pos, vel, _ = self._state()
-        if motion is not None and pos is not None:
+        if motion is not None and pos is not None and vel is not None:
             back = [list(self.config.joint_names).index(n) for n in goal_handle.request.profile.joint_names]
             res.final_position = [float(pos[i]) for i in back]
             res.final_velocity = [float(vel[i]) for i in back]
@@ -257,7 +261,7 @@ class ExecutorNode(Node):
             self.get_logger().warn(f"goal ended: {message}")
         return res
 
-    def _timing(self, stream: Stream):
+    def _timing(self, stream: Stream) -> TimingStats:
         sent = [p.setpoint for p in stream.published]
         with self._state_lock:
             applied = dict(self._applied)
@@ -272,12 +276,12 @@ class ExecutorNode(Node):
         return timing_stats([], [], "none")
 
     # --- the move -----------------------------------------------------------------------------
-    async def _execute_in_thread(self, goal_handle):
+    async def _execute_in_thread(self, goal_handle: Any) -> ExecuteProfile.Result:
         """Run the goal on its own thread and await it, leaving the executor's threads free
         (see ff_msgs_py.threads: a goal holding an executor thread delayed streaming by seconds)."""
         return await in_thread(self._execute, goal_handle, wake=self._wake, name="ff_executor_goal")
 
-    def _execute(self, goal_handle):
+    def _execute(self, goal_handle: Any) -> ExecuteProfile.Result:
         if not self._busy.acquire(blocking=False):
             return self._finish(goal_handle, False, f"refused: {self._busy_reason()}", how="abort")
         try:
@@ -292,7 +296,7 @@ class ExecutorNode(Node):
             self._active_stream = None
             self._busy.release()
 
-    def _run(self, goal_handle, motion: Motion):
+    def _run(self, goal_handle: Any, motion: Motion) -> ExecuteProfile.Result:
         goal = goal_handle.request
         cfg = self.config
         received = self._now_ns()
@@ -317,12 +321,12 @@ class ExecutorNode(Node):
             fb.elapsed = max(0.0, (now - stream.start_ns) / NS)
             cur = stream.commanded(now)
             fb.commanded_currents = [float(cur[i]) for i in back]
-            if pos is not None:
+            if pos is not None and vel is not None:
                 fb.measured_positions = [float(pos[i]) for i in back]
                 fb.measured_velocities = [float(vel[i]) for i in back]
             goal_handle.publish_feedback(fb)
 
-        def publish(sp) -> None:
+        def publish(sp: Setpoint) -> None:
             self._pub.publish(setpoint_msg(sp.stamp_ns, sp.currents, sp.seq, sp.profile_id, sp.last))
 
         def stop_now() -> bool:
@@ -360,7 +364,8 @@ class ExecutorNode(Node):
             text += f"; {len(late)} setpoint(s) reached the bridge after their stamp"
         return self._finish(goal_handle, True, text, motion, stream, start_delay, how="succeed")
 
-    def _wait_settled(self, feedback, period: float, timeout: float) -> bool:
+    def _wait_settled(self, feedback: Callable[[int], None], period: float, timeout: float) -> bool:
+        """Wait until the arm has settled (True) or ``timeout`` s passed (False), sending feedback."""
         det = SettleDetector(self.config.rest_velocity, float(self._p("settle_hold")))
         end = self._now_ns() + int(timeout * NS)
         next_fb = self._now_ns()
@@ -405,7 +410,7 @@ def main(argv: Optional[list[str]] = None) -> None:
         pass
     except ValueError as exc:   # bad parameters: one clear line, no traceback
         print(f"ff_executor: {exc}", flush=True)
-        raise SystemExit(2)
+        raise SystemExit(2) from None
     finally:
         if node is not None:
             try:

@@ -53,7 +53,7 @@ class BusConfig:
     kwargs: Mapping[str, Any] = field(default_factory=dict)
 
     def as_dict(self) -> dict[str, Any]:
-        """The keyword arguments for ``can.Bus`` / ``can_hub.open_bus``."""
+        """The keyword arguments for ``can.Bus`` / ``drive.bus.open_bus``."""
         out: dict[str, Any] = {"interface": self.interface, "bitrate": int(self.bitrate)}
         if self.channel is not None:
             out["channel"] = self.channel
@@ -171,11 +171,11 @@ def _joint(i: int, data: Any) -> JointConfig:
     family = str(data.get("family", "epos4")).lower()
     if family not in FAMILIES:
         raise ConfigError(f"{where}.family must be one of {FAMILIES}, got {data.get('family')!r}")
-    limit = data.get("current_limit")
+    raw_limit: Any = data.get("current_limit")      # whatever the YAML holds
     try:
-        limit = float(limit)
+        limit = float(raw_limit)
     except (TypeError, ValueError):
-        raise ConfigError(f"{where}.current_limit must be a number of amperes, got {limit!r}") from None
+        raise ConfigError(f"{where}.current_limit must be a number of amperes, got {raw_limit!r}") from None
     if not math.isfinite(limit) or limit <= 0.0:
         raise ConfigError(f"{where}.current_limit must be finite and > 0 A, got {limit!r}")
     units_data = dict(data.get("units") or {})

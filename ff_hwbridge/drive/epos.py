@@ -19,7 +19,7 @@ One :class:`EposMaster` drives a group of joints (one EPOS each) on one python-c
 - ``command_currents(amps)`` sends one RPDO per joint; every command goes through the
                   :class:`~ff_hwbridge.drive.safety.SafetyGuard` (clamp, latch) and is clamped again in
                   raw drive units. ``prepare_currents`` + ``send_prepared`` split it so that a
-                  scheduler does the work before a stamp and only sends at it.
+                  player (``drive.player.SetpointPlayer``) does the work before a stamp and only sends at it.
 - RPDOs are not acknowledged: while a drive's state differs from its target the controlword is
                   repeated every 5 ms, and every RPDO is refreshed at least every 50 ms.
 - Faults (EMCY, drive in Fault, heartbeat loss, TPDO silence, boot-up or NMT state other than
@@ -29,17 +29,13 @@ One :class:`EposMaster` drives a group of joints (one EPOS each) on one python-c
 
 canopen's BaseNode402 is not used (it blocks waiting for statuswords).
 
-CLI: ``python -m ff_hwbridge.drive.epos --config config/bridge_sim_scara2.yaml --channel ws://127.0.0.1:54701/
---enable --hold 5`` configures the drives, enables them, prints joint states, then disables.
+Command line: ``ff-epos`` (``ff_hwbridge.cli.epos``).
 """
 from __future__ import annotations
 
-import argparse
-import json
 import logging
 import math
 import struct
-import sys
 import threading
 import time
 from collections import deque
@@ -49,7 +45,8 @@ from typing import Any, Callable, Optional, Sequence
 import canopen
 import numpy as np
 
-from ff_hwbridge.drive.config import BridgeConfig, JointConfig, load_config, with_bus
+from ff_hwbridge.drive.bus import open_bus
+from ff_hwbridge.drive.config import BridgeConfig, JointConfig
 from ff_hwbridge.drive.safety import SafeCommand, SafetyGuard
 from ff_hwbridge.protocol import cia402
 from ff_hwbridge.protocol.cia402 import State
@@ -64,7 +61,6 @@ from ff_hwbridge.protocol.epos_od import (
     tpdo2_layout,
 )
 from ff_hwbridge.protocol.units import DriveUnits
-from ff_hwbridge.sim.can_hub import open_bus
 
 log = logging.getLogger(__name__)
 
@@ -150,7 +146,7 @@ class EposMaster:
         self.config = config
         self.clock = clock
         self.guard = SafetyGuard(config.current_limits, config.setpoint_timeout)
-        self.on_fault = on_fault
+        self._fault_listeners: list[Callable[[str], None]] = [] if on_fault is None else [on_fault]
         self.pending_fn: Callable[[], bool] = lambda: False
         self.network: Optional[canopen.Network] = None
         self._drives = [_Drive(cfg=j, units=j.units) for j in config.joints]
@@ -182,6 +178,11 @@ class EposMaster:
 
     def states(self) -> list[Optional[State]]:
         return [d.feedback.state for d in self._drives]
+
+    def heartbeats_operational(self) -> list[bool]:
+        """Per joint: an OPERATIONAL heartbeat arrived since the NMT start (from then on a
+        heartbeat loss is judged against ``heartbeat_timeout``, before it ``state_timeout``)."""
+        return [d.seen_operational for d in self._drives]
 
     def feedback(self) -> list[JointFeedback]:
         """A copy of the latest feedback per joint."""
@@ -243,7 +244,7 @@ class EposMaster:
                     self._send_rpdo(d, cia402.CONTROLWORD[cia402.Command.DISABLE_VOLTAGE], 0)
         finally:
             self.stop_sync()
-            self._stop_master_heartbeat()
+            self.stop_master_heartbeat()
             for d in self._drives:
                 d.operational = False
             try:
@@ -254,6 +255,12 @@ class EposMaster:
             self._configured = False
 
     close = disconnect
+
+    def _connected_network(self) -> canopen.Network:
+        """The canopen Network; EposError before ``connect()`` / after ``disconnect()``."""
+        if self.network is None:
+            raise EposError("the CAN network is not connected; call connect() first")
+        return self.network
 
     # --- configuration -------------------------------------------------------------------------
     def configure(self) -> None:
@@ -337,11 +344,12 @@ class EposMaster:
         except Exception as exc:  # noqa: BLE001
             raise EposError(f"node {nid} ({d.cfg.name}): PDO mapping failed: {exc}") from exc
         # our own fast decoders instead of canopen's per-variable ones
+        net = self._connected_network()
         for cob in (0x180 + nid, 0x280 + nid, 0x200 + nid):
-            if cob in self.network.subscribers:
-                self.network.unsubscribe(cob)
-        self.network.subscribe(0x180 + nid, self._make_tpdo1_cb(d))
-        self.network.subscribe(0x280 + nid, self._make_tpdo2_cb(d))
+            if cob in net.subscribers:
+                net.unsubscribe(cob)
+        net.subscribe(0x180 + nid, self._make_tpdo1_cb(d))
+        net.subscribe(0x280 + nid, self._make_tpdo2_cb(d))
         d.target = State.SWITCH_ON_DISABLED
         d.controlword = 0
         d.setpoint = 0
@@ -368,9 +376,11 @@ class EposMaster:
         """Produce the master's heartbeat (OPERATIONAL) when ``master_heartbeat_ms`` > 0."""
         if self.config.master_heartbeat_ms and self._master_hb is None and self.network is not None:
             self._master_hb = self.network.send_periodic(
-                0x700 + self.config.master_node_id, [0x05], self.config.master_heartbeat_ms / 1000.0)
+                0x700 + self.config.master_node_id, bytes([0x05]),
+                self.config.master_heartbeat_ms / 1000.0)
 
-    def _stop_master_heartbeat(self) -> None:
+    def stop_master_heartbeat(self) -> None:
+        """Stop producing the master's heartbeat (as a dead master would; SYNC keeps running)."""
         if self._master_hb is not None:
             try:
                 self._master_hb.stop()
@@ -437,6 +447,16 @@ class EposMaster:
         return None
 
     # --- faults ---------------------------------------------------------------------------------
+    def add_fault_listener(self, listener: Callable[[str], None]) -> None:
+        """Call ``listener(reason)`` (on the thread that latched) once the safe state's
+        zero-current reaction has been sent."""
+        self._fault_listeners.append(listener)
+
+    def remove_fault_listener(self, listener: Callable[[str], None]) -> None:
+        """Stop calling ``listener`` (no error if it was not added)."""
+        if listener in self._fault_listeners:
+            self._fault_listeners.remove(listener)
+
     def trip(self, reason: str) -> Optional[str]:
         """Latch the safe state with ``reason`` (first reason wins) and react; returns it if new."""
         if self.guard.latch(reason):
@@ -460,11 +480,11 @@ class EposMaster:
         # stamped at the latch, listed once the zero-current reaction has been sent: whoever
         # sees the event also sees applied_currents() == 0
         self.events.append((t_latch, f"safe state: {reason}"))
-        if self.on_fault is not None:
+        for listener in list(self._fault_listeners):
             try:
-                self.on_fault(reason)
-            except Exception:  # noqa: BLE001
-                log.exception("on_fault callback failed")
+                listener(reason)
+            except Exception:  # noqa: BLE001 - one failing listener must not stop the others
+                log.exception("fault listener failed")
 
     def _make_emcy_cb(self, d: _Drive) -> Callable[[Any], None]:
         def on_emcy(err: Any) -> None:
@@ -479,8 +499,8 @@ class EposMaster:
             self.trip(text)
         return on_emcy
 
-    def _make_heartbeat_cb(self, d: _Drive) -> Callable[[int, bytes, float], None]:
-        def on_heartbeat(can_id: int, data: bytes, timestamp: float) -> None:
+    def _make_heartbeat_cb(self, d: _Drive) -> Callable[[int, bytearray, float], None]:
+        def on_heartbeat(can_id: int, data: bytearray, timestamp: float) -> None:
             if not data:
                 return
             now = self.clock()
@@ -504,11 +524,11 @@ class EposMaster:
         return on_heartbeat
 
     # --- feedback and the state machine --------------------------------------------------------
-    def _make_tpdo1_cb(self, d: _Drive) -> Callable[[int, bytes, float], None]:
+    def _make_tpdo1_cb(self, d: _Drive) -> Callable[[int, bytearray, float], None]:
         fmt = d.tx1_fmt
         size = struct.calcsize(fmt)
 
-        def on_tpdo1(can_id: int, data: bytes, timestamp: float) -> None:
+        def on_tpdo1(can_id: int, data: bytearray, timestamp: float) -> None:
             if len(data) < size:
                 return
             sw, pos = struct.unpack_from(fmt, data)
@@ -525,11 +545,11 @@ class EposMaster:
             self._step(d, now)
         return on_tpdo1
 
-    def _make_tpdo2_cb(self, d: _Drive) -> Callable[[int, bytes, float], None]:
+    def _make_tpdo2_cb(self, d: _Drive) -> Callable[[int, bytearray, float], None]:
         fmt = d.tx2_fmt
         size = struct.calcsize(fmt)
 
-        def on_tpdo2(can_id: int, data: bytes, timestamp: float) -> None:
+        def on_tpdo2(can_id: int, data: bytearray, timestamp: float) -> None:
             if len(data) < size:
                 return
             rpm, cur = struct.unpack_from(fmt, data)
@@ -584,7 +604,7 @@ class EposMaster:
             d.setpoint = sp
             d.last_tx = self.clock()
             try:
-                self.network.send_message(0x200 + d.node_id, data)
+                self._connected_network().send_message(0x200 + d.node_id, data)
             except Exception:  # noqa: BLE001 - a full bus must not kill the caller's thread
                 self.tx_errors += 1
                 log.exception("RPDO to node %d failed", d.node_id)
@@ -661,7 +681,7 @@ class EposMaster:
     # --- commands -------------------------------------------------------------------------------
     def prepare_currents(self, amps: Sequence[float]) -> PreparedCommand:
         """Guard + unit conversion of motor currents (A, one per joint), nothing sent yet: lets a
-        scheduler do the work before a stamp and only ``send_prepared`` at it."""
+        player do the work before a stamp and only ``send_prepared`` at it."""
         cmd = self.guard.filter(amps)
         raws = tuple(d.units.amps_to_setpoint(float(a), limit=d.cfg.current_limit)
                      for d, a in zip(self._drives, cmd.currents))
@@ -698,56 +718,3 @@ class EposMaster:
     def applied_currents(self) -> np.ndarray:
         """A, the currents last sent (from the raw setpoints)."""
         return np.array([d.units.setpoint_to_amps(d.setpoint) for d in self._drives])
-
-
-# --- a small runner ---------------------------------------------------------------------------
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    """``python -m ff_hwbridge.drive.epos``: configure drives, optionally enable and stream a current."""
-    ap = argparse.ArgumentParser(prog="python -m ff_hwbridge.drive.epos",
-                                 description="Configure EPOS drives over CANopen and print joint states.")
-    ap.add_argument("--config", required=True, help="bridge YAML (config/bridge_*.yaml)")
-    ap.add_argument("--channel", help="override the bus channel, e.g. ws://127.0.0.1:54701/ (remote)")
-    ap.add_argument("--interface", help="override the bus interface (default: remote with --channel ws://...)")
-    ap.add_argument("--enable", action="store_true", help="enable operation after configuring")
-    ap.add_argument("--current", type=float, nargs="*", default=[], help="A per joint to hold while enabled")
-    ap.add_argument("--hold", type=float, default=1.0, help="s to run before disabling")
-    args = ap.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    try:
-        cfg = load_config(args.config)
-        if args.channel:
-            iface = args.interface or ("remote" if args.channel.startswith("ws") else cfg.bus.interface)
-            cfg = with_bus(cfg, {"interface": iface, "channel": args.channel, "bitrate": cfg.bus.bitrate})
-        master = EposMaster(cfg)
-        master.connect()
-    except (ValueError, OSError) as exc:
-        print(f"ff_hwbridge.drive.epos: {exc}", file=sys.stderr)
-        return 2
-    try:
-        master.configure()
-        print(json.dumps({"configured": True, "joints": list(cfg.joint_names)}), flush=True)
-        if args.enable:
-            master.enable()
-            ok = master.wait_for_state(State.OPERATION_ENABLED, 2.0)
-            print(json.dumps({"enabled": ok, "reason": master.fault_reason}), flush=True)
-            if args.current:
-                master.command_currents(args.current)
-        t_end = time.monotonic() + args.hold
-        while time.monotonic() < t_end:
-            time.sleep(0.2)
-            print(json.dumps({"joints": [{"q": f.position, "qd": f.velocity, "i": f.current,
-                                          "state": f.state.value if f.state else None}
-                                         for f in master.feedback()],
-                              "safe_state": master.fault_reason}), flush=True)
-        master.disable()
-        time.sleep(0.05)
-        return 0 if not master.latched else 1
-    except EposError as exc:
-        print(f"ff_hwbridge.drive.epos: {exc}", file=sys.stderr)
-        return 1
-    finally:
-        master.disconnect()
-
-
-if __name__ == "__main__":
-    sys.exit(main())

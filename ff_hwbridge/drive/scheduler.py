@@ -1,10 +1,12 @@
 """Apply stamped setpoints at their stamp time, from a dedicated thread, and record the timing.
 
 The thread sleeps until ``spin_margin`` s before the earliest due stamp, runs the optional
-``prepare(payload)`` (work that need not wait: safety clamp, unit conversion), then spins on the clock
-(yielding the GIL while more than 50 µs remain) until the stamp and calls ``apply(stamp_ns, payload)`` (which sends the RPDO). After it returns,
-``(stamp_ns, sent_ns)`` is recorded for switch-time statistics. Stamps are integer ns on
-``clock_ns`` (default ``time.time_ns``, the ROS system clock).
+``prepare(payload)`` (work that need not wait: safety clamp, unit conversion), then spins on the
+clock (yielding the GIL while more than 50 µs remain) until the stamp and calls
+``apply(stamp_ns, payload)`` (which sends the RPDO). After it returns, ``(stamp_ns, sent_ns)`` is
+recorded for switch-time statistics. Stamps are integer ns on ``clock_ns`` (default
+``time.time_ns``, the ROS system clock). :class:`~ff_hwbridge.drive.player.SetpointPlayer` runs
+the drives' setpoints on it.
 
 ``rt_priority`` > 0 asks Linux for SCHED_FIFO at that priority for the scheduler thread (a
 real-time kernel and CAP_SYS_NICE make the timing hold under load; without permission it warns

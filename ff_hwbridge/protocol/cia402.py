@@ -243,10 +243,10 @@ def _path(current: State, target: State, allow_16: bool) -> Optional[list[Transi
         s = queue.popleft()
         if s is target:
             chain: list[Transition] = []
-            while prev[s] is not None:
-                t = prev[s]
-                chain.append(t)
-                s = t.source  # type: ignore[assignment]
+            step = prev[s]
+            while step is not None and step.source is not None:
+                chain.append(step)
+                step = prev[step.source]
             return chain[::-1]
         for t in sorted(edges, key=lambda e: e.number):
             if t.source is s and t.target not in prev:

@@ -224,7 +224,8 @@ OBJECTS: tuple[ObjectSpec, ...] = (
 def _variable(index: int, e: Entry, ctx: _Ctx) -> ODVariable:
     v = ODVariable(e.name, index, e.sub)
     v.data_type, v.access_type, v.pdo_mappable = e.dtype, e.access, e.pdo
-    v.default = e.default(ctx) if callable(e.default) else e.default
+    # canopen annotates ``default`` as int; VISIBLE_STRING objects take a str default
+    v.default = e.default(ctx) if callable(e.default) else e.default  # type: ignore[assignment]
     v.unit = e.unit
     return v
 

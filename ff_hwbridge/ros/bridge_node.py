@@ -1,7 +1,8 @@
 """ROS 2 lifecycle node ``ff_hwbridge``: stamped current setpoints -> EPOS drives over CANopen.
 
 A thin adapter around :class:`ff_hwbridge.drive.epos.EposMaster` (protocol, state machine, safety) and
-:class:`ff_hwbridge.drive.scheduler.StampScheduler` (applies each setpoint at its stamp).
+:class:`ff_hwbridge.drive.player.SetpointPlayer` (guard, units and RPDO of each setpoint at its
+stamp): the subscription feeds the player, the node publishes what the player reports.
 
 Lifecycle (rclpy.lifecycle):
 - configure:  read the bridge config, open the bus, NMT/SDO/PDO set-up of every drive, SYNC,
@@ -34,9 +35,7 @@ import argparse
 import logging
 import sys
 import threading
-import time
-from collections import deque
-from typing import Any, Optional, Sequence
+from typing import Any, Callable, Optional, Sequence
 
 import rclpy
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
@@ -46,7 +45,7 @@ from rclpy.signals import SignalHandlerOptions
 
 from ff_hwbridge.drive.config import BridgeConfig, ConfigError, config_from_mapping, load_config, with_bus
 from ff_hwbridge.drive.epos import EposError, EposMaster
-from ff_hwbridge.drive.scheduler import StampScheduler
+from ff_hwbridge.drive.player import AppliedSetpoint, SetpointPlayer, SetpointRejected
 from ff_hwbridge.protocol.cia402 import State
 
 READY_LINE = "ff_hwbridge ready"
@@ -79,7 +78,7 @@ PARAMS: dict[str, tuple[Any, str]] = {
 }
 
 
-def _flat_config(get) -> dict[str, Any]:
+def _flat_config(get: Callable[[str], Any]) -> dict[str, Any]:
     """The config mapping from the flat parameters."""
     names = list(get("joint_names"))
     n = len(names)
@@ -99,7 +98,8 @@ def _flat_config(get) -> dict[str, Any]:
             "joints": joints, "sync_period": get("sync_period"),
             "heartbeat_producer_ms": int(get("heartbeat_producer_ms")),
             "heartbeat_timeout": get("heartbeat_timeout"),
-            "master_heartbeat_ms": int(get("master_heartbeat_ms")), "master_node_id": int(get("master_node_id")), "setpoint_timeout": get("setpoint_timeout"),
+            "master_heartbeat_ms": int(get("master_heartbeat_ms")),
+            "master_node_id": int(get("master_node_id")), "setpoint_timeout": get("setpoint_timeout"),
             "spin_margin": get("spin_margin"), "scheduler_rt_priority": int(get("scheduler_rt_priority"))}
 
 
@@ -126,26 +126,39 @@ class BridgeNode(LifecycleNode):
 
     def __init__(self, config_file: str = "", channel: str = "", **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
-        for name, (default, desc) in PARAMS.items():
+        for name, (default, _desc) in PARAMS.items():
             self.declare_parameter(name, default)
         self._override_file = config_file
         self._override_channel = channel
         self.config: Optional[BridgeConfig] = None
         self.master: Optional[EposMaster] = None
-        self.scheduler: Optional[StampScheduler] = None
+        self.player: Optional[SetpointPlayer] = None
         self._active = False
-        self._applied: deque = deque(maxlen=10_000)
-        self._entities: list[Any] = []
+        self._entities: list[tuple[str, Any]] = []
         self._timers: list[Any] = []
-        self._pub_js = self._pub_diag = self._pub_applied = None
+        self._pub_js: Any = None
+        self._pub_diag: Any = None
+        self._pub_applied: Any = None
         self._diag_now = threading.Event()
         self._log_handler = _RosLogHandler(self.get_logger())
         for name in ("ff_hwbridge", "canopen"):
             logging.getLogger(name).addHandler(self._log_handler)
 
+    # --- public state -----------------------------------------------------------------------------
+    @property
+    def active(self) -> bool:
+        """True between a successful activate and the next deactivate / cleanup / error."""
+        return self._active
+
     # --- helpers ----------------------------------------------------------------------------------
     def _get(self, name: str) -> Any:
         return self.get_parameter(name).value
+
+    def _cfg(self) -> BridgeConfig:
+        """The configuration in use (set by configure)."""
+        if self.config is None:
+            raise RuntimeError("the bridge is not configured")
+        return self.config
 
     def _load_config(self) -> BridgeConfig:
         path = self._override_file or self._get("config_file")
@@ -167,20 +180,17 @@ class BridgeNode(LifecycleNode):
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Connect and set up the drives (NMT, SDO, PDO, SYNC, heartbeat/EMCY)."""
         try:
-            self.config = self._load_config()
-            self.master = EposMaster(self.config, on_fault=self._on_fault)
+            self.config = cfg = self._load_config()
+            self.master = EposMaster(cfg, on_fault=self._on_fault)
             self.master.connect()
             self.master.configure()
         except (ValueError, EposError, OSError) as exc:
             self.get_logger().error(f"configure failed: {exc}")
             return TransitionCallbackReturn.ERROR
-        self.scheduler = StampScheduler(self._apply, spin_margin=self.config.spin_margin,
-                                        rt_priority=self.config.scheduler_rt_priority,
-                                        prepare=self._prepare).start()
-        self.master.pending_fn = lambda: bool(self.scheduler and self.scheduler.pending)
+        self.player = SetpointPlayer(self.master).start()
         self._make_interfaces()
-        self.get_logger().info(f"configured: joints {list(self.config.joint_names)} on "
-                               f"{self.config.bus.interface}:{self.config.bus.channel}")
+        self.get_logger().info(f"configured: joints {list(cfg.joint_names)} on "
+                               f"{cfg.bus.interface}:{cfg.bus.channel}")
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -191,7 +201,7 @@ class BridgeNode(LifecycleNode):
         except EposError as exc:
             self.get_logger().error(f"activate failed: {exc}")
             return TransitionCallbackReturn.ERROR
-        if not self.master.wait_for_state(State.OPERATION_ENABLED, self.config.state_timeout * 2):
+        if not self.master.wait_for_state(State.OPERATION_ENABLED, self._cfg().state_timeout * 2):
             states = [s.value if s else "unknown" for s in self.master.states()]
             self.get_logger().error(f"activate failed: drives did not reach Operation enabled "
                                     f"(states {states}; {self.master.fault_reason or 'no fault'})")
@@ -203,29 +213,29 @@ class BridgeNode(LifecycleNode):
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Drop pending setpoints, zero current, disable operation (transition 5)."""
         self._active = False
-        if self.scheduler is not None:
-            self.scheduler.clear()
+        if self.player is not None:
+            self.player.clear()
         if self.master is not None:
             self.master.disable()
-            self.master.wait_for_state(State.SWITCHED_ON, self.config.state_timeout)
+            self.master.wait_for_state(State.SWITCHED_ON, self._cfg().state_timeout)
         self.get_logger().info("inactive: zero current, operation disabled")
         return super().on_deactivate(state)
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Stop the scheduler, disable voltage, stop SYNC, close the bus."""
-        self._teardown()
+        """Stop the player (zero current), disable voltage, stop SYNC, close the bus."""
+        self.teardown()
         self.get_logger().info("cleaned up: bus closed")
         return TransitionCallbackReturn.SUCCESS
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._teardown()
+        self.teardown()
         return TransitionCallbackReturn.SUCCESS
 
     def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
         reason = self.master.fault_reason if self.master else None
         self.get_logger().error(f"error processing (from '{state.label}'): closing the bus"
                                 + (f"; safe state: {reason}" if reason else ""))
-        self._teardown()
+        self.teardown()
         return TransitionCallbackReturn.SUCCESS
 
     def destroy_node(self) -> None:
@@ -233,11 +243,15 @@ class BridgeNode(LifecycleNode):
             logging.getLogger(name).removeHandler(self._log_handler)
         super().destroy_node()
 
-    def _teardown(self) -> None:
+    def teardown(self) -> None:
+        """Stop the player (zero current), close the bus, remove topics and timers (idempotent)."""
         self._active = False
-        if self.scheduler is not None:
-            self.scheduler.stop()
-            self.scheduler = None
+        if self.player is not None:
+            try:
+                self.player.close()
+            except Exception as exc:  # noqa: BLE001 - best effort on the way out
+                self.get_logger().error(f"stopping the setpoint player: {exc}")
+            self.player = None
         if self.master is not None:
             try:
                 self.master.disconnect()
@@ -247,10 +261,13 @@ class BridgeNode(LifecycleNode):
         for t in self._timers:
             self.destroy_timer(t)
         self._timers.clear()
-        for e in self._entities:
-            kind, ent = e
-            {"pub": self.destroy_publisher, "sub": self.destroy_subscription,
-             "srv": self.destroy_service}[kind](ent)
+        for kind, ent in self._entities:
+            if kind == "pub":
+                self.destroy_publisher(ent)
+            elif kind == "sub":
+                self.destroy_subscription(ent)
+            else:
+                self.destroy_service(ent)
         self._entities.clear()
 
     # --- interfaces -------------------------------------------------------------------------------
@@ -280,55 +297,26 @@ class BridgeNode(LifecycleNode):
         self._timers.append(self.create_timer(0.01, self._fast_tick))
 
     def _on_setpoint(self, msg: Any) -> None:
-        master, sched = self.master, self.scheduler
-        if master is None or sched is None:
+        player = self.player
+        if player is None:
             return
         if not self._active:
             self.get_logger().warning("setpoint ignored: bridge is not active",
                                       throttle_duration_sec=1.0)
             return
-        if master.latched:
-            self.get_logger().warning(f"setpoint ignored: safe state ({master.fault_reason}); "
-                                      "call ~/fault_reset", throttle_duration_sec=1.0)
-            return
-        currents = list(msg.currents)
-        if len(currents) != len(self.config.joints):
-            self.get_logger().warning(f"setpoint {msg.seq} ignored: {len(currents)} current(s) for "
-                                      f"{len(self.config.joints)} joint(s) {list(self.config.joint_names)}",
-                                      throttle_duration_sec=1.0)
-            return
         stamp_ns = int(msg.stamp.sec) * 1_000_000_000 + int(msg.stamp.nanosec)
-        # a motion runs (the watchdog watches) after a profile's setpoint that is not its last,
-        # or after a manual setpoint with a non-zero current; a manual zero ends it
-        running = not msg.last and (bool(msg.profile_id) or any(c != 0.0 for c in currents))
-        master.note_setpoint(motion_running=running)
-        sched.submit(stamp_ns, (currents, int(msg.seq), str(msg.profile_id), bool(msg.last)))
-
-    def _prepare(self, payload: Any) -> Any:
-        """Scheduler thread, just before the stamp: safety guard + unit conversion."""
-        currents, seq, pid, last = payload
-        master = self.master
-        return (master.prepare_currents(currents) if master else None), seq, pid, last
-
-    def _apply(self, stamp_ns: int, payload: Any) -> None:
-        """Scheduler thread, at the stamp: send the prepared RPDOs."""
-        master = self.master
-        prepared, seq, pid, last = payload
-        if master is None or prepared is None:
-            return
-        master.send_prepared(prepared)
-        sent_ns = time.time_ns()
-        cmd = prepared.command
-        if cmd.reason and not cmd.latched:
-            self.get_logger().warning(f"setpoint {seq}: {cmd.reason}", throttle_duration_sec=1.0)
-        if last:
-            master.guard.end_motion()
-        self._applied.append((sent_ns, list(master.applied_currents()), seq, pid, last))
+        try:
+            player.submit(stamp_ns, list(msg.currents), seq=int(msg.seq),
+                          profile_id=str(msg.profile_id), last=bool(msg.last))
+        except SetpointRejected as exc:
+            if player.master.latched:
+                text = f"setpoint ignored: {exc}; call ~/fault_reset"
+            else:
+                text = f"setpoint {msg.seq} ignored: {exc}"
+            self.get_logger().warning(text, throttle_duration_sec=1.0)
 
     def _on_fault(self, reason: str) -> None:
-        """Master thread: safe state latched."""
-        if self.scheduler is not None:
-            self.scheduler.clear()
+        """Master thread: safe state latched (the player drops its pending setpoints itself)."""
         self._diag_now.set()              # the reason is logged by the master (forwarded)
 
     async def _on_fault_reset(self, request: Any, response: Any) -> Any:
@@ -344,7 +332,7 @@ class BridgeNode(LifecycleNode):
         old = self.master.fault_reset(reenable=self._active)
         ok = not self.master.latched
         if ok and self._active:
-            ok = self.master.wait_for_state(State.OPERATION_ENABLED, self.config.state_timeout)
+            ok = self.master.wait_for_state(State.OPERATION_ENABLED, self._cfg().state_timeout)
         response.success = bool(ok)
         response.message = (f"cleared: {old or 'nothing latched'}" if ok else
                             f"fault reset did not recover: {self.master.fault_reason or 'drive state'}")
@@ -355,11 +343,13 @@ class BridgeNode(LifecycleNode):
     def _fast_tick(self) -> None:
         from ff_msgs.msg import CurrentSetpoint
 
-        while self._applied:
-            sent_ns, currents, seq, pid, last = self._applied.popleft()
+        reports: list[AppliedSetpoint] = self.player.take_applied() if self.player else []
+        for a in reports:
+            if a.reason and not a.latched:
+                self.get_logger().warning(f"setpoint {a.seq}: {a.reason}", throttle_duration_sec=1.0)
             msg = CurrentSetpoint()
-            msg.stamp.sec, msg.stamp.nanosec = divmod(sent_ns, 1_000_000_000)
-            msg.currents, msg.seq, msg.profile_id, msg.last = [float(c) for c in currents], seq, pid, last
+            msg.stamp.sec, msg.stamp.nanosec = divmod(a.sent_ns, 1_000_000_000)
+            msg.currents, msg.seq, msg.profile_id, msg.last = list(a.currents), a.seq, a.profile_id, a.last
             self._pub_applied.publish(msg)
         if self._diag_now.is_set():
             self._diag_now.clear()
@@ -373,7 +363,7 @@ class BridgeNode(LifecycleNode):
         msg = JointState()
         msg.header.stamp = self.get_clock().now().to_msg()
         fb = self.master.feedback()
-        msg.name = list(self.config.joint_names)
+        msg.name = list(self._cfg().joint_names)
         msg.position = [f.position for f in fb]
         msg.velocity = [f.velocity for f in fb]
         msg.effort = [f.current for f in fb]
@@ -385,15 +375,12 @@ class BridgeNode(LifecycleNode):
         if self.master is None:
             return
         st = self.master.status()
-        if self.scheduler is not None:
-            s = self.scheduler.stats()
-            st.update({"switch_count": s.count, "switch_late": s.late, "switch_p50_us": s.p50_us,
-                       "switch_p99_us": s.p99_us, "switch_max_us": s.max_us,
-                       "pending_setpoints": self.scheduler.pending})
+        if self.player is not None:
+            st.update(self.player.diagnostics())
         st["active"] = self._active
         status = DiagnosticStatus()
         status.name = f"{NODE_NAME}: drive group"
-        status.hardware_id = ",".join(f"node{j.node_id}" for j in self.config.joints)
+        status.hardware_id = ",".join(f"node{j.node_id}" for j in self._cfg().joints)
         if self.master.latched:
             status.level, status.message = DiagnosticStatus.ERROR, f"safe state: {self.master.fault_reason}"
         elif not self._active:
@@ -430,17 +417,17 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
                 print("ff_hwbridge: configure failed (see the log above)", flush=True)
                 raise SystemExit(1)
             node.trigger_activate()
-            if not node._active:
+            if not node.active:
                 print("ff_hwbridge: activate failed (see the log above)", flush=True)
                 raise SystemExit(1)
-        node.get_logger().info(f"{READY_LINE}: {'active' if node._active else 'unconfigured'}")
+        node.get_logger().info(f"{READY_LINE}: {'active' if node.active else 'unconfigured'}")
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
         if node is not None:
             try:
-                node._teardown()
+                node.teardown()
             except Exception:  # noqa: BLE001
                 pass
             node.destroy_node()

@@ -32,7 +32,8 @@ from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from ff_hwbridge.sim.can_hub import CanConfigError, CanHub, start_hub
+from ff_hwbridge.drive.bus import CanConfigError
+from ff_hwbridge.sim.can_hub import CanHub, start_hub
 from ff_hwbridge.sim.drive import SimConfigError, SimEpos
 from ff_hwbridge.sim.rig import RigConfig, SimRig
 from ff_planner.model.params import ParameterError, check_model, default_params, preset
@@ -69,7 +70,7 @@ class SimDriverNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("ff_sim_driver", **kwargs)
-        for name, (default, descr) in PARAMETERS.items():
+        for name, (default, _descr) in PARAMETERS.items():
             self.declare_parameter(name, default)
         if float(self._p("switch_interval")) > 0:
             sys.setswitchinterval(float(self._p("switch_interval")))
@@ -166,7 +167,7 @@ class SimDriverNode(Node):
             if int(value):
                 d.raise_emcy(int(value))
         elif key in ("delay_direction", "drop_direction"):
-            SimEpos._directions(str(value))
+            SimEpos.directions(str(value))          # checks the name
         else:
             raise SimConfigError(f"unknown fault parameter {key!r}; known: {list(FAULT_PARAMETERS)}")
         if not quiet or value not in (False, 0, 0.0, "both", "rx"):
@@ -228,7 +229,7 @@ def main(argv: Optional[list[str]] = None) -> None:
         pass
     except (ParameterError, SimConfigError, CanConfigError, ValueError) as exc:
         print(f"ff_sim_driver: {exc}", flush=True)
-        raise SystemExit(2)
+        raise SystemExit(2) from exc
     finally:
         if node is not None:
             node.close()

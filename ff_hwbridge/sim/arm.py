@@ -1,9 +1,9 @@
 """The simulated arm (the plant) that the emulated EPOS drives push current into.
 
-One model in the suite: the plant integrates with the PLANNER's model,
-``ff_planner.model.arm1dof.advance`` (1-DOF) or ``ff_planner.model.scara2.advance`` (2-DOF SCARA), but with
-its OWN parameters (the "true" friction), so tests can make the real arm differ from the model
-the planner believed.
+One model in the suite: the plant integrates with the PLANNER's model, the ``advance`` of the
+model's ``ff_planner.model.registry.model_spec`` (``arm1dof``: 1-DOF arm, ``scara2``: 2-DOF
+SCARA), but with its OWN parameters (the "true" friction), so tests can make the real arm
+differ from the model the planner believed.
 
 Time is ``time.monotonic_ns()`` unless a clock is given. The state is advanced lazily, whenever
 someone sets a current or asks for the state, exactly to that instant: a current change takes
@@ -16,27 +16,33 @@ from __future__ import annotations
 import threading
 import time
 from dataclasses import dataclass
-from typing import Callable, Optional, Sequence, Union
+from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from ff_planner.model.params import Arm1DofParams, ParameterError, Scara2Params
+from ff_planner.model.params import ParameterError, Params
 
-Params = Union[Arm1DofParams, Scara2Params]
-#: advance(params, q, qd, current(s), dt) -> (q, qd); floats for 1-DOF, arrays(2) for SCARA.
-AdvanceFn = Callable[..., tuple]
+__all__ = ["AdvanceFn", "ArmState", "JointPort", "Params", "SimArm", "joint_param", "planner_advance"]
+
+#: advance(params, q, qd, currents, dt) -> (q, qd): per-joint arrays of shape (n_joints,),
+#: rad, rad/s, A, s (the registry's convention).
+AdvanceFn = Callable[..., tuple[np.ndarray, np.ndarray]]
 
 
 def planner_advance(params: Params) -> AdvanceFn:
-    """The planner's exact one-step model for the parameter type (imported on first use)."""
-    if isinstance(params, Arm1DofParams):
-        from ff_planner.model.arm1dof import advance
-    elif isinstance(params, Scara2Params):
-        from ff_planner.model.scara2 import advance
-    else:
-        raise ParameterError(f"no arm model for parameters of type {type(params).__name__}; "
-                             "use Arm1DofParams or Scara2Params")
-    return advance
+    """The planner's one-step model for the parameters' model (``model_spec(params.model)``)."""
+    # the models compile with numba: imported when a plant is built, not with this module
+    from ff_planner.model.registry import model_spec
+
+    return model_spec(params.model).advance
+
+
+def joint_param(params: Params, key: str, joint: int) -> float:
+    """A per-joint parameter of joint ``joint`` (0-based): ``key`` on a 1-joint model (``n``,
+    ``kt``, ``i_max``), ``key`` + joint number on a multi-joint one (``n1``, ``kt2``, ...)."""
+    if not 0 <= joint < params.n_joints:
+        raise ParameterError(f"joint index must be 0..{params.n_joints - 1}, got {joint}")
+    return float(getattr(params, key if params.n_joints == 1 else f"{key}{joint + 1}"))
 
 
 @dataclass(frozen=True)
@@ -59,7 +65,7 @@ class SimArm:
         if not step > 0.0:
             raise ParameterError(f"physics step must be > 0 s, got {step}")
         self.params = params
-        self.n_joints = 1 if isinstance(params, Arm1DofParams) else 2
+        self.n_joints = params.n_joints
         self.step = float(step)
         self._advance = advance if advance is not None else planner_advance(params)
         self._clock = clock
@@ -71,8 +77,8 @@ class SimArm:
     # -- helpers -------------------------------------------------------------------------------
     def _vec(self, x: Sequence[float] | float, name: str) -> np.ndarray:
         a = np.atleast_1d(np.asarray(x, dtype=float)).copy()
-        if a.size == 1 and self.n_joints == 2 and np.ndim(x) == 0:
-            a = np.full(2, float(a[0]))
+        if a.size == 1 and self.n_joints > 1 and np.ndim(x) == 0:
+            a = np.full(self.n_joints, float(a[0]))
         if a.shape != (self.n_joints,) or not np.all(np.isfinite(a)):
             raise ParameterError(f"{name} must be {self.n_joints} finite value(s), got {x!r}")
         return a
@@ -81,12 +87,8 @@ class SimArm:
         p = self.params
         while dt > 0.0:
             h = min(self.step, dt)
-            if self.n_joints == 1:
-                q, qd = self._advance(p, float(self._q[0]), float(self._qd[0]), float(self._i[0]), h)
-                self._q[0], self._qd[0] = q, qd
-            else:
-                q, qd = self._advance(p, self._q.copy(), self._qd.copy(), self._i.copy(), h)
-                self._q[:], self._qd[:] = q, qd
+            q, qd = self._advance(p, self._q.copy(), self._qd.copy(), self._i.copy(), h)
+            self._q[:], self._qd[:] = q, qd
             dt -= h
 
     def _advance_to(self, t_ns: int) -> None:
@@ -160,10 +162,10 @@ class JointPort:
 
     @property
     def gear_ratio(self) -> float:
-        p = self.arm.params
-        return p.n if isinstance(p, Arm1DofParams) else (p.n1, p.n2)[self.joint]
+        """Joint angle = motor angle / gear_ratio."""
+        return joint_param(self.arm.params, "n", self.joint)
 
     @property
     def torque_constant(self) -> float:
-        p = self.arm.params
-        return p.kt if isinstance(p, Arm1DofParams) else (p.kt1, p.kt2)[self.joint]
+        """Nm/A of the joint's motor."""
+        return joint_param(self.arm.params, "kt", self.joint)

@@ -15,7 +15,8 @@ What it does, per the suite's CANopen contract (CiA 301/402):
   motor current, clamped to the drive's own output current limit like a real drive. Current is
   only driven in OPERATION ENABLED and in the drive's current mode (EPOS4 CST 10, EPOS2 -3).
 - TPDOs with transmission type 1-240 sent on every n-th SYNC in OPERATIONAL, sampled at the SYNC's
-  arrival (event-driven TPDOs, types 254/255, are not produced: the contract uses SYNC); heartbeat producer per 0x1017; EMCY (0x080+id) with error register 0x1001 and the
+  arrival (event-driven TPDOs, types 254/255, are not produced: the contract uses SYNC);
+  heartbeat producer per 0x1017; EMCY (0x080+id) with error register 0x1001 and the
   pre-defined error field 0x1003 on a fault; fault reset by a rising controlword bit 7
   (EMCY "error reset" 0x0000 sent).
 - Heartbeat consumer 0x1016:01-04 ((node id << 16) | ms): once a consumed heartbeat has been
@@ -50,11 +51,12 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass
-from typing import Any, Callable, Optional
+from typing import Any, Callable, Optional, cast
 
 import canopen
 from canopen import objectdictionary as od
 from canopen.objectdictionary import ObjectDictionary, ODVariable
+from canopen.pdo.base import PdoBase, PdoMaps
 from canopen.sdo import SdoAbortedError
 
 from ff_hwbridge.protocol import cia402, epos_od
@@ -166,6 +168,13 @@ def drive_step(state: State, controlword: int, previous: int,
         return State.SWITCH_ON_DISABLED, [9]
     t = cia402.apply_command(state, cmd, allow_quick_stop_recovery=5 <= quick_stop_option <= 8)
     return (t.target, [t.number]) if t is not None else (state, [])
+
+
+def _maps(pdo: PdoBase) -> PdoMaps:
+    """The PDO maps of a node's RPDO / TPDO object (canopen creates them with the node)."""
+    if pdo.map is None:
+        raise SimConfigError("the node has no PDO maps")
+    return pdo.map
 
 
 class NullPlant:
@@ -318,12 +327,12 @@ class _Link:
             if self._drop("rx"):
                 self.stats.rx_dropped += 1
                 return
-            data = bytes(data)
+            frame = bytes(data)
             if f.rx_delay_s > 0.0:
                 due = mono + int(f.rx_delay_s * 1e9)
-                self._delay_line().put(due, lambda: self._deliver(_cb, cid, data, timestamp, None))
+                self._delay_line().put(due, lambda: self._deliver(_cb, cid, frame, timestamp, None))
                 return
-            self._deliver(_cb, cid, data, timestamp, (mono, wall))
+            self._deliver(_cb, cid, frame, timestamp, (mono, wall))
 
         self._wrappers[key] = wrapper
         self.network.subscribe(can_id, wrapper)
@@ -459,13 +468,35 @@ class SimEpos:
     def fault_code(self) -> int:
         return self._fault_code
 
+    @property
+    def attached(self) -> bool:
+        """Whether the drive is on a network (``attach`` called, ``close`` not yet)."""
+        return self._link is not None
+
+    def heartbeat_consumers(self) -> dict[int, float]:
+        """Consumed heartbeats (0x1016): producer node id -> timeout (s)."""
+        return dict(self._consumers)
+
+    def heartbeats_seen(self) -> dict[int, float]:
+        """Producer node id -> ``time.monotonic()`` s of its latest consumed heartbeat."""
+        return dict(self._hb_seen)
+
+    def frames_by_id(self) -> dict[int, int]:
+        """Frames this drive received per COB-ID since it was attached (empty when detached)."""
+        return dict(self._link.rx_by_id) if self._link is not None else {}
+
     def statusword(self) -> int:
         follows = self.state is State.OPERATION_ENABLED and self._in_current_mode()
         return cia402.encode_statusword(self.state, extra=SW_FOLLOWS_COMMAND if follows else 0)
 
     def _raw(self, index: int, sub: int = 0) -> Any:
-        obj = self._dict[index] if sub == 0 and isinstance(self._dict[index], ODVariable) \
-            else self._dict[index][sub]
+        entry = self._dict[index]
+        if isinstance(entry, ODVariable):
+            if sub != 0:
+                raise KeyError(f"0x{index:04X} is a variable, it has no subindex {sub}")
+            obj = entry
+        else:
+            obj = entry[sub]
         return obj.decode_raw(self.node.get_data(index, sub))
 
     def _refresh_settings(self) -> None:
@@ -504,14 +535,15 @@ class SimEpos:
         """Join ``network`` (connected canopen Network); call ``boot()`` next."""
         if self._link is not None:
             raise RuntimeError(f"drive {self.node_id} is already attached")
-        self._link = _Link(network, self.faults, self.node_id, self._seed)
-        self.node.associate_network(self._link)
-        self._link.unsubscribe(0, self.node.nmt.on_command)
-        self._link.unsubscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
-        self._link.subscribe(0, self._on_nmt)
-        self._link.subscribe(self.node.sdo.rx_cobid, self._on_sdo)
-        self._link.subscribe(0x80, self._on_sync)
-        for m in self.node.rpdo.map.values():
+        link = self._link = _Link(network, self.faults, self.node_id, self._seed)
+        # the link offers the Network interface the LocalNode uses (subscribe, send_message, ...)
+        self.node.associate_network(cast(canopen.Network, link))
+        link.unsubscribe(0, self.node.nmt.on_command)
+        link.unsubscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
+        link.subscribe(0, self._on_nmt)
+        link.subscribe(self.node.sdo.rx_cobid, self._on_sdo)
+        link.subscribe(0x80, self._on_sync)
+        for m in _maps(self.node.rpdo).values():
             m.add_callback(self._on_rpdo)
 
     def boot(self) -> None:
@@ -531,19 +563,22 @@ class SimEpos:
 
     def _reload_pdos(self, which: Optional[tuple[str, int]] = None) -> None:
         """(Re)read PDO maps from the object dictionary; re-subscribe RPDO COB-IDs."""
-        for kind, maps in (("rpdo", self.node.rpdo.map), ("tpdo", self.node.tpdo.map)):
+        link = self._link
+        for kind, maps in (("rpdo", _maps(self.node.rpdo)), ("tpdo", _maps(self.node.tpdo))):
             for no, m in maps.items():
                 if which is not None and which != (kind, no):
                     continue
                 old = m.cob_id if (kind == "rpdo" and m.enabled) else None
                 m.read()                              # also subscribes enabled maps
+                if link is None:
+                    continue
                 if kind == "tpdo" and m.enabled:
-                    self._link.unsubscribe(m.cob_id, m.on_message)   # our own transmit PDOs
-                if kind == "rpdo" and self._link is not None:
+                    link.unsubscribe(m.cob_id, m.on_message)   # our own transmit PDOs
+                if kind == "rpdo":
                     if old is not None and old != m.cob_id:
-                        self._link.unsubscribe(old, m.on_message)
+                        link.unsubscribe(old, m.on_message)
                     if m.enabled:
-                        self._link.subscribe(m.cob_id, m.on_message)
+                        link.subscribe(m.cob_id, m.on_message)
                 self._sync_counts.pop(id(m), None)
 
     # -- SDO hooks ----------------------------------------------------------------------------
@@ -583,7 +618,10 @@ class SimEpos:
 
     def _on_write(self, index: int, subindex: int, od: ODVariable, data: bytes) -> None:
         """Validate writes before they are stored (raise SdoAbortedError to refuse)."""
-        value = od.decode_raw(data) if od.data_type in _NUMBER_TYPES else None
+        raw = od.decode_raw(data) if od.data_type in _NUMBER_TYPES else None
+        if not isinstance(raw, int):
+            return                                   # only integer objects are checked
+        value = raw
         if 0x1400 <= index <= 0x15FF or 0x1800 <= index <= 0x19FF:
             self._check_comm_write(index, subindex, value)
         elif 0x1600 <= index <= 0x17FF or 0x1A00 <= index <= 0x1BFF:
@@ -661,7 +699,7 @@ class SimEpos:
             self._apply(time.monotonic_ns())
 
     # -- drive logic --------------------------------------------------------------------------
-    def _set_state(self, new: DriveState, transition: int, t_ns: int) -> None:
+    def _set_state(self, new: State, transition: int, t_ns: int) -> None:
         self.state = new
         self.transitions.append(transition)
         if new not in _POWERED:
@@ -699,9 +737,10 @@ class SimEpos:
         self._apply(time.monotonic_ns())
 
     def _on_rpdo(self, pdo_map: Any) -> None:
-        if self.node.nmt.state != "OPERATIONAL":
+        link = self._link
+        if link is None or self.node.nmt.state != "OPERATIONAL":
             return
-        t_ns, wall = self._link.rx_mono_ns, self._link.rx_wall_ns
+        t_ns, wall = link.rx_mono_ns, link.rx_wall_ns
         if pdo_map.trans_type is not None and pdo_map.trans_type <= 240:
             self._pending_sync_rpdo.append((pdo_map, bytes(pdo_map.data)))
             return
@@ -735,14 +774,15 @@ class SimEpos:
                 self._apply(t_ns)
 
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        if self.node.nmt.state != "OPERATIONAL":
+        link = self._link
+        if link is None or self.node.nmt.state != "OPERATIONAL":
             return
-        t_ns, wall = self._link.rx_mono_ns, self._link.rx_wall_ns
+        t_ns, wall = link.rx_mono_ns, link.rx_wall_ns
         pending, self._pending_sync_rpdo = self._pending_sync_rpdo, []
         for m, d in pending:
             self._take_rpdo(m, d, t_ns, wall)
         live: Optional[dict] = None
-        for m in self.node.tpdo.map.values():
+        for m in _maps(self.node.tpdo).values():
             if not m.enabled or m.trans_type is None or not 1 <= m.trans_type <= 240:
                 continue
             n = self._sync_counts.get(id(m), 0) + 1
@@ -754,7 +794,7 @@ class SimEpos:
                 live = self._live(t_ns)
             values = [live[key] if key in live else od_var.decode_raw(self.node.get_data(*key))
                       for key, od_var in self._tpdo_layout(m)]
-            self._link.send_message(m.cob_id, self._tpdo_struct(m).pack(*values))
+            link.send_message(m.cob_id, self._tpdo_struct(m).pack(*values))
 
     def _tpdo_layout(self, m: Any) -> list[tuple[tuple[int, int], ODVariable]]:
         return [((v.index, v.subindex), v.od) for v in m.map]
@@ -890,21 +930,21 @@ class SimEpos:
         """Fault: delay frames to ('rx'), from ('tx') or both ways by ``ms`` milliseconds."""
         if not (ms >= 0 and math.isfinite(ms)):
             raise SimConfigError(f"delay must be >= 0 ms, got {ms}")
-        for d in self._directions(direction):
+        for d in self.directions(direction):
             setattr(self.faults, f"{d}_delay_s", ms / 1000.0)
 
     def drop_fraction(self, fraction: float, direction: str = "rx") -> None:
         """Fault: drop each frame with probability ``fraction`` (0..1)."""
         if not 0.0 <= fraction <= 1.0:
             raise SimConfigError(f"drop fraction must be in 0..1, got {fraction}")
-        for d in self._directions(direction):
+        for d in self.directions(direction):
             setattr(self.faults, f"{d}_drop_fraction", float(fraction))
 
     def drop_next(self, n: int, direction: str = "rx") -> None:
         """Fault: drop the next ``n`` frames."""
         if int(n) < 0:
             raise SimConfigError(f"number of frames to drop must be >= 0, got {n}")
-        for d in self._directions(direction):
+        for d in self.directions(direction):
             setattr(self.faults, f"{d}_drop_next", int(n))
 
     def clear_injected_faults(self) -> None:
@@ -913,7 +953,8 @@ class SimEpos:
             setattr(self.faults, k, v)
 
     @staticmethod
-    def _directions(direction: str) -> tuple[str, ...]:
+    def directions(direction: str) -> tuple[str, ...]:
+        """The link directions a fault setting names: 'rx', 'tx' or 'both' (SimConfigError else)."""
         if direction not in ("rx", "tx", "both"):
             raise SimConfigError(f"direction must be 'rx', 'tx' or 'both', got {direction!r}")
         return ("rx", "tx") if direction == "both" else (direction,)

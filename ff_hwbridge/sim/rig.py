@@ -1,12 +1,9 @@
-"""A simulated rig: the arm plant (``sim_arm``) plus one emulated EPOS per joint (``sim_epos``)
-on one CAN bus. No ROS: the ``ff_sim_driver`` node and the multi-process tests wrap it.
+"""A simulated rig: the arm plant (``sim.arm``) plus one emulated EPOS per joint (``sim.drive``)
+on one CAN bus. No ROS: the ``ff_sim_driver`` node, the ``ff-sim-rig`` command
+(``ff_hwbridge.cli.sim_rig``) and the multi-process tests wrap it.
 
-    python -m ff_hwbridge.sim.rig --host-hub 54701 --model arm1dof --node-ids 1
-    python -m ff_hwbridge.sim.rig --bus-url ws://127.0.0.1:54701/ --record setpoints.json
-
-The CLI prints ``sim rig ready`` once the drives have booted, reads commands from stdin (one a
-line, for tests that inject faults into a running process), and on SIGINT/SIGTERM
-(or the command ``quit``) writes the setpoint arrival log as JSON to ``--record``. Commands:
+``run_command`` executes one line of the rig's stdin command channel (for tests that inject
+faults into a running process). Commands:
 ``emcy NODE CODE`` · ``heartbeat NODE on|off`` · ``sdo NODE on|off`` · ``delay NODE MS [rx|tx|both]``
 · ``drop NODE FRACTION [rx|tx|both]`` · ``dropnext NODE N [rx|tx|both]`` · ``clear NODE`` ·
 ``reset Q0...`` · ``state`` (prints ``state q=... qd=... i=...``) · ``info NODE`` (drive state,
@@ -14,19 +11,15 @@ faults, heartbeat consumer, frame counts) · ``quit``.
 """
 from __future__ import annotations
 
-import argparse
 import json
-import signal
-import sys
-import threading
 import time
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Optional, Sequence
 
-from ff_hwbridge.sim.arm import AdvanceFn, Params, SimArm
-from ff_hwbridge.sim.can_hub import CanHub, open_network, start_hub
+from ff_hwbridge.drive.bus import open_network
+from ff_hwbridge.sim.arm import AdvanceFn, Params, SimArm, joint_param
 from ff_hwbridge.sim.drive import DriveConfig, SimConfigError, SimEpos
-from ff_planner.model.params import Arm1DofParams, ParameterError, default_params, n_joints
+from ff_planner.model.params import default_params, n_joints
 
 #: Thread switch interval for simulator processes (s). Python's default 5 ms lets the hub's and
 #: the heartbeat's threads hold the CAN receive thread off for whole milliseconds; measured here
@@ -62,10 +55,7 @@ class RigConfig:
             raise SimConfigError(f"node ids must differ, got {list(self.node_ids)}")
         out = []
         for j, nid in enumerate(self.node_ids):
-            if isinstance(p, Arm1DofParams):
-                n, kt, imax = p.n, p.kt, p.i_max
-            else:
-                n, kt, imax = (p.n1, p.n2)[j], (p.kt1, p.kt2)[j], (p.i_max1, p.i_max2)[j]
+            n, kt, imax = (joint_param(p, k, j) for k in ("n", "kt", "i_max"))
             out.append(DriveConfig(node_id=int(nid), family=self.family,
                                    nominal_current=self.nominal_current, current_limit=imax,
                                    torque_constant=kt, counts_per_rev=self.counts_per_rev,
@@ -150,11 +140,12 @@ def run_command(rig: SimRig, line: str) -> str:
             d.clear_injected_faults()
         elif cmd == "info":
             now = time.monotonic()
+            hb_age = {k: round(now - v, 4) for k, v in d.heartbeats_seen().items()}
+            rx_by_id = {hex(k): v for k, v in d.frames_by_id().items()} if d.attached else None
             return (f"info node={d.node_id} nmt={d.nmt_state} state={d.state.value!r} "
                     f"fault=0x{d.fault_code:04X} i={d.applied_current} "
-                    f"consumers={d._consumers} hb_age={ {k: round(now - v, 4) for k, v in d._hb_seen.items()} } "
-                    f"faults={vars(d.faults)} link={vars(d.link_stats)} "
-                    f"rx_by_id={ {hex(k): v for k, v in d._link.rx_by_id.items()} if d._link else None}")
+                    f"consumers={d.heartbeat_consumers()} hb_age={hb_age} "
+                    f"faults={vars(d.faults)} link={vars(d.link_stats)} rx_by_id={rx_by_id}")
         else:
             return f"error unknown command {cmd!r}"
         return f"ok {cmd}"
@@ -169,72 +160,3 @@ def write_record(rig: SimRig, path: str) -> None:
     stats = {str(d.node_id): vars(d.link_stats) for d in rig.drives}
     with open(path, "w", encoding="utf-8") as fh:
         json.dump({"setpoints": data, "link_stats": stats}, fh)
-
-
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    ap = argparse.ArgumentParser(prog="ff_sim_rig", description=__doc__.splitlines()[0])
-    where = ap.add_mutually_exclusive_group(required=True)
-    where.add_argument("--bus-url", help="join a CAN hub: ws://127.0.0.1:PORT/")
-    where.add_argument("--host-hub", type=int, metavar="PORT", help="host the hub on 127.0.0.1:PORT")
-    ap.add_argument("--model", default="arm1dof", choices=("arm1dof", "scara2"))
-    ap.add_argument("--node-ids", default="1", help="comma-separated, one per joint")
-    ap.add_argument("--family", default="epos4", choices=("epos4", "epos2"))
-    ap.add_argument("--q0", default="0", help="comma-separated initial joint angles (rad)")
-    ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
-                    help="true model parameter (e.g. pc=0.25), repeatable")
-    ap.add_argument("--step", type=float, default=1e-4)
-    ap.add_argument("--record", help="write the setpoint arrival log (JSON) here on exit")
-    ap.add_argument("--switch-interval", type=float, default=SWITCH_INTERVAL, metavar="S",
-                    help="python thread switch interval (s, python's default 0.005); smaller = "
-                         "shorter waits of the CAN receive thread behind other threads")
-    a = ap.parse_args(argv)
-    if a.switch_interval and a.switch_interval > 0:
-        sys.setswitchinterval(a.switch_interval)
-    hub: Optional[CanHub] = None
-    try:
-        params = default_params(a.model).replace(**dict(kv.split("=", 1) for kv in a.param))
-        if a.host_hub is not None:
-            hub = start_hub(a.host_hub)
-            bus = hub.local_bus_config()      # same process: join the hub's channel directly
-        else:
-            bus = {"interface": "remote", "channel": a.bus_url}
-        cfg = RigConfig(model=a.model, node_ids=tuple(int(x, 0) for x in a.node_ids.split(",")),
-                        family=a.family, bus=bus,
-                        true_params=params, q0=tuple(float(x) for x in a.q0.split(",")),
-                        step=a.step)
-        rig = SimRig(cfg)
-    except (ParameterError, SimConfigError, ValueError) as exc:
-        print(f"ff_sim_rig: {exc}", file=sys.stderr)
-        if hub is not None:
-            hub.close()
-        return 2
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-
-    def read_stdin() -> None:
-        for line in sys.stdin:          # EOF (stdin /dev/null) just ends the reader
-            if line.strip() == "quit":
-                stop.set()
-                return
-            print(run_command(rig, line), flush=True)
-
-    rig.boot()
-    if hub is not None:
-        print(f"CAN hub on {hub.url}", flush=True)
-    print("sim rig ready", flush=True)
-    if not sys.stdin.isatty():
-        threading.Thread(target=read_stdin, daemon=True).start()
-    while not stop.wait(0.1):
-        pass
-    if a.record:
-        write_record(rig, a.record)
-    rig.close()
-    if hub is not None:
-        hub.close()
-    print("sim rig stopped", flush=True)
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,7 +1,7 @@
-"""The simulated rig (``python -m ff_hwbridge.sim.rig``) as a child process, for benchmarks and
+"""The simulated rig (``python -m ff_hwbridge.cli.sim_rig``) as a child process, for benchmarks and
 multi-process tests: start it hosting the loopback CAN hub, wait for ``sim rig ready``, send stdin
 commands, stop it by its own PID. Plus the master configuration that matches the rig's default
-drive (``sim_rig.RigConfig``'s first joint), so that the two sides' motor data are stated once.
+drive (``sim.rig.RigConfig``'s first joint), so that the two sides' motor data are stated once.
 
 No rclpy. All traffic stays on 127.0.0.1.
 """
@@ -29,7 +29,7 @@ class RigError(RuntimeError):
 
 
 class RigProcess:
-    """``python -u -m ff_hwbridge.sim.rig --host-hub PORT [args]`` with a stdin command channel.
+    """``python -u -m ff_hwbridge.cli.sim_rig --host-hub PORT [args]`` with a stdin command channel.
 
     ``stderr``: a file for the rig's logs (kept apart from command replies); None merges them
     into stdout. ``prefix``: a command the rig runs under (e.g. ``["chrt", "-f", "10"]``).
@@ -43,7 +43,7 @@ class RigProcess:
         self.port = port if port is not None else free_port()
         self.url = bus_url if bus_url is not None else f"ws://127.0.0.1:{self.port}/"
         where = ["--host-hub", str(self.port)] if host_hub else ["--bus-url", self.url]
-        self.p = subprocess.Popen([*prefix, sys.executable, "-u", "-m", "ff_hwbridge.sim.rig",
+        self.p = subprocess.Popen([*prefix, sys.executable, "-u", "-m", "ff_hwbridge.cli.sim_rig",
                                    *where, *args],
                                   stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                   stderr=stderr if stderr is not None else subprocess.STDOUT,
@@ -56,7 +56,7 @@ class RigProcess:
     def _wait_ready(self, timeout: float) -> bool:
         end = time.monotonic() + timeout
         while time.monotonic() < end:
-            line = self.p.stdout.readline()
+            line = self._stdout.readline()
             if "sim rig ready" in line:
                 return True
             if not line and self.p.poll() is not None:
@@ -64,18 +64,28 @@ class RigProcess:
         return False
 
     @property
+    def _stdin(self) -> IO[str]:
+        assert self.p.stdin is not None           # started with stdin=PIPE
+        return self.p.stdin
+
+    @property
+    def _stdout(self) -> IO[str]:
+        assert self.p.stdout is not None          # started with stdout=PIPE
+        return self.p.stdout
+
+    @property
     def pid(self) -> int:
         return self.p.pid
 
     def send(self, line: str) -> None:
         """Write one command without waiting for its reply."""
-        self.p.stdin.write(line + "\n")
-        self.p.stdin.flush()
+        self._stdin.write(line + "\n")
+        self._stdin.flush()
 
     def cmd(self, line: str) -> str:
         """Write one command and return the rig's one-line reply."""
         self.send(line)
-        return self.p.stdout.readline().strip()
+        return self._stdout.readline().strip()
 
     def stderr_text(self) -> str:
         """What the rig wrote to the ``stderr`` file so far ('' when merged into stdout)."""

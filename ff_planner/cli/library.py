@@ -26,7 +26,7 @@ import numpy as np
 
 from ff_planner.library.grid import GridError, describe, expand, load_grid
 from ff_planner.library.store import LibraryError, MotionLibrary, MotionRecord
-from ff_planner.model.params import ParameterError
+from ff_planner.model.params import ParameterError, n_joints
 
 GROUP_FIELDS = ("model", "params_hash", "objective", "uncertain", "steps", "coast")
 
@@ -140,7 +140,7 @@ def plot_map(records: Sequence[MotionRecord], path: str | Path, title: str = "")
             if sel:
                 xy = np.array([_xy(r) for r in sel])
                 ax.scatter(xy[:, 0], xy[:, 1], label=f"{status} {len(sel)}", zorder=3, **kw)
-        ax.set_xlabel("move qf − q0 (rad)" if g[0] == "arm1dof" else "move ‖qf − q0‖ (rad)")
+        ax.set_xlabel("move qf − q0 (rad)" if n_joints(g[0]) == 1 else "move ‖qf − q0‖ (rad)")
         ax.set_ylabel("move time tf (s)")
         ax.set_title(f"{g[0]} {g[2]} [{g[3]}] N={g[4]}", fontsize=9)
         ax.grid(alpha=0.3)
@@ -185,10 +185,11 @@ def cmd_build(a: argparse.Namespace) -> int:
     try:
         rep = build_library(grid, a.library, workers=a.workers, scheduler=a.scheduler, client=client,
                             serial=a.serial, continuation=not a.no_continuation, roots=a.roots,
-                            plan_entry=a.plan_entry, local_starts=a.local_starts, progress=not a.quiet)
+                            local_starts=a.local_starts, progress=not a.quiet)
     finally:
         if client is not None:
             client.close()
+        if cluster is not None:
             cluster.close()
     d = rep.to_dict()
     if a.json:
@@ -246,8 +247,6 @@ def parser() -> argparse.ArgumentParser:
                    help="continuation: starts from the neighbour's currents and perturbations of them")
     b.add_argument("--roots", type=int, default=1, help="cold-started subtrees (more early parallelism)")
     b.add_argument("--dashboard", action="store_true", help="LocalCluster dashboard on 127.0.0.1 (needs bokeh)")
-    b.add_argument("--plan-entry", default="ff_planner.library.build:plan_for_library",
-                   help="plan function 'module:function' (advanced)")
     b.add_argument("--quiet", action="store_true", help="no progress bar")
     b.add_argument("--json", action="store_true", help="print the build report as JSON")
     b.set_defaults(fn=cmd_build)

@@ -11,11 +11,11 @@ import json
 import math
 import sys
 from pathlib import Path
-from typing import Optional, Sequence
+from typing import NoReturn, Optional, Sequence
 
 import numpy as np
 
-from ff_planner.model.params import DEFAULT_PRESET, MODELS, PRESETS, ParameterError, load_params, preset
+from ff_planner.model.params import DEFAULT_PRESET, MODELS, PRESETS, ParameterError, load_params, n_joints, preset
 from ff_planner.model.profile import DEFAULT_COAST, OBJECTIVES, PlanningError, PlanRequest
 
 PROG = "ff-plan"
@@ -26,7 +26,7 @@ class UsageError(Exception):
 
 
 class _Parser(argparse.ArgumentParser):
-    def error(self, message: str) -> None:  # one line, exit 2 (argparse prints usage + error)
+    def error(self, message: str) -> NoReturn:  # one line, exit 2 (argparse prints usage + error)
         raise UsageError(f"{message} (see {PROG} --help)")
 
 
@@ -232,7 +232,7 @@ def make_request(args: argparse.Namespace) -> PlanRequest:
     cfg = load_config(args.config) if args.config else {}
     params = _resolve_params(args, cfg)
     model = params.model
-    nj = 1 if model == "arm1dof" else 2
+    nj = n_joints(model)
 
     def vec(key: str, default: list[float]) -> list[float]:
         v = _pick(args, cfg, key)
@@ -266,8 +266,8 @@ def make_request(args: argparse.Namespace) -> PlanRequest:
     if objective not in OBJECTIVES:
         raise UsageError(f"unknown objective {objective!r}; use one of {', '.join(OBJECTIVES)}")
     unc = _pick(args, cfg, "uncertain")
-    uncertain = _names(unc if isinstance(unc, (list, tuple)) else [unc]) if unc is not None \
-        else list(params.friction_keys)
+    named = _names(unc if isinstance(unc, (list, tuple)) else [unc]) if unc is not None else None
+    uncertain = named if named is not None else list(params.friction_keys)
     return PlanRequest(model=model, q0=tuple(q0), qf=tuple(qf), tf=tf,
                        uncertain=tuple(uncertain), objective=objective, steps=steps,
                        starts=_number(_pick(args, cfg, "starts"), "--starts", int),
@@ -352,7 +352,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         if args.plot and result.profile is not None:
             from ff_planner.export.plotting import plot_motion
 
-            plot_motion(result.params, result.profile, result.q0, result.qf, result.uncertain,
+            plot_motion(result.params or request.resolved_params(), result.profile, np.asarray(result.q0).tolist(),
+                        np.asarray(result.qf).tolist(), result.uncertain,
                         args.plot, title=f"{result.objective}: {result.model}, "
                                          f"{np.round(result.q0, 4).tolist()} → {np.round(result.qf, 4).tolist()} rad "
                                          f"in {request.tf:g} s")

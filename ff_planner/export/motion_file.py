@@ -1,6 +1,6 @@
 """The suite's motion file, format ``ff-motion/1`` (JSON): write, read, validate, re-check.
 
-Required keys (issue 3; others may be added and are kept)::
+Required keys (others may be added and are kept)::
 
     {"format": "ff-motion/1", "model": "arm1dof" | "scara2",
      "params": {every model parameter, SI units},
@@ -28,6 +28,7 @@ import numpy as np
 
 from ff_planner.model.params import MODELS, ParameterError, Params, friction_scaled, n_joints
 from ff_planner.model.profile import CurrentProfile, PlanningError, PlanResult
+from ff_planner.model.simulate import rest_position, simulate
 
 FORMAT = "ff-motion/1"
 REQUIRED_KEYS = ("format", "model", "params", "q0", "qf", "tf", "coast", "step_times",
@@ -105,21 +106,21 @@ def motion_to_dict(result: PlanResult, *, extra: Optional[Mapping[str, Any]] = N
     if rest is not None:
         d["predicted"]["rest_position"] = _floats(rest)
     if result.extra:
-        d["extra"] = _jsonable(result.extra)
+        d["extra"] = jsonable(result.extra)
     if extra:
-        d.update(_jsonable(dict(extra)))
+        d.update(jsonable(dict(extra)))
     validate_motion_dict(d)
     return d
 
 
-def _jsonable(x: Any) -> Any:
+def jsonable(x: Any) -> Any:
     """Convert numpy values and nested containers to plain JSON types (non-finite -> None)."""
     if isinstance(x, Mapping):
-        return {str(k): _jsonable(v) for k, v in x.items()}
+        return {str(k): jsonable(v) for k, v in x.items()}
     if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
+        return [jsonable(v) for v in x]
     if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
+        return jsonable(x.tolist())
     if isinstance(x, (np.floating, float)):
         return float(x) if math.isfinite(float(x)) else None
     if isinstance(x, (np.integer,)):
@@ -282,8 +283,6 @@ class MotionCheck:
 def _central_sensitivities(params: Params, profile: CurrentProfile, q0: np.ndarray,
                            names: Sequence[str], rel_step: float = 1e-6) -> dict[str, float]:
     """d q(tf) / d p by central differences through simulate() (rad per parameter unit)."""
-    from ff_planner.model.simulate import simulate
-
     out: dict[str, float] = {}
     nj = profile.n_joints
     for name in names:
@@ -307,8 +306,6 @@ def verify_motion(source: Union[PathLike, Motion], scale: Optional[Mapping[str, 
     ``scale={"pc": 1.1, "pv": 0.9}`` = Coulomb friction +10 %, viscous −10 %. Uses only the file
     (not the planner's state), so it is an independent check of the prediction it carries.
     """
-    from ff_planner.model.simulate import rest_position, simulate
-
     m = source if isinstance(source, Motion) else read_motion(source)
     scale = {str(k): float(v) for k, v in (scale or {}).items()}
     unknown = [k for k in scale if k not in m.params.keys()]
@@ -321,7 +318,7 @@ def verify_motion(source: Union[PathLike, Motion], scale: Optional[Mapping[str, 
         raise MotionFileError(f"scale: {e}") from None
     nominal = simulate(m.params, m.profile, m.q0)
     sim = simulate(pert, m.profile, m.q0) if scale else nominal
-    rest = np.asarray(rest_position(pert, m.profile, m.q0), dtype=float)
+    rest = np.asarray(rest_position(pert, m.profile, m.q0), dtype=np.float64)
     q_f = np.asarray(sim.q_f, dtype=float)
     sens = (_central_sensitivities(m.params, m.profile, m.q0, m.uncertain)
             if sensitivities and m.uncertain else {})

@@ -16,29 +16,28 @@ from matplotlib.figure import Figure
 
 from ff_planner.model.params import Params, friction_scaled
 from ff_planner.model.profile import CurrentProfile
+from ff_planner.model.simulate import simulate
 
 _COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:red", "tab:purple", "tab:brown")
 
 
-def _save(fig: Figure, path: Union[str, Path]) -> Path:
+def save_figure(fig: Figure, path: Union[str, Path]) -> Path:
     p = Path(path)
     FigureCanvasAgg(fig)
     fig.savefig(p, dpi=110)
     return p
 
 
-def _step_xy(profile: CurrentProfile, j: int) -> tuple[np.ndarray, np.ndarray]:
+def step_xy(profile: CurrentProfile, j: int) -> tuple[np.ndarray, np.ndarray]:
     """Staircase of joint j's current (A) over [0, tf] (s), zero during the coast."""
     t = np.concatenate([profile.step_times, [profile.tf]])
     i = np.concatenate([profile.currents[:, j], [0.0, 0.0]])
     return np.repeat(t, 2)[1:], np.repeat(i, 2)[:-1]
 
 
-def _scaled_runs(params: Params, profile: CurrentProfile, q0: np.ndarray, names: Sequence[str],
-                 factors: np.ndarray):
+def _scaled_runs(params: Params, profile: CurrentProfile, q0: Sequence[float],
+                 names: Sequence[str], factors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """q(tf), q̇(tf) (rad, rad/s) for each name × factor (relative parameter scale)."""
-    from ff_planner.model.simulate import simulate
-
     qf = np.full((len(names), len(factors), profile.n_joints), np.nan)
     qdf = np.full_like(qf, np.nan)
     for a, name in enumerate(names):
@@ -60,33 +59,32 @@ def plot_motion(params: Params, profile: CurrentProfile, q0: Sequence[float],
     ``spread``: the ± relative friction change of the dashed position curves (0.4 = ±40 %), each
     uncertain parameter alone. ``sweep``: the range (± relative) of the final-state panels.
     """
-    from ff_planner.model.simulate import simulate
-
-    q0 = np.asarray(q0, dtype=float)
-    qf = np.asarray(qf, dtype=float)
+    goal = np.asarray(qf, dtype=float)
     names = list(uncertain) or list(params.friction_keys)
     nj = profile.n_joints
     fig = Figure(figsize=(11, 7.5))
     ax = fig.subplots(2, 2)
     # (a) current
     for j in range(nj):
-        x, y = _step_xy(profile, j)
+        x, y = step_xy(profile, j)
         ax[0, 0].plot(x, y, color=_COLORS[j], label=f"joint {j + 1}")
     ax[0, 0].set(xlabel="t (s)", ylabel="current (A)", title="(a) feedforward current")
     if nj > 1:
         ax[0, 0].legend(fontsize=8)
     # (b) position at nominal and ±spread
     nom = simulate(params, profile, q0, trajectory=True)
+    assert nom.t is not None and nom.q is not None      # sampled with trajectory=True
     for j in range(nj):
         ax[0, 1].plot(nom.t, nom.q[:, j], color=_COLORS[j], lw=2,
                       label="nominal" if j == 0 else None)
-        ax[0, 1].axhline(qf[j], color="gray", lw=0.6, ls=":")
+        ax[0, 1].axhline(goal[j], color="gray", lw=0.6, ls=":")
     for k, name in enumerate(names):
         for f, ls in ((1.0 - spread, "--"), (1.0 + spread, "-.")):
             try:
                 r = simulate(friction_scaled(params, {name: f}), profile, q0, trajectory=True)
             except ValueError:
                 continue
+            assert r.t is not None and r.q is not None
             for j in range(nj):
                 ax[0, 1].plot(r.t, r.q[:, j], color=_COLORS[(k + 2) % 6], ls=ls, lw=0.9,
                               label=f"{name} {f - 1:+.0%}" if j == 0 else None)
@@ -103,14 +101,14 @@ def plot_motion(params: Params, profile: CurrentProfile, q0: Sequence[float],
             ax[1, 1].plot(pct, qdfs[k, :, 0], color=_COLORS[k % 6], label=name)
         else:
             ax[1, 1].plot(pct, qfs[k, :, 1], color=_COLORS[k % 6], label=name)
-    ax[1, 0].axhline(qf[0], color="gray", lw=0.6, ls=":")
+    ax[1, 0].axhline(goal[0], color="gray", lw=0.6, ls=":")
     ax[1, 0].set(xlabel="parameter change (%)", ylabel="q(tf) (rad)" if nj == 1 else "q1(tf) (rad)",
                  title="(c) final position vs friction change")
     if nj == 1:
         ax[1, 1].set(xlabel="parameter change (%)", ylabel="q̇(tf) (rad/s)",
                      title="(d) final velocity vs friction change")
     else:
-        ax[1, 1].axhline(qf[1], color="gray", lw=0.6, ls=":")
+        ax[1, 1].axhline(goal[1], color="gray", lw=0.6, ls=":")
         ax[1, 1].set(xlabel="parameter change (%)", ylabel="q2(tf) (rad)",
                      title="(d) joint 2 final position vs friction change")
     ax[1, 0].legend(fontsize=8)
@@ -120,7 +118,7 @@ def plot_motion(params: Params, profile: CurrentProfile, q0: Sequence[float],
     if title:
         fig.suptitle(title)
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def plot_curves(x: Sequence[float], curves: Mapping[str, Sequence[float]],
@@ -140,4 +138,4 @@ def plot_curves(x: Sequence[float], curves: Mapping[str, Sequence[float]],
     a.grid(True, lw=0.3)
     a.legend(fontsize=8)
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path)

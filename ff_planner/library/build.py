@@ -1,4 +1,4 @@
-"""Fill a motion library from a task grid on Dask distributed (issue 9): continuation order,
+"""Fill a motion library from a task grid on Dask distributed: continuation order,
 exactly-once, resumable.
 
 Who writes: the *client* writes every result into the store (``ff_planner.library.store.MotionLibrary``,
@@ -19,7 +19,8 @@ compute: ``solve_task(payload) -> MotionRecord`` is a pure function of its paylo
 Continuation: tasks are solved in the order of :func:`ff_planner.library.grid.continuation_tree`
 (a task is submitted once its tree parent is stored); it starts from the currents of its nearest
 *solved* ancestor (``warm_plan``, no multistart), then from a few seeded perturbations of them
-(``local_starts``, each a single start), and falls back to a cold multistart solve when all fail. Since the tree and the ancestors' outcomes are fixed before a task starts, the stored
+(``local_starts``, each a single start), and falls back to a cold multistart solve when all
+fail. Since the tree and the ancestors' outcomes are fixed before a task starts, the stored
 results do not depend on the number of workers or on timing (for a deterministic, seeded planner
 that finishes inside its time budget). The record says how: ``solved_how`` = "continuation"
 (``warm_from`` = the ancestor's key), "cold" (multistart) or "shift" (a shifted copy of an
@@ -30,7 +31,6 @@ No ROS here.
 from __future__ import annotations
 
 import copy
-import inspect
 import logging
 import math
 import os
@@ -40,18 +40,19 @@ import time
 import traceback
 from collections import Counter, deque
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any, Callable, Optional, TextIO
 
 import numpy as np
 
+from ff_planner.core.errors import ParameterError, PlanningError, WarmStartUnavailable, error_code_of
 from ff_planner.library.grid import Grid, GridSpec, GridTask, continuation_tree, describe, expand, load_grid
-from ff_planner.library.store import MotionLibrary, MotionRecord, WarmStartUnavailable, record_from_result, warm_plan
-from ff_planner.model.profile import PlanningError, PlanRequest, PlanResult
-from ff_planner.service.planner_service import error_code_of, failure, load_entry
-
-#: The plan function a build calls by default ("module:function"; must accept ``initial_currents``
-#: for continuation — see :func:`plan_for_library`).
-DEFAULT_PLAN_ENTRY = "ff_planner.library.build:plan_for_library"
+from ff_planner.library.refusal import failure
+from ff_planner.library.store import MotionLibrary, MotionRecord, record_from_result
+from ff_planner.library.warm import PlanFn, warm_plan
+from ff_planner.model.params import Params
+from ff_planner.model.profile import PlanRequest, PlanResult
+from ff_planner.optimize.planner import plan
 
 DONE = ("solved", "infeasible")
 
@@ -60,55 +61,15 @@ class BuildError(ValueError):
     """A build that cannot run as asked; the message says what to change."""
 
 
-# --- the plan function -------------------------------------------------------------------------
-def _accepts(fn: Callable, name: str) -> bool:
-    try:
-        sig = inspect.signature(fn)
-    except (TypeError, ValueError):
-        return False
-    return name in sig.parameters or any(p.kind is inspect.Parameter.VAR_KEYWORD
-                                         for p in sig.parameters.values())
-
-
-def plan_for_library(request: PlanRequest, progress: Optional[Callable] = None,
-                     initial_currents: Optional[np.ndarray] = None) -> PlanResult:
-    """``ff_planner.optimize.planner.plan`` with a warm start.
-
-    Uses the facade's own ``initial_currents`` when it has one; otherwise runs the facade's steps
-    (validate, reachability, dispatch, labelling) around the inner planner's ``initial_currents``.
-    Raises WarmStartUnavailable when neither can take a warm start.
-    """
-    from ff_planner.optimize import planner
-
-    if initial_currents is None:
-        return planner.plan(request, progress)
-    if _accepts(planner.plan, "initial_currents"):
-        return planner.plan(request, progress, initial_currents=initial_currents)
-    planner._validate(request)
-    bound = planner.check_reachable(request)
-    fn = planner._dispatch(request)
-    if not _accepts(fn, "initial_currents"):
-        raise WarmStartUnavailable(f"{fn.__module__}.{fn.__name__} takes no initial_currents")
-    t0 = time.perf_counter()
-    result = fn(request, progress, initial_currents=np.asarray(initial_currents, float))
-    result.extra = dict(result.extra or {}, reach_bound=bound.tolist())
-    if not result.success:
-        result.best_effort = result.profile is not None
-        if result.error_code == "OK":
-            result.error_code = ("TIME_BUDGET_EXHAUSTED" if time.perf_counter() - t0 > request.time_budget
-                                 else "NO_ROBUST_PLAN")
-    return result
-
-
 # --- worker side ----------------------------------------------------------------------------------
 @dataclass
 class TaskPayload:
-    """What a worker needs for one task (picklable)."""
+    """What a worker needs for one task (picklable: ``plan_fn`` is a module-level function)."""
 
     request: PlanRequest
     key: str
     neighbour: Optional[MotionRecord] = None    # solved ancestor to continue from; None = cold
-    plan_entry: str = DEFAULT_PLAN_ENTRY
+    plan_fn: PlanFn = plan                      # plan(request, progress, initial_currents=...)
     fallback_cold: bool = True
     local_starts: int = 16          # continuation: the neighbour's currents + 15 perturbations of them
     local_sigma: float = 0.3        # A, perturbation scale (× √k for the k-th)
@@ -118,7 +79,12 @@ def _writer() -> str:
     return f"ff-library {socket.gethostname()} pid {os.getpid()}"
 
 
-def _continue(req: PlanRequest, nb: MotionRecord, fn: Callable, local_starts: int, sigma: float
+def current_limits(params: Params) -> np.ndarray:
+    """The current limit of every joint (A), in joint order: the parameters ``i_max``, ``i_max1``, ..."""
+    return np.array([float(getattr(params, k)) for k in params.keys() if k.startswith("i_max")])
+
+
+def _continue(req: PlanRequest, nb: MotionRecord, fn: PlanFn, local_starts: int, sigma: float
               ) -> tuple[Optional[PlanResult], int]:
     """Continuation from a solved neighbour: its currents as the single start, then up to
     ``local_starts`` − 1 seeded perturbations of them (σ·√k A, clipped to the limits), each a
@@ -132,13 +98,13 @@ def _continue(req: PlanRequest, nb: MotionRecord, fn: Callable, local_starts: in
     def counts(r: PlanResult) -> bool:
         return bool(r.success) and r.starts_tried <= limit
 
-    r = warm_plan(one, nb, plan_fn=fn)          # checks the shapes; raises WarmStartUnavailable
+    base = nb.currents()
+    if base is None:
+        raise WarmStartUnavailable(f"library entry {nb.task_key} holds no motion")
+    r = warm_plan(one, base, fn, warm_from=nb.task_key)   # checks the shapes
     if counts(r):
         return r, 1
-    base = nb.currents()
-    p = req.resolved_params()
-    i_max = (np.array([p.i_max]) if req.model == "arm1dof"
-             else np.array([getattr(p, f"i_max{j + 1}") for j in range(base.shape[1])]))
+    i_max = current_limits(req.resolved_params())
     rng = np.random.default_rng([int(req.seed), 0x1B])
     for k in range(1, max(1, int(local_starts))):
         init = np.clip(base + rng.normal(0.0, sigma * math.sqrt(k), base.shape), -i_max, i_max)
@@ -156,12 +122,12 @@ def solve_task(payload: TaskPayload) -> MotionRecord:
     Returns the library record (status solved / infeasible / failed, with the reason).
     """
     req = payload.request
+    fn = payload.plan_fn
     t0 = time.perf_counter()
     note = ""
     how, warm_from = "cold", None
     result: Optional[PlanResult] = None
     try:
-        fn = load_entry(payload.plan_entry)
         nb = payload.neighbour
         if nb is not None:
             try:
@@ -177,14 +143,14 @@ def solve_task(payload: TaskPayload) -> MotionRecord:
                     note = f"continuation from {nb.task_key} failed ({tries} local start(s)); "
             except WarmStartUnavailable as exc:
                 note = f"no continuation ({exc}); "
-            except PlanningError as exc:
+            except (PlanningError, ParameterError) as exc:
                 result = failure(req, exc.code, str(exc))
         if result is None and (nb is None or payload.fallback_cold):
             result = fn(req)
         elif result is None:
             result = failure(req, "NO_ROBUST_PLAN", note.rstrip("; "))
             note = ""
-    except PlanningError as exc:
+    except (PlanningError, ParameterError) as exc:
         result = failure(req, exc.code, str(exc))
     except Exception as exc:  # noqa: BLE001 - a planner bug becomes a failed row with the reason
         code = error_code_of(exc)
@@ -397,7 +363,7 @@ def _nearest_solved_ancestor(grid: Grid, i: int, recs: dict[int, MotionRecord]) 
 def build_library(grid: Grid | GridSpec | str | os.PathLike, library: str | os.PathLike | MotionLibrary, *,
                   workers: Optional[int] = None, scheduler: Optional[str] = None, client: Any = None,
                   serial: bool = False, continuation: bool = True, roots: int = 1,
-                  plan_entry: str = DEFAULT_PLAN_ENTRY, local_starts: int = 16, progress: bool = True,
+                  plan_fn: PlanFn = plan, local_starts: int = 16, progress: bool = True,
                   stream: Optional[TextIO] = None,
                   on_result: Optional[Callable[[int, MotionRecord], None]] = None) -> BuildReport:
     """Solve every task of ``grid`` not yet stored in ``library``; see the module docstring.
@@ -406,11 +372,13 @@ def build_library(grid: Grid | GridSpec | str | os.PathLike, library: str | os.P
     an existing cluster); else ``serial`` (this process); else a LocalCluster on 127.0.0.1 with
     ``workers`` processes (default one per core). ``continuation=False`` solves every task cold
     (multistart) in grid order (for comparison); ``local_starts`` = single-start solves from the
-    neighbour's currents and perturbations of them before falling back to multistart. ``on_result(task_index, record)`` is called after
-    each distinct task is stored (tests use it).
+    neighbour's currents and perturbations of them before falling back to multistart. ``plan_fn``
+    is the planner, ``plan(request, progress, initial_currents=...)``: a module-level function, so
+    that it pickles by reference to the workers. ``on_result(task_index, record)`` is called
+    after each distinct task is stored.
     """
     if not isinstance(grid, Grid):
-        spec = grid if isinstance(grid, GridSpec) else load_grid(grid)
+        spec = grid if isinstance(grid, GridSpec) else load_grid(Path(grid))
         grid = expand(spec)
     if roots != 1:
         continuation_tree(grid, n_roots=int(roots))
@@ -471,7 +439,7 @@ def build_library(grid: Grid | GridSpec | str | os.PathLike, library: str | os.P
 
     def payload(i: int) -> TaskPayload:
         nb = _nearest_solved_ancestor(grid, i, recs) if continuation else None
-        return TaskPayload(grid.tasks[i].request, grid.tasks[i].key, nb, plan_entry,
+        return TaskPayload(grid.tasks[i].request, grid.tasks[i].key, nb, plan_fn,
                            local_starts=local_starts)
 
     def ready(i: int) -> bool:
@@ -487,10 +455,10 @@ def build_library(grid: Grid | GridSpec | str | os.PathLike, library: str | os.P
                 runner.submit(i, payload(i))
                 submitted.add(i)
         while runner:
-            i, rec, exc = runner.next_done()
+            i, rec, err = runner.next_done()
             t = grid.tasks[i]
             if rec is None:
-                msg = f"{type(exc).__name__}: {exc}"
+                msg = f"{type(err).__name__}: {err}"
                 report.worker_errors.append(f"{t.key}: {msg}")
                 rec = failed_record(t.request, f"worker error (the task was retried): {msg}")
             lib.put(rec, params)

@@ -210,7 +210,7 @@ def parse_grid(data: Mapping[str, Any]) -> GridSpec:
     objective = str(data.get("objective", "robust-derivative"))
     if objective not in OBJECTIVES:
         raise GridError(f"objective: unknown {objective!r}; use one of {', '.join(OBJECTIVES)}")
-    unc = data.get("uncertain", list(params.friction_keys[:3]) if model == "arm1dof" else ["pc1", "pc2"])
+    unc = data.get("uncertain", list(params.default_uncertain))
     if isinstance(unc, str):
         unc = [u.strip() for u in unc.split(",") if u.strip()]
     uncertain = [str(u) for u in unc]
@@ -351,7 +351,7 @@ def continuation_tree(grid: Grid, n_roots: int = 1) -> None:
     def bfs(*srcs: int) -> tuple[list[int], list[int]]:
         """Multi-source BFS over the MST: parent (-1 at a source, -2 unreached) and depth."""
         par, dep = [-2] * n, [0] * n
-        q = deque()
+        q: deque[int] = deque()
         for src in srcs:
             par[src] = -1
             q.append(src)

@@ -31,7 +31,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Optional, Sequence
+from typing import Any, Optional, Sequence
 
 import numpy as np
 
@@ -139,11 +139,12 @@ class MotionRecord:
         return np.asarray(self.motion["currents"], dtype=float).reshape(len(self.motion["currents"]), -1)
 
     def profile(self) -> Optional[CurrentProfile]:
-        if not self.motion:
+        """The stored plan as a CurrentProfile (s, A); None without a motion."""
+        cur = self.currents()
+        if cur is None or not self.motion:
             return None
         m = self.motion
-        return CurrentProfile(np.asarray(m["step_times"], float), self.currents(), float(m["tf"]),
-                              float(m["coast"]))
+        return CurrentProfile(np.asarray(m["step_times"], float), cur, float(m["tf"]), float(m["coast"]))
 
     def rank(self) -> int:
         """Quality order used by put(upgrade): failed < infeasible < solved best-effort < solved robust."""
@@ -485,49 +486,7 @@ class MotionLibrary:
         return out
 
 
-# --- warm re-optimisation ---------------------------------------------------------------------
-class WarmStartUnavailable(RuntimeError):
-    """The planner has no warm-start entry point (``initial_currents``) for this request."""
-
-
-def _planner_accepts_initial_currents(fn: Callable) -> bool:
-    import inspect
-
-    try:
-        sig = inspect.signature(fn)
-    except (TypeError, ValueError):
-        return False
-    return "initial_currents" in sig.parameters or any(
-        p.kind is inspect.Parameter.VAR_KEYWORD for p in sig.parameters.values())
-
-
-def warm_plan(request: PlanRequest, neighbour: MotionRecord, progress: Optional[Callable] = None,
-              plan_fn: Optional[Callable] = None) -> PlanResult:
-    """Re-optimise ``request`` from the neighbour's currents, without multistart.
-
-    Calls ``plan_fn`` (default ``ff_planner.optimize.planner.plan``) with ``initial_currents`` = the
-    neighbour's (N, n_joints) currents; raises WarmStartUnavailable if the planner cannot take them
-    or the neighbour does not fit (other step count or joint count).
-    """
-    init = neighbour.currents()
-    if init is None:
-        raise WarmStartUnavailable(f"library entry {neighbour.task_key} holds no motion")
-    if init.shape[0] != request.n_steps() or init.shape[1] != len(request.q0):
-        raise WarmStartUnavailable(f"library entry {neighbour.task_key} has {init.shape} currents, "
-                                   f"request needs ({request.n_steps()}, {len(request.q0)})")
-    if plan_fn is None:
-        try:
-            from ff_planner.optimize.planner import plan as plan_fn  # type: ignore
-        except ImportError as exc:
-            raise WarmStartUnavailable(f"planner not available: {exc}") from None
-    if not _planner_accepts_initial_currents(plan_fn):
-        raise WarmStartUnavailable("the planner has no 'initial_currents' warm-start argument yet")
-    result = plan_fn(request, progress=progress, initial_currents=init)
-    result.warm_start = True
-    result.extra = dict(result.extra or {}, warm_from=neighbour.task_key)
-    return result
-
-
+# --- parameters ----------------------------------------------------------------------------
 def params_for(model: str, overrides: Optional[dict] = None, base: Optional[Params] = None) -> Params:
     """Model parameters = ``base`` (default: the model's preset) with ``overrides`` applied."""
     if model not in MODELS:

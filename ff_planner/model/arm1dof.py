@@ -3,13 +3,14 @@
     J·q̈ = T − pv·q̇ − sign(q̇)·(pc + pt·|T|),   T = n·kt·I        (q̇ ≠ 0)
     q̇ = 0 and |T| ≤ pc + pt·|T|  →  the joint sticks (until the current changes)
 
-Between events (current switches, velocity zero crossings) the motion has a closed form
-(see ``_series1d``); zero crossings are found in closed form too. No ODE solver. The compiled
+The friction law comes from ``ff_planner.model.friction``. Between events (current switches,
+velocity zero crossings) the motion v' = a·v + b, a = −pv/J, b = (T − s·L)/J, has a closed form
+(see ``series1d``); zero crossings are found in closed form too. No ODE solver. The compiled
 kernels here ARE the suite's 1-DOF simulator: ``simulate`` (final state, optional trajectory),
 ``rest_position`` (where the arm stops with zero current after tf) and ``advance`` (one constant
 current interval; the simulated drive uses it). Units: rad, rad/s, A, Nm, s.
 
-Exact derivatives (forward mode through the event times) live in ``_deriv1d``.
+Exact derivatives (forward mode through the event times) live in ``arm1dof_derivatives``.
 """
 from __future__ import annotations
 
@@ -20,7 +21,9 @@ from typing import Optional, Sequence
 import numpy as np
 from numba import njit
 
+from ff_planner.core.errors import ParameterError, PlanningError
 from ff_planner.core.results import SimResult
+from ff_planner.model.friction import breakaway_excess, exceeds_stiction, sliding_level
 from ff_planner.model.params import Arm1DofParams
 from ff_planner.model.profile import CurrentProfile
 from ff_planner.model.series1d import phi12_value, psi_value
@@ -83,18 +86,20 @@ def _phase(t, q, v, torque, t_end, J, a, pc, pt, seg, nseg, ev, nev, rest_kind):
     Records segments/events when the arrays have room (size 0 arrays: no recording).
     Returns (t, q, v, nseg, nev).
     """
-    fric = pc + pt * abs(torque)
+    fric = sliding_level(torque, pc, pt)
+    breaks = exceeds_stiction(torque, fric)
+    rel = breakaway_excess(torque, fric) / fric if fric > 0.0 else math.inf
     reversed_ = False
     while t < t_end:
         if v == 0.0:
-            if not abs(torque) > fric:          # sticks (Eq. 9, q̇ = 0 branch)
+            if not breaks:                      # sticks (Eq. 9, q̇ = 0 branch)
                 nseg = _record(seg, nseg, t, t_end, q, 0.0, a, 0.0, 0.0)
                 return t_end, q, 0.0, nseg, nev
             s = 1.0 if torque > 0.0 else -1.0
             if not reversed_ and nev < ev.shape[0]:
                 ev[nev, 0] = t
                 ev[nev, 1] = EV_BREAKAWAY
-                ev[nev, 2] = (abs(torque) - fric) / fric if fric > 0.0 else math.inf
+                ev[nev, 2] = rel
             if not reversed_:
                 nev += 1
         else:
@@ -105,7 +110,7 @@ def _phase(t, q, v, torque, t_end, J, a, pc, pt, seg, nseg, ev, nev, rest_kind):
         if t_next < t_end:
             q1, v1 = _free(q, v, tau, a, b)
             kind = EV_REVERSE
-            if not abs(torque) > fric or torque * s >= 0.0:
+            if not breaks or torque * s >= 0.0:
                 kind = EV_STICK
             if math.isinf(t_end) and torque == 0.0:
                 kind = rest_kind
@@ -125,7 +130,7 @@ def _phase(t, q, v, torque, t_end, J, a, pc, pt, seg, nseg, ev, nev, rest_kind):
             if nev < ev.shape[0]:
                 ev[nev, 0] = t
                 ev[nev, 1] = kind
-                ev[nev, 2] = (abs(torque) - fric) / fric if fric > 0.0 else math.inf
+                ev[nev, 2] = rel
             nev += 1
             if kind == EV_REST:
                 return t_end, q, 0.0, nseg, nev
@@ -208,12 +213,13 @@ def eval_segments(seg, nseg, tgrid):
     return qs, vs
 
 
-def _args(params: Arm1DofParams):
+def _args(params: Arm1DofParams) -> tuple[float, float, float, float, float]:
+    """(J, n·kt, pv, pc, pt): the kernels' physical arguments."""
     return (float(params.J), float(params.n * params.kt), float(params.pv), float(params.pc),
             float(params.pt))
 
 
-def _profile_arrays(profile: CurrentProfile):
+def _profile_arrays(profile: CurrentProfile) -> tuple[np.ndarray, np.ndarray]:
     cur = np.ascontiguousarray(profile.currents[:, 0], dtype=float)
     times = np.ascontiguousarray(profile.step_times, dtype=float)
     return times, cur
@@ -230,15 +236,26 @@ def final_state(params: Arm1DofParams, profile: CurrentProfile, q0: float, qd0: 
     return float(q), float(v)
 
 
-def simulate_arm1dof(params: Arm1DofParams, profile: CurrentProfile, q0: float,
-                     qd0: float = 0.0, *, trajectory: bool = False, dt: float = 1e-3,
-                     t_end: Optional[float] = None):
-    """Exact simulation; returns ``ff_planner.model.simulate.SimResult``.
+def _one(x: float | Sequence[float] | np.ndarray, name: str) -> float:
+    """The joint's value from a number or a 1-element sequence (rad, rad/s or A)."""
+    a = np.atleast_1d(np.asarray(x, dtype=float))
+    if a.shape != (1,):
+        raise ParameterError(f"{name} needs 1 value for model 'arm1dof', got {a.size}")
+    return float(a[0])
+
+
+def simulate_arm1dof(params: Arm1DofParams, profile: CurrentProfile,
+                     q0: float | Sequence[float], qd0: float | Sequence[float] | None = None, *,
+                     trajectory: bool = False, dt: float = 1e-3,
+                     t_end: Optional[float] = None) -> SimResult:
+    """Exact simulation from (q0, qd0) (rad, rad/s; numbers or 1-element sequences); returns
+    the SimResult at tf.
 
     With ``trajectory``: samples every ``dt`` s on [0, t_end] (default tf) plus every event and
     switch time; t, q, qd, current arrays (s, rad, rad/s, A, current shape (M, 1)).
     """
-
+    q0 = _one(q0, "q0")
+    qd0 = 0.0 if qd0 is None else _one(qd0, "qd0")
     times, cur = _profile_arrays(profile)
     cap = 3 * (cur.shape[0] + 3) + 4
     seg = np.zeros((cap, _SEG_COLS))
@@ -267,10 +284,14 @@ def simulate_arm1dof(params: Arm1DofParams, profile: CurrentProfile, q0: float,
     return res
 
 
-def rest_position_arm1dof(params: Arm1DofParams, profile: CurrentProfile, q0: float,
-                          qd0: float = 0.0) -> float:
-    """Where the arm comes to rest (rad) with zero current after tf; nan if it never stops."""
-    return final_state(params, profile, q0, qd0, to_rest=True)[0]
+def rest_position_arm1dof(params: Arm1DofParams, profile: CurrentProfile,
+                          q0: float | Sequence[float],
+                          qd0: float | Sequence[float] | None = None) -> np.ndarray:
+    """Where the arm comes to rest (rad, shape (1,)) with zero current after tf; nan if it never
+    stops."""
+    q = final_state(params, profile, _one(q0, "q0"), 0.0 if qd0 is None else _one(qd0, "qd0"),
+                    to_rest=True)[0]
+    return np.array([q])
 
 
 def advance(params: Arm1DofParams, q: float, qd: float, current: float,
@@ -281,6 +302,14 @@ def advance(params: Arm1DofParams, q: float, qd: float, current: float,
     J, c, pv, pc, pt = _args(params)
     q1, v1 = advance_core(J, c, pv, pc, pt, float(q), float(qd), float(current), float(dt))
     return float(q1), float(v1)
+
+
+def advance_joints(params: Arm1DofParams, q: float | Sequence[float],
+                   qd: float | Sequence[float], currents: float | Sequence[float],
+                   dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """``advance`` with per-joint arrays of shape (1,) (the model registry's convention)."""
+    q1, v1 = advance(params, _one(q, "q"), _one(qd, "qd"), _one(currents, "currents"), dt)
+    return np.array([q1]), np.array([v1])
 
 
 FRICTION = ("pv", "pc", "pt")
@@ -355,3 +384,77 @@ def derivatives(params: Arm1DofParams, profile: CurrentProfile, q0: float, *,
         d2q_dpdI=W[Q_, base:base + NP * n].reshape(NP, n).copy(),
         t_stop=float(W[TSTOP_, 0]), kink_radius=float(kink), smooth=bool(kink >= min_radius),
         tf_radius=float(tf_radius))
+
+
+#: methods of ``sensitivities_arm1dof``
+SENSITIVITY_METHODS = ("exact", "central", "forward")
+
+
+def _finite_difference(params: Arm1DofParams, profile: CurrentProfile, q0: float,
+                       names: Sequence[str], method: str, rel_step: Optional[float],
+                       rest: bool) -> dict[str, np.ndarray]:
+    """∂(q_f, q̇_f[, q_rest])/∂p by central or forward differences with a relative step."""
+
+    def outputs(p: Arm1DofParams) -> np.ndarray:
+        q, v = final_state(p, profile, q0)
+        if rest:
+            return np.array([q, v, final_state(p, profile, q0, to_rest=True)[0]])
+        return np.array([q, v])
+
+    f0 = outputs(params) if method == "forward" else None
+    step = rel_step if rel_step is not None else (1e-3 if method == "forward" else 1e-6)
+    if not step > 0.0:
+        raise ParameterError(f"rel_step must be > 0, got {step}")
+    out = {}
+    for name in names:
+        pval = float(getattr(params, name))
+        h = step * (abs(pval) if pval != 0.0 else 1.0)
+        fp = outputs(params.replace(**{name: pval + h}))
+        if f0 is not None:
+            d = (fp - f0) / h
+        else:
+            fm = outputs(params.replace(**{name: pval - h}))
+            d = (fp - fm) / (2.0 * h)
+        out[name] = d
+    return out
+
+
+def sensitivities_arm1dof(params: Arm1DofParams, profile: CurrentProfile,
+                          q0: float | Sequence[float], names: Sequence[str] = FRICTION,
+                          method: str = "exact", rel_step: Optional[float] = None, *,
+                          rest: bool = False) -> dict[str, float]:
+    """∂q(tf)/∂p (key "pc"), ∂q̇(tf)/∂p ("qd/pc") and with ``rest`` the derivative of the rest
+    position after tf ("qrest/pc"), in rad or rad/s per unit of p, from rest at ``q0`` (rad).
+
+    method "exact": forward mode through the event times (``derivatives``); "central" /
+    "forward": finite differences with relative step ``rel_step`` (default 1e-6 / 1e-3).
+    """
+    qa = np.atleast_1d(np.asarray(q0, dtype=float))
+    if qa.shape != (1,) or not np.isfinite(qa[0]):
+        raise ParameterError(f"q0 needs 1 finite value for model 'arm1dof', got {qa.tolist()}")
+    if method not in SENSITIVITY_METHODS:
+        raise ParameterError(f"unknown method {method!r}; use one of "
+                             f"{', '.join(SENSITIVITY_METHODS)}")
+    if profile.n_joints != 1:
+        raise PlanningError(f"profile has {profile.n_joints} current column(s); model "
+                            "'arm1dof' needs 1")
+    profile.validate()
+    q = float(qa[0])
+    out: dict[str, float] = {}
+    if method == "exact":
+        d = derivatives(params, profile, q, uncertain=names)
+        for n in names:
+            out[n] = d.dq_dp[n]
+            out[f"qd/{n}"] = d.dqd_dp[n]
+        if rest:
+            dr = derivatives(params, profile, q, uncertain=names, to_rest=True)
+            for n in names:
+                out[f"qrest/{n}"] = dr.dq_dp[n]
+        return out
+    fd = _finite_difference(params, profile, q, names, method, rel_step, rest)
+    for n, dd in fd.items():
+        out[n] = float(dd[0])
+        out[f"qd/{n}"] = float(dd[1])
+        if rest:
+            out[f"qrest/{n}"] = float(dd[2])
+    return out

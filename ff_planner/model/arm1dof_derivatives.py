@@ -10,7 +10,8 @@ optimiser needs: the sensitivities ∂q/∂p and their Jacobian w.r.t. the curre
 (velocity zero crossings) are computed in closed form and carry their derivatives, so nothing is
 finite-differenced. Row layout (length L = 4 + 4N): [value, d/dpv, d/dpc, d/dpt, d/dI_0..,
 d²/dpv dI_0.., d²/dpc dI_0.., d²/dpt dI_0..]. Rows live in a preallocated workspace W (no
-allocation inside the compiled loop).
+allocation inside the compiled loop); their arithmetic is ``ff_planner.model.taylor``, the
+friction law on them ``friction.sliding_level_series``.
 
 The model is non-smooth where a velocity zero crossing meets a current switch, or where a joint at
 rest is exactly at breakaway. ``hd_sim`` returns the *kink radius*: a first-order estimate of the
@@ -24,18 +25,14 @@ import math
 import numpy as np
 from numba import njit
 
+from ff_planner.model.friction import breakaway_excess, exceeds_stiction, sliding_level_series
 from ff_planner.model.series1d import phi12, psi
+from ff_planner.model.taylor import NP, row_const, row_copy, row_len, row_lin, row_mul, row_uni
 
 # workspace rows
 A_, PC_, PT_, T_, ABST_, F_, B_, TIME_, Q_, V_, TAU_, Z_, P1_, P2_, EZ_, E1_, E2_ = range(17)
 TMP1_, TMP2_, TMP3_, RB_, X_, TSTOP_, VC_ = range(17, 24)
 N_ROWS = 24
-NP = 3   # friction parameters pv, pc, pt
-
-
-def row_len(n: int) -> int:
-    """Length of one Taylor row for N step currents."""
-    return 4 + 4 * n
 
 
 def workspace(n: int) -> np.ndarray:
@@ -43,80 +40,26 @@ def workspace(n: int) -> np.ndarray:
     return np.zeros((N_ROWS, row_len(n)))
 
 
-@njit("void(float64[:, ::1], int64, float64)", cache=True, nogil=True)
-def _const(W, o, val):
-    for k in range(W.shape[1]):
-        W[o, k] = 0.0
-    W[o, 0] = val
-
-
-@njit("void(float64[:, ::1], int64, int64)", cache=True, nogil=True)
-def _copy(W, o, x):
-    for k in range(W.shape[1]):
-        W[o, k] = W[x, k]
-
-
-@njit("void(float64[:, ::1], int64, int64, int64, float64, float64, float64)",
-      cache=True, nogil=True)
-def _lin(W, o, x, y, al, be, ga):
-    """o = al·x + be·y + ga."""
-    for k in range(W.shape[1]):
-        W[o, k] = al * W[x, k] + be * W[y, k]
-    W[o, 0] += ga
-
-
-@njit("void(float64[:, ::1], int64, int64, int64, int64)", cache=True, nogil=True)
-def _mul(W, o, x, y, n):
-    """o = x·y (o may alias x or y)."""
-    x0 = W[x, 0]
-    y0 = W[y, 0]
-    base = 4 + n
-    for i in range(NP):
-        xa = W[x, 1 + i]
-        ya = W[y, 1 + i]
-        for j in range(n):
-            k = base + i * n + j
-            W[o, k] = x0 * W[y, k] + y0 * W[x, k] + xa * W[y, 4 + j] + W[x, 4 + j] * ya
-    for k in range(1, 4 + n):
-        W[o, k] = x0 * W[y, k] + y0 * W[x, k]
-    W[o, 0] = x0 * y0
-
-
-@njit("void(float64[:, ::1], int64, int64, float64, float64, float64, int64)",
-      cache=True, nogil=True)
-def _uni(W, o, x, g0, g1, g2, n):
-    """o = g(x) given g, g', g'' at x's value (o may alias x)."""
-    base = 4 + n
-    for i in range(NP):
-        xa = W[x, 1 + i]
-        for j in range(n):
-            k = base + i * n + j
-            W[o, k] = g1 * W[x, k] + g2 * xa * W[x, 4 + j]
-    for k in range(1, 4 + n):
-        W[o, k] = g1 * W[x, k]
-    W[o, 0] = g0
-
-
 @njit("void(float64[:, ::1], int64)", cache=True, nogil=True)
 def _free(W, n):
     """(Q, V) ← state after TAU of v' = A·v + B."""
-    _mul(W, Z_, A_, TAU_, n)
+    row_mul(W, Z_, A_, TAU_, n)
     z = W[Z_, 0]
     f1, f1p, f1pp, f2, f2p, f2pp = phi12(z)
     ez = math.exp(z)
-    _uni(W, P1_, Z_, f1, f1p, f1pp, n)
-    _uni(W, P2_, Z_, f2, f2p, f2pp, n)
-    _uni(W, EZ_, Z_, ez, ez, ez, n)
-    _mul(W, E1_, TAU_, P1_, n)
-    _mul(W, E2_, TAU_, TAU_, n)
-    _mul(W, E2_, E2_, P2_, n)
-    _mul(W, TMP1_, V_, E1_, n)
-    _mul(W, TMP2_, B_, E2_, n)
-    _mul(W, TMP3_, V_, EZ_, n)
-    _lin(W, Q_, Q_, TMP1_, 1.0, 1.0, 0.0)
-    _lin(W, Q_, Q_, TMP2_, 1.0, 1.0, 0.0)
-    _mul(W, V_, B_, E1_, n)
-    _lin(W, V_, V_, TMP3_, 1.0, 1.0, 0.0)
+    row_uni(W, P1_, Z_, f1, f1p, f1pp, n)
+    row_uni(W, P2_, Z_, f2, f2p, f2pp, n)
+    row_uni(W, EZ_, Z_, ez, ez, ez, n)
+    row_mul(W, E1_, TAU_, P1_, n)
+    row_mul(W, E2_, TAU_, TAU_, n)
+    row_mul(W, E2_, E2_, P2_, n)
+    row_mul(W, TMP1_, V_, E1_, n)
+    row_mul(W, TMP2_, B_, E2_, n)
+    row_mul(W, TMP3_, V_, EZ_, n)
+    row_lin(W, Q_, Q_, TMP1_, 1.0, 1.0, 0.0)
+    row_lin(W, Q_, Q_, TMP2_, 1.0, 1.0, 0.0)
+    row_mul(W, V_, B_, E1_, n)
+    row_lin(W, V_, V_, TMP3_, 1.0, 1.0, 0.0)
 
 
 @njit("float64(float64[:, ::1], int64)", cache=True, nogil=True)
@@ -130,13 +73,13 @@ def _cross_tau(W, n):
     z = W[A_, 0] * x
     if z <= -1.0:
         return math.inf
-    _uni(W, RB_, B_, 1.0 / b, -1.0 / (b * b), 2.0 / (b * b * b), n)
-    _mul(W, X_, V_, RB_, n)
-    _mul(W, Z_, A_, X_, n)
+    row_uni(W, RB_, B_, 1.0 / b, -1.0 / (b * b), 2.0 / (b * b * b), n)
+    row_mul(W, X_, V_, RB_, n)
+    row_mul(W, Z_, A_, X_, n)
     g, gp, gpp = psi(W[Z_, 0])
-    _uni(W, TAU_, Z_, g, gp, gpp, n)
-    _mul(W, TAU_, TAU_, X_, n)
-    _lin(W, TAU_, TAU_, TAU_, -1.0, 0.0, 0.0)
+    row_uni(W, TAU_, Z_, g, gp, gpp, n)
+    row_mul(W, TAU_, TAU_, X_, n)
+    row_lin(W, TAU_, TAU_, TAU_, -1.0, 0.0, 0.0)
     return W[TAU_, 0]
 
 
@@ -162,62 +105,58 @@ def _phase(W, n, j, c, J, torque, t_start, t_end, pw, kink, rest_phase, track_en
     j: index of the step current (−1: zero current). track_end: count a zero crossing near
     t_end (or motion at t_end) as a kink. Returns the updated kink radius.
     """
-    _const(W, T_, torque)
+    row_const(W, T_, torque)
     if j >= 0:
         W[T_, 4 + j] = c
-    sg = 1.0 if torque > 0.0 else (-1.0 if torque < 0.0 else 0.0)
-    _lin(W, ABST_, T_, T_, sg, 0.0, 0.0)
-    _mul(W, F_, PT_, ABST_, n)
-    _lin(W, F_, F_, PC_, 1.0, 1.0, 0.0)
+    sliding_level_series(W, F_, T_, PC_, PT_, ABST_, n)   # F = pc + pt·|T| (Eq. 9)
     fric = W[F_, 0]
-    gap = abs(torque) - fric                       # > 0: a joint at rest breaks away
+    gap = breakaway_excess(torque, fric)           # > 0: a joint at rest breaks away
+    breaks = exceeds_stiction(torque, fric)
     gscale = max(abs(pw[1]), abs(pw[2]) * abs(torque))
-    reversed_ = False
     while W[TIME_, 0] < t_end:
         if W[V_, 0] == 0.0:
             if gscale > 0.0:
                 kink = min(kink, abs(gap) / gscale)
-            if not gap > 0.0:
-                _const(W, TIME_, t_end)            # stuck: q constant until the phase end
+            if not breaks:
+                row_const(W, TIME_, t_end)            # stuck: q constant until the phase end
                 return kink
             s = 1.0 if torque > 0.0 else -1.0
-            _const(W, TSTOP_, math.inf)
+            row_const(W, TSTOP_, math.inf)
         else:
             s = 1.0 if W[V_, 0] > 0.0 else -1.0
-        _lin(W, B_, T_, F_, 1.0 / J, -s / J, 0.0)   # B = (T − s·F)/J
+        row_lin(W, B_, T_, F_, 1.0 / J, -s / J, 0.0)   # B = (T − s·F)/J
         t_now = W[TIME_, 0]
         at_switch = t_now == t_start
         tau = _cross_tau(W, n)
         if t_now + tau < t_end:
             # velocity zero crossing inside the phase: how far from the switch times?
             if track_end and not math.isinf(t_end):
-                _lin(W, TMP1_, TIME_, TAU_, 1.0, 1.0, 0.0)
+                row_lin(W, TMP1_, TIME_, TAU_, 1.0, 1.0, 0.0)
                 kink = min(kink, _radius_of(W, TMP1_, pw, t_end - (t_now + tau)))
             if at_switch:
                 kink = min(kink, _radius_of(W, TAU_, pw, tau))
             _free(W, n)
-            _lin(W, TIME_, TIME_, TAU_, 1.0, 1.0, 0.0)
-            _const(W, V_, 0.0)
+            row_lin(W, TIME_, TIME_, TAU_, 1.0, 1.0, 0.0)
+            row_const(W, V_, 0.0)
             if rest_phase:
-                _copy(W, TSTOP_, TIME_)
-                _const(W, TIME_, t_end)
+                row_copy(W, TSTOP_, TIME_)
+                row_const(W, TIME_, t_end)
                 return kink
             if gscale > 0.0:
                 kink = min(kink, abs(gap) / gscale)
-            if not gap > 0.0 or torque * s >= 0.0:
-                _copy(W, TSTOP_, TIME_)            # sticks until the phase end
-                _const(W, TIME_, t_end)
+            if not breaks or torque * s >= 0.0:
+                row_copy(W, TSTOP_, TIME_)            # sticks until the phase end
+                row_const(W, TIME_, t_end)
                 return kink
-            reversed_ = True                       # moves on the other way
-            continue
+            continue                               # moves on the other way
         if math.isinf(t_end):                      # never stops: signal with nan
-            _const(W, Q_, math.nan)
-            _const(W, V_, math.nan)
-            _const(W, TIME_, t_end)
+            row_const(W, Q_, math.nan)
+            row_const(W, V_, math.nan)
+            row_const(W, TIME_, t_end)
             return kink
-        _lin(W, TAU_, TIME_, TIME_, -1.0, 0.0, t_end)
+        row_lin(W, TAU_, TIME_, TIME_, -1.0, 0.0, t_end)
         _free(W, n)
-        _const(W, TIME_, t_end)
+        row_const(W, TIME_, t_end)
         if track_end:
             # moving at the switch: a nearby zero crossing would sit on the switch time
             kink = min(kink, _radius_of(W, V_, pw, W[V_, 0]))
@@ -239,20 +178,20 @@ def hd_sim(J, c, pv, pc, pt, times, cur, tf, q0, to_rest, pw, W):
     the rest position is smooth through it). inf: none nearby.
     """
     n = cur.shape[0]
-    _const(W, A_, -pv / J)
+    row_const(W, A_, -pv / J)
     W[A_, 1] = -1.0 / J
-    _const(W, PC_, pc)
+    row_const(W, PC_, pc)
     W[PC_, 2] = 1.0
-    _const(W, PT_, pt)
+    row_const(W, PT_, pt)
     W[PT_, 3] = 1.0
-    _const(W, TIME_, times[0])
-    _const(W, Q_, q0)
-    _const(W, V_, 0.0)
-    _const(W, TSTOP_, times[0])
+    row_const(W, TIME_, times[0])
+    row_const(W, Q_, q0)
+    row_const(W, V_, 0.0)
+    row_const(W, TSTOP_, times[0])
     kink = math.inf
     for j in range(n):
         kink = _phase(W, n, j, c, J, c * cur[j], times[j], times[j + 1], pw, kink, False, True)
-    _copy(W, VC_, V_)
+    row_copy(W, VC_, V_)
     tf_radius = math.inf
     if to_rest:
         kink = _phase(W, n, -1, c, J, 0.0, times[n], math.inf, pw, kink, True, True)

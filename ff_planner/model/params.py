@@ -17,8 +17,16 @@ from ff_planner.core.errors import ParameterError
 
 @dataclass(frozen=True)
 class _ParamsBase:
+    """Parameters of one model: ``model`` is its id, ``n_joints`` its number of joints."""
+
     model: ClassVar[str] = ""
+    n_joints: ClassVar[int] = 0
     friction_keys: ClassVar[tuple[str, ...]] = ()
+    #: friction keys a plan treats as uncertain unless a request names its own
+    default_uncertain: ClassVar[tuple[str, ...]] = ()
+    #: s, largest fixed step of the model's ``advance`` that the simulated drive can use without
+    #: integration error (the 1-DOF plant is solved in closed form; the SCARA one integrates)
+    plant_step: ClassVar[float] = 1e-4
 
     @classmethod
     def keys(cls) -> tuple[str, ...]:
@@ -81,7 +89,10 @@ class Arm1DofParams(_ParamsBase):
     """1-DOF arm in the horizontal plane (paper table 2 by default)."""
 
     model: ClassVar[str] = "arm1dof"
+    n_joints: ClassVar[int] = 1
     friction_keys: ClassVar[tuple[str, ...]] = ("pv", "pc", "pt")
+    default_uncertain: ClassVar[tuple[str, ...]] = ("pv", "pc", "pt")
+    plant_step: ClassVar[float] = 1e-3
 
     J: float = 0.17        # kg·m², inertia about the joint (all inertia combined)
     kt: float = 0.0267     # Nm/A, motor torque constant
@@ -112,7 +123,10 @@ class Scara2Params(_ParamsBase):
     """
 
     model: ClassVar[str] = "scara2"
+    n_joints: ClassVar[int] = 2
     friction_keys: ClassVar[tuple[str, ...]] = ("pv1", "pc1", "pt1", "pv2", "pc2", "pt2")
+    default_uncertain: ClassVar[tuple[str, ...]] = ("pc1", "pc2")
+    plant_step: ClassVar[float] = 1e-4
 
     pv1: float = -0.05     # Nm·s/rad
     pv2: float = -0.14     # Nm·s/rad
@@ -144,7 +158,8 @@ class Scara2Params(_ParamsBase):
 
 Params = Union[Arm1DofParams, Scara2Params]
 
-MODELS: dict[str, type] = {"arm1dof": Arm1DofParams, "scara2": Scara2Params}
+#: model id → its parameter class
+MODELS: dict[str, type[_ParamsBase]] = {cls.model: cls for cls in (Arm1DofParams, Scara2Params)}
 
 #: Named parameter sets from the paper.
 PRESETS: dict[str, Params] = {
@@ -157,7 +172,7 @@ DEFAULT_PRESET: dict[str, str] = {"arm1dof": "table2", "scara2": "table3"}
 
 def n_joints(model: str) -> int:
     """Number of joints of a model id."""
-    return {"arm1dof": 1, "scara2": 2}[check_model(model)]
+    return MODELS[check_model(model)].n_joints
 
 
 def check_model(model: str) -> str:

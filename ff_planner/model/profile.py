@@ -120,9 +120,9 @@ class PlanRequest:
                 raise PlanningError(f"{name} needs {nj} value(s) for model '{self.model}', got {len(v)}")
             if not all(math.isfinite(float(x)) for x in v):
                 raise PlanningError(f"{name} must be finite, got {list(v)}")
-        for name, v in (("tf", self.tf), ("coast", self.coast), ("time_budget", self.time_budget)):
-            if not math.isfinite(float(v)):
-                raise PlanningError(f"{name} must be finite, got {v}")
+        for name, x in (("tf", self.tf), ("coast", self.coast), ("time_budget", self.time_budget)):
+            if not math.isfinite(float(x)):
+                raise PlanningError(f"{name} must be finite, got {x}")
         if self.coast < 0:
             raise PlanningError(f"coast must be >= 0 s, got {self.coast}")
         if self.tf <= self.coast:
@@ -132,7 +132,7 @@ class PlanRequest:
         bad = [u for u in self.uncertain if u not in p.friction_keys]
         if bad:
             raise ParameterError(f"unknown uncertain parameter(s) {bad} for model '{self.model}'; "
-                                 f"choose from {', '.join(p.friction_keys)}")
+                                 f"choose from {', '.join(p.friction_keys)}", code="UNKNOWN_PARAMETER")
         if len(set(self.uncertain)) != len(self.uncertain):
             raise PlanningError(f"uncertain parameters repeat: {list(self.uncertain)}")
         n = self.n_steps()

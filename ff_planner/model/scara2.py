@@ -9,13 +9,13 @@ s = sin(q1 − q2):
     [ B·c   C   ] [q̈2] + [ −B·s·q̇1² ] = [T2 − F2]        B = m2·l1·lc2
                                                           C = Jc2 + m2·lc2²
 
-T_j = n_j·kt_j·I_j (Nm) and F_j is Eq. 9 friction on the ABSOLUTE velocity q̇_j; no friction acts
-between the links. Sliding: F_j = pv_j·q̇_j + sign(q̇_j)·(pc_j + pt_j·|T_j|). Sticking (q̇_j = 0):
-F_j is whatever torque keeps q̈_j = 0 — the *holding torque* H_j, computed from the dynamics with
-the other joint moving (the coupling reaction included) — and the joint stays stuck while
-|H_j| ≤ L_j = pc_j + pt_j·|T_j|. So in Eq. 9's min(pc + pt|T|, |T|)·sign(T), the |T| inside
-pt·|T| is the joint's own motor torque and the torque to be balanced is H_j; for one joint alone
-H = T and this is exactly Eq. 9.
+T_j = n_j·kt_j·I_j (Nm) and F_j is Eq. 9 friction (``ff_planner.model.friction``) on the
+ABSOLUTE velocity q̇_j; no friction acts between the links. Sliding: F_j = pv_j·q̇_j +
+sign(q̇_j)·(pc_j + pt_j·|T_j|). Sticking (q̇_j = 0): F_j is whatever torque keeps q̈_j = 0 —
+the *holding torque* H_j, computed from the dynamics with the other joint moving (the coupling
+reaction included) — and the joint stays stuck while |H_j| ≤ L_j = pc_j + pt_j·|T_j|. So in
+Eq. 9's min(pc + pt|T|, |T|)·sign(T), the |T| inside pt·|T| is the joint's own motor torque and
+the torque to be balanced is H_j; for one joint alone H = T and this is exactly Eq. 9.
 
 Simulation: classical RK4 on a grid that contains every current switch (default substep 1 ms),
 restarted exactly at every event: a sliding joint's velocity reaching zero (it then sticks or
@@ -38,17 +38,25 @@ from dataclasses import dataclass
 from typing import Optional, Sequence
 
 import numpy as np
+from numba import njit
+from numpy.typing import ArrayLike
 
 from ff_planner.core.results import SimResult
-from numba import njit
-
+from ff_planner.model.friction import (
+    exceeds_stiction,
+    friction_torque,
+    sliding_friction,
+    sliding_level,
+    stiction_margin,
+)
 from ff_planner.model.params import ParameterError, Scara2Params
 from ff_planner.model.profile import CurrentProfile, PlanningError
 
 __all__ = [
     "FRICTION_NAMES", "inertia_constants", "mass_matrix", "forward_dynamics", "Scara2Sim",
     "simulate_scara2", "rest_position_scara2", "advance", "sensitivities_scara2",
-    "sensitivity_keys", "held_joint1_inertia", "DEFAULT_H",
+    "sensitivity_keys", "held_joint1_inertia", "DEFAULT_H", "simulate_detail",
+    "current_sensitivities_scara2",
 ]
 
 FRICTION_NAMES = ("pv1", "pc1", "pt1", "pv2", "pc2", "pt2")
@@ -58,6 +66,7 @@ _CS_STEP = 1e-30          # complex-step size (relative to the parameter value)
 
 # layout of the packed parameter vector P (complex128)
 _PV1, _PV2, _PC1, _PC2, _PT1, _PT2, _A, _B, _C, _K1, _K2 = range(11)
+_P_INDEX = {"pv1": _PV1, "pv2": _PV2, "pc1": _PC1, "pc2": _PC2, "pt1": _PT1, "pt2": _PT2}
 
 
 # ----------------------------------------------------------------------------------------------
@@ -89,19 +98,13 @@ def _pack(p: Scara2Params, overrides: Optional[dict] = None) -> np.ndarray:
     P = np.array([p.pv1, p.pv2, p.pc1, p.pc2, p.pt1, p.pt2, A, B, C,
                   p.n1 * p.kt1, p.n2 * p.kt2], dtype=np.complex128)
     if overrides:
-        idx = {"pv1": _PV1, "pv2": _PV2, "pc1": _PC1, "pc2": _PC2, "pt1": _PT1, "pt2": _PT2}
         for k, v in overrides.items():
-            P[idx[k]] = v
+            P[_P_INDEX[k]] = v
     return P
 
 
 # ----------------------------------------------------------------------------------------------
 # compiled core (complex128 throughout; branch decisions on real parts)
-
-
-@njit(cache=True)
-def _cabs(x):
-    return x if x.real >= 0.0 else -x
 
 
 @njit(cache=True)
@@ -114,8 +117,8 @@ def _accel(y, T1, T2, s1, s2, st1, st2, P):
     """
     pv1 = P[0]; pv2 = P[1]; pc1 = P[2]; pc2 = P[3]; pt1 = P[4]; pt2 = P[5]
     A = P[6]; B = P[7]; C = P[8]
-    L1 = pc1 + pt1 * _cabs(T1)
-    L2 = pc2 + pt2 * _cabs(T2)
+    L1 = sliding_level(T1, pc1, pt1)
+    L2 = sliding_level(T2, pc2, pt2)
     d = y[0] - y[1]
     c = np.cos(d)
     s = np.sin(d)
@@ -123,8 +126,8 @@ def _accel(y, T1, T2, s1, s2, st1, st2, P):
     qd2 = y[3]
     zero = 0.0 * T1
     if (not st1) and (not st2):
-        F1 = pv1 * qd1 + s1 * L1
-        F2 = pv2 * qd2 + s2 * L2
+        F1 = sliding_friction(qd1, s1, T1, pv1, pc1, pt1)
+        F2 = sliding_friction(qd2, s2, T2, pv2, pc2, pt2)
         r1 = T1 - F1 - B * s * qd2 * qd2
         r2 = T2 - F2 + B * s * qd1 * qd1
         det = A * C - B * B * c * c
@@ -132,12 +135,12 @@ def _accel(y, T1, T2, s1, s2, st1, st2, P):
         a2 = (A * r2 - B * c * r1) / det
         return a1, a2, zero, zero, L1, L2
     elif st2 and (not st1):
-        F1 = pv1 * qd1 + s1 * L1
+        F1 = sliding_friction(qd1, s1, T1, pv1, pc1, pt1)
         a1 = (T1 - F1 - B * s * qd2 * qd2) / A
         H2 = T2 - B * c * a1 + B * s * qd1 * qd1
         return a1, zero, zero, H2, L1, L2
     elif st1 and (not st2):
-        F2 = pv2 * qd2 + s2 * L2
+        F2 = sliding_friction(qd2, s2, T2, pv2, pc2, pt2)
         a2 = (T2 - F2 + B * s * qd1 * qd1) / C
         H1 = T1 - B * c * a2 - B * s * qd2 * qd2
         return zero, a2, H1, zero, L1, L2
@@ -182,8 +185,8 @@ def _event_g(kind, j, sgn, y, T1, T2, s1, s2, st1, st2, P):
         return sgn * y[2 + j]
     a1, a2, H1, H2, L1, L2 = _accel(y, T1, T2, s1, s2, st1, st2, P)
     if j == 0:
-        return L1 - sgn * H1
-    return L2 - sgn * H2
+        return stiction_margin(H1, L1, sgn)
+    return stiction_margin(H2, L2, sgn)
 
 
 @njit(cache=True)
@@ -200,7 +203,7 @@ def _locate(kind, j, sgn, y, dt, T1, T2, s1, s2, st1, st2, P):
     ghi = g_hi.real
     side = 0
     th = 1.0
-    for it in range(200):
+    for _it in range(200):
         if ghi == glo:
             th = 0.5 * (lo + hi)
         else:
@@ -238,7 +241,7 @@ def _locate(kind, j, sgn, y, dt, T1, T2, s1, s2, st1, st2, P):
     slope = (ga - gb) / (2.0 * dl)
     x1 = x
     if slope != 0.0:
-        for it in range(3):
+        for _it in range(3):
             g = _event_g(kind, j, sgn, _rk4(y, x1 * dt, T1, T2, s1, s2, st1, st2, P),
                          T1, T2, s1, s2, st1, st2, P)
             x1 = x1 - g / slope
@@ -278,12 +281,12 @@ def _select_mode(y, T1, T2, zero1, zero2, st1, st2, s1, s2, P):
             ok = True
             if zero1:
                 if c_st1:
-                    ok = ok and (abs(H1.real) <= L1.real)
+                    ok = ok and not exceeds_stiction(H1, L1)
                 else:
                     ok = ok and (c_s1 * a1.real > 0.0)
             if zero2:
                 if c_st2:
-                    ok = ok and (abs(H2.real) <= L2.real)
+                    ok = ok and not exceeds_stiction(H2, L2)
                 else:
                     ok = ok and (c_s2 * a2.real > 0.0)
             if ok:
@@ -356,7 +359,7 @@ def _segment(y, t, t_end, T1, T2, st, sd, P, h, rec, rec_t, rec_y, rec_i, nrec, 
                     a1, a2, H1, H2, L1, L2 = _accel(y1, T1, T2, sd[0], sd[1], st[0], st[1], P)
                     H = H1 if j == 0 else H2
                     L = L1 if j == 0 else L2
-                    if abs(H.real) > L.real:
+                    if exceeds_stiction(H, L):
                         sg = 1.0 if H.real > 0.0 else -1.0
                         th = _locate(1, j, sg, y, dt, T1, T2, sd[0], sd[1], st[0], st[1], P)
                         if th.real < best:
@@ -497,7 +500,8 @@ class Scara2Sim:
     q: Optional[np.ndarray] = None
     qd: Optional[np.ndarray] = None
     current: Optional[np.ndarray] = None
-    event_kind: Optional[np.ndarray] = None   # per record: 0 grid; 10+j stick, 20+j reverse, 30+j breakaway of joint j (0-based)
+    # per record: 0 grid; 10+j stick, 20+j reverse, 30+j breakaway of joint j (0-based)
+    event_kind: Optional[np.ndarray] = None
 
 
 def _check_inputs(params, profile: CurrentProfile, q0, qd0):
@@ -555,6 +559,16 @@ def simulate_scara2(params: Scara2Params, profile: CurrentProfile, q0: Sequence[
     return _to_simresult(sim, profile)
 
 
+def simulate_detail(params: Scara2Params, profile: CurrentProfile, q0: Sequence[float],
+                    qd0: Optional[Sequence[float]] = None, *, trajectory: bool = False,
+                    h: float = DEFAULT_H, settle: bool = False) -> Scara2Sim:
+    """The full 2-DOF result (Scara2Sim): final state, which joints stick at tf, the number of
+    stick/slip events, with ``settle`` the rest position and time, with ``trajectory`` every
+    substep and event (``event_kind``). h: RK4 substep (s)."""
+    q0, qd0 = _check_inputs(params, profile, q0, qd0)
+    return _simulate_raw(params, profile, q0, qd0, trajectory, h=h, settle=settle)
+
+
 def _simulate_raw(params, profile, q0, qd0, trajectory=False, *, h=DEFAULT_H, settle=False,
                   overrides=None) -> Scara2Sim:
     P = _pack(params, overrides)
@@ -563,7 +577,7 @@ def _simulate_raw(params, profile, q0, qd0, trajectory=False, *, h=DEFAULT_H, se
         P, profile, y0, h, record=trajectory, settle=settle)
     if err == 1:
         raise PlanningError(f"scara2 simulation chattered: more than {_MAX_EVENTS} stick/slip "
-                            "events; use smaller currents or a finer substep", "INTERNAL")
+                            "events; use smaller currents or a finer substep", "INTERNAL_ERROR")
     out = Scara2Sim(q_f=y_tf[:2].real.copy(), qd_f=y_tf[2:].real.copy(),
                     stuck_tf=(bool(stf[0]), bool(stf[1])), n_events=int(nev))
     if settle:
@@ -600,7 +614,7 @@ def rest_position_scara2(params: Scara2Params, profile: CurrentProfile, q0: Sequ
     still moving 5 s after tf."""
     q0, qd0 = _check_inputs(params, profile, q0, qd0)
     sim = _simulate_raw(params, profile, q0, qd0, settle=True, h=h)
-    if not math.isfinite(sim.t_rest):
+    if sim.q_rest is None or sim.t_rest is None or not math.isfinite(sim.t_rest):
         return np.full(2, np.nan)
     return sim.q_rest
 
@@ -633,7 +647,7 @@ def sensitivity_keys(names: Sequence[str] = FRICTION_NAMES, rate: bool = False) 
     return out
 
 
-def sensitivities_scara2(params: Scara2Params, profile: CurrentProfile, q0: Sequence[float],
+def sensitivities_scara2(params: Scara2Params, profile: CurrentProfile, q0: ArrayLike,
                          names: Sequence[str] = FRICTION_NAMES, method: str = "complex",
                          rel_step: Optional[float] = None, *, h: float = DEFAULT_H,
                          rest: bool = False) -> dict[str, float]:
@@ -655,20 +669,19 @@ def sensitivities_scara2(params: Scara2Params, profile: CurrentProfile, q0: Sequ
     def outputs(P):
         r = _run(P, profile, y0, h, settle=rest)
         if r[-1] == 1:
-            raise PlanningError("simulation chattered while computing sensitivities", "INTERNAL")
+            raise PlanningError("simulation chattered while computing sensitivities", "INTERNAL_ERROR")
         vals = list(r[0])
         if rest:
             vals += list(r[1][:2])
         return np.array(vals)
 
     base = _pack(params)
-    idx = {"pv1": _PV1, "pv2": _PV2, "pc1": _PC1, "pc2": _PC2, "pt1": _PT1, "pt2": _PT2}
     method = {"exact": "complex"}.get(method, method)
     if method not in ("complex", "central", "forward"):
         raise ParameterError(f"unknown method {method!r}; use complex, central or forward")
     f0 = outputs(base).real if method == "forward" else None
     for n in names:
-        i = idx[n]
+        i = _P_INDEX[n]
         pval = base[i].real
         scale = abs(pval) if pval != 0.0 else 1.0
         if method == "complex":
@@ -692,6 +705,27 @@ def sensitivities_scara2(params: Scara2Params, profile: CurrentProfile, q0: Sequ
     return out
 
 
+def current_sensitivities_scara2(params: Scara2Params, profile: CurrentProfile,
+                                 q0: Sequence[float], *, h: float = DEFAULT_H) -> np.ndarray:
+    """∂(q1, q2, q̇1, q̇2)(tf)/∂I for every step current, (N, 2, 4): entry [k, j] is the
+    derivative w.r.t. motor j's current in step k (rad/A, rad/s/A), by complex step through the
+    event-aware integrator (from rest at q0)."""
+    q0, qd0 = _check_inputs(params, profile, q0, None)
+    base = _pack(params)
+    y0 = np.concatenate([q0, qd0]).astype(np.complex128)
+    out = np.zeros((profile.n_steps, 2, 4))
+    for k in range(profile.n_steps):
+        for j in range(2):
+            cur = profile.currents.astype(np.complex128)
+            cur[k, j] += 1j * _CS_STEP
+            r = _run(base, profile, y0, h, currents=cur)
+            if r[-1] == 1:
+                raise PlanningError("simulation chattered while computing sensitivities",
+                                    "INTERNAL_ERROR")
+            out[k, j] = r[0].imag / _CS_STEP
+    return out
+
+
 def forward_dynamics(params: Scara2Params, q: Sequence[float], qd: Sequence[float],
                      currents: Sequence[float]) -> np.ndarray:
     """Accelerations (rad/s²) with both joints sliding in the direction of their velocity
@@ -701,8 +735,8 @@ def forward_dynamics(params: Scara2Params, q: Sequence[float], qd: Sequence[floa
     w1, w2 = qd
     T1 = params.n1 * params.kt1 * currents[0]
     T2 = params.n2 * params.kt2 * currents[1]
-    F1 = params.pv1 * w1 + math.copysign(params.pc1 + params.pt1 * abs(T1), w1)
-    F2 = params.pv2 * w2 + math.copysign(params.pc2 + params.pt2 * abs(T2), w2)
+    F1 = friction_torque(w1, T1, params.pv1, params.pc1, params.pt1)
+    F2 = friction_torque(w2, T2, params.pv2, params.pc2, params.pt2)
     c, s = math.cos(q1 - q2), math.sin(q1 - q2)
     M = np.array([[A, B * c], [B * c, C]])
     rhs = np.array([T1 - F1 - B * s * w2 ** 2, T2 - F2 + B * s * w1 ** 2])

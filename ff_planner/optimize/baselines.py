@@ -34,6 +34,7 @@ from scipy.optimize import brentq
 
 from ff_planner.model.params import Arm1DofParams, Params
 from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
+from ff_planner.model.simulate import rest_position, simulate
 
 R_TERMINAL = 0.611   # Ω, maxon RE 30 60 W, 24 V winding (catalogue value), see module docstring
 DEFAULT_ENERGY_STEPS = 100
@@ -130,10 +131,7 @@ def finite_differences(params: Params, profile: CurrentProfile, q0: Sequence[flo
     scheme "central" (true derivative where it exists), "forward" or "backward" (one-sided;
     the paper's method is forward with rel_step = 1e-3). Units: rad (rad/s) per parameter unit.
     """
-    from ff_planner.model.simulate import simulate
-
-    q0 = np.asarray(q0, dtype=float)
-    base = simulate(params, profile, q0) if scheme != "central" else None
+    base = None if scheme == "central" else simulate(params, profile, q0)
     out: dict[str, tuple[np.ndarray, np.ndarray]] = {}
     for name in names:
         p0 = float(getattr(params, name))
@@ -143,7 +141,7 @@ def finite_differences(params: Params, profile: CurrentProfile, q0: Sequence[flo
             b = simulate(params.replace(**{name: p0 - h}), profile, q0)
             dq = (np.asarray(a.q_f) - np.asarray(b.q_f)) / (2 * h)
             dqd = (np.asarray(a.qd_f) - np.asarray(b.qd_f)) / (2 * h)
-        elif scheme in ("forward", "backward"):
+        elif scheme in ("forward", "backward") and base is not None:
             sgn = 1.0 if scheme == "forward" else -1.0
             a = simulate(params.replace(**{name: p0 + sgn * h}), profile, q0)
             dq = sgn * (np.asarray(a.q_f) - np.asarray(base.q_f)) / h
@@ -188,7 +186,6 @@ def _affine_final_state(p: Arm1DofParams, h: float, n: int, coast: float):
     (rad/s²) on n steps of h seconds, then coasting with c = −pc/J (forward motion)."""
     beta = p.pv / p.J
     p1, p2 = _phi(beta, h)
-    e = math.exp(-beta * h)
     cp1, cp2 = _phi(beta, coast)
     ce = math.exp(-beta * coast)
     # propagate each unit acceleration through the remaining steps (linear, v0 = 0)
@@ -206,7 +203,7 @@ def _affine_final_state(p: Arm1DofParams, h: float, n: int, coast: float):
     return M, m0
 
 
-def _box_least_norm(A: np.ndarray, b: np.ndarray, h: float, hi: float,
+def box_least_norm(A: np.ndarray, b: np.ndarray, h: float, hi: float,
                     max_iter: int = 100) -> Optional[np.ndarray]:
     """argmin h‖x‖² subject to A x = b, 0 ≤ x ≤ hi (A: m × n, m small), by its m-dimensional
     dual: x(λ) = clip(Aᵀλ / 2h, 0, hi) and a semismooth Newton step on A x(λ) = b with
@@ -256,7 +253,7 @@ def energy_optimal_1dof(p: Arm1DofParams, q0: float, qf: float, tf: float, coast
     # c_k = g (1-pt) I+_k − g (1+pt) I-_k − pc/J ; decision x = [I+, I-] >= 0
     A = np.hstack([M * g * (1.0 - p.pt), -M * g * (1.0 + p.pt)])
     b = np.array([abs(dist), 0.0]) - m0 - M @ np.full(n, -p.pc / p.J)
-    x = _box_least_norm(A, b, h, p.i_max)
+    x = box_least_norm(A, b, h, p.i_max)
     if x is None or np.max(np.abs(A @ x - b)) > 1e-9 * max(1.0, abs(dist)):
         raise PlanningError(f"energy-optimal solve failed: no current profile within ±I_max = "
                             f"{p.i_max} A reaches the goal at rest in tf = {tf} s", code="UNREACHABLE")
@@ -272,14 +269,12 @@ def plan_baseline(request: PlanRequest, progress: Progress = None, *,
     ``steps``: the energy-optimal grid (default 100 when the request leaves it unset); ignored by
     the time-optimal plan. Sensitivities are central differences of q(tf) for ``uncertain``.
     """
-    from ff_planner.model.simulate import rest_position, simulate
-
     t_start = time.perf_counter()
-    if request.model != "arm1dof":
+    p = request.resolved_params()
+    if request.model != "arm1dof" or not isinstance(p, Arm1DofParams):
         raise PlanningError(f"the {request.objective} baseline is implemented for arm1dof only "
                             f"(paper section 6.5); got model '{request.model}'",
                             code="INVALID_REQUEST")
-    p = request.resolved_params()
     q0, qf = float(request.q0[0]), float(request.qf[0])
     if request.objective == "time-optimal":
         bl = time_optimal_1dof(p, q0, qf, request.tf, request.coast, R)

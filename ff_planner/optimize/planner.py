@@ -1,20 +1,29 @@
-"""The planner facade: ``plan(request)`` validates, checks reachability, dispatches, labels.
+"""The planner facade: ``check(request)`` validates once, ``plan(request)`` dispatches and labels.
 
-Dispatch: robust-derivative / robust-sampled -> ``robust1d.plan_robust_1dof`` (arm1dof) or
-``robust2d.plan_robust_scara2`` (scara2); time-optimal / energy-optimal -> ``baselines``.
-Errors are ``PlanningError`` with the PlanTrajectory error name in ``.code``.
+``check`` does all validation (the request's fields, a planner for its model and objective, the
+reachability bound) and returns a ``CheckedRequest``; ``plan`` takes either a plain
+``PlanRequest`` (checked first) or a ``CheckedRequest`` (not checked again — e.g. one checked by
+the planner service and handed to a worker process). Dispatch (``ROUTES``): robust-derivative /
+robust-sampled -> ``robust1d.plan_robust_1dof`` (arm1dof) or ``robust2d.plan_robust_scara2``
+(scara2); time-optimal / energy-optimal -> ``baselines.plan_baseline`` (arm1dof). Errors are
+``PlanningError`` with the PlanTrajectory error name in ``.code``.
 """
 from __future__ import annotations
 
 import math
 import time
-from typing import Callable, Optional
+from dataclasses import dataclass
+from typing import Callable, Optional, Union
 
 import numpy as np
 
-from ff_planner.model.params import Arm1DofParams, ParameterError, Params, Scara2Params
-from ff_planner.model.profile import PlanningError, PlanRequest, PlanResult
+from ff_planner.core.errors import ParameterError, PlanningError, WarmStartUnavailable, error_code_of
+from ff_planner.model.params import Arm1DofParams, Params, Scara2Params
+from ff_planner.model.profile import PlanRequest, PlanResult
+from ff_planner.model.simulate import rest_position
 from ff_planner.optimize.baselines import plan_baseline, reach_1dof
+from ff_planner.optimize.robust1d import plan_robust_1dof
+from ff_planner.optimize.robust2d import plan_robust_scara2
 
 Progress = Optional[Callable[[dict], None]]
 
@@ -69,10 +78,8 @@ def reach(params: Params, tf: float, coast: float = 0.0) -> np.ndarray:
     raise PlanningError(f"no reachability bound for {type(params).__name__}", code="INVALID_REQUEST")
 
 
-def check_reachable(request: PlanRequest) -> np.ndarray:
-    """Raise PlanningError(code="UNREACHABLE") if the goal is beyond ``reach``; return the bound."""
-    p = request.resolved_params()
-    bound = reach(p, float(request.tf), float(request.coast))
+def _unreachable(request: PlanRequest, p: Params, bound: np.ndarray) -> None:
+    """Raise PlanningError(code="UNREACHABLE") if the goal is beyond ``bound`` (rad per joint)."""
     dist = np.abs(np.asarray(request.qf, dtype=float) - np.asarray(request.q0, dtype=float))
     for j, (d, r) in enumerate(zip(dist, bound)):
         if d > r:
@@ -82,81 +89,105 @@ def check_reachable(request: PlanRequest) -> np.ndarray:
                 f"goal unreachable:{joint} distance {d:.4g} rad, but with I_max = {lim:g} A no "
                 f"profile moves it more than {r:.4g} rad and back to rest in tf = {request.tf:g} s; "
                 f"raise tf, raise the current limit, or plan a shorter move", code="UNREACHABLE")
-    return bound
+
+
+# --- dispatch --------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Route:
+    """The inner planner of one (model, objective) and whether it takes ``initial_currents``."""
+
+    fn: Callable[..., PlanResult]    # fn(request, progress[, initial_currents=...]) -> PlanResult
+    warm_start: bool                 # takes initial_currents (A, N × joints)
+
+
+#: (model, objective) -> inner planner. The baselines exist for the 1-DOF arm only.
+ROUTES: dict[tuple[str, str], Route] = {
+    ("arm1dof", "robust-derivative"): Route(plan_robust_1dof, warm_start=True),
+    ("arm1dof", "robust-sampled"): Route(plan_robust_1dof, warm_start=True),
+    ("arm1dof", "time-optimal"): Route(plan_baseline, warm_start=False),
+    ("arm1dof", "energy-optimal"): Route(plan_baseline, warm_start=False),
+    ("scara2", "robust-derivative"): Route(plan_robust_scara2, warm_start=False),
+    ("scara2", "robust-sampled"): Route(plan_robust_scara2, warm_start=False),
+}
 
 
 # --- facade ----------------------------------------------------------------------------------
-def _validate(request: PlanRequest) -> None:
+@dataclass(frozen=True)
+class CheckedRequest:
+    """A request that passed ``check``: the request, its resolved parameters and the reach bound
+    (rad, per joint) its goal lies within. Picklable; ``plan`` does not check it again."""
+
+    request: PlanRequest
+    params: Params
+    reach: tuple[float, ...]
+
+
+def check(request: PlanRequest) -> CheckedRequest:
+    """Validate ``request`` (fields, a planner for its model and objective, reachability).
+
+    Raises PlanningError whose ``.code`` is the PlanTrajectory error name (INVALID_REQUEST,
+    UNKNOWN_MODEL, UNKNOWN_PARAMETER, UNREACHABLE)."""
     try:
         request.validate()
+        params = request.resolved_params()
     except PlanningError:
         raise
     except ParameterError as e:
-        msg = str(e)
-        code = ("UNKNOWN_MODEL" if msg.startswith("unknown model") else
-                "UNKNOWN_PARAMETER" if "unknown" in msg else "INVALID_REQUEST")
-        raise PlanningError(msg, code=code) from None
+        raise PlanningError(str(e), code=error_code_of(e)) from None
     except (TypeError, ValueError) as e:
-        raise PlanningError(f"invalid request: {e}", code="INVALID_REQUEST") from None
+        raise PlanningError(f"invalid request: {e}", code=error_code_of(e)) from None
+    if (request.model, request.objective) not in ROUTES:
+        served = ", ".join(o for m, o in ROUTES if m == request.model)
+        raise PlanningError(f"the {request.objective} planner is implemented for "
+                            f"{', '.join(sorted({m for m, o in ROUTES if o == request.objective}))} "
+                            f"only; for model '{request.model}' use one of {served}",
+                            code="INVALID_REQUEST")
+    bound = reach(params, float(request.tf), float(request.coast))
+    _unreachable(request, params, bound)
+    return CheckedRequest(request, params, tuple(float(r) for r in bound))
 
 
-def _dispatch(request: PlanRequest):
-    if request.objective in ("time-optimal", "energy-optimal"):
-        return plan_baseline
-    try:
-        if request.model == "arm1dof":
-            from ff_planner.optimize.robust1d import plan_robust_1dof as fn
-        else:
-            from ff_planner.optimize.robust2d import plan_robust_scara2 as fn
-    except ImportError as e:
-        raise PlanningError(f"the {request.model} robust planner is not available ({e})",
-                            code="INTERNAL_ERROR") from None
-    return fn
-
-
-def plan(request: PlanRequest, progress: Progress = None,
+def plan(request: Union[PlanRequest, CheckedRequest], progress: Progress = None,
          initial_currents: Optional[np.ndarray] = None) -> PlanResult:
     """Plan a rest-to-rest feedforward current profile.
 
-    Raises PlanningError (with ``.code``) for bad input or an unreachable goal. Otherwise returns a
-    PlanResult; when no plan met the tolerances it is the best plan found, labelled
-    ``best_effort=True`` with error_code NO_ROBUST_PLAN (or TIME_BUDGET_EXHAUSTED when the time
-    budget ran out first). The inner planners honour ``request.time_budget``; the facade labels a
-    result that came back late. ``initial_currents`` (A, N x joints) warm-starts the search from a
-    known plan instead of a multistart; WarmStartUnavailable if the model's planner cannot.
+    A plain PlanRequest is checked first (``check``: PlanningError with ``.code`` for bad input
+    or an unreachable goal); a CheckedRequest is planned as it is. Returns a PlanResult; when no
+    plan met the tolerances it is the best plan found, labelled ``best_effort=True`` with
+    error_code NO_ROBUST_PLAN (or TIME_BUDGET_EXHAUSTED when the time budget ran out first). The
+    inner planners honour ``request.time_budget``; the facade labels a result that came back
+    late. ``initial_currents`` (A, N × joints) warm-starts the search from a known plan (e.g. a
+    motion-library neighbour); WarmStartUnavailable if the route's planner takes none
+    (``ROUTES``).
     """
     t0 = time.perf_counter()
-    _validate(request)
-    bound = check_reachable(request)
-    fn = _dispatch(request)
+    checked = request if isinstance(request, CheckedRequest) else check(request)
+    req = checked.request
+    route = ROUTES[(req.model, req.objective)]
     if initial_currents is None:
-        result = fn(request, progress)
-    else:   # warm start (motion library, continuation): one start from these currents (A)
-        import inspect
-
-        if "initial_currents" not in inspect.signature(fn).parameters:
-            from ff_planner.library.store import WarmStartUnavailable
-
-            raise WarmStartUnavailable(f"{fn.__module__}.{fn.__name__} takes no initial_currents")
-        result = fn(request, progress, initial_currents=np.asarray(initial_currents, dtype=float))
+        result = route.fn(req, progress)
+    elif route.warm_start:
+        result = route.fn(req, progress, initial_currents=np.asarray(initial_currents, dtype=float))
+    else:
+        raise WarmStartUnavailable(f"the {req.model} {req.objective} planner "
+                                   f"({route.fn.__module__}.{route.fn.__name__}) takes no "
+                                   f"initial_currents")
     elapsed = time.perf_counter() - t0
     result.extra = dict(result.extra or {})
-    result.extra.setdefault("reach_bound", bound.tolist())
+    result.extra.setdefault("reach_bound", list(checked.reach))
     result.extra["facade_time_s"] = elapsed
-    if elapsed > request.time_budget:
+    if elapsed > req.time_budget:
         result.extra["over_time_budget"] = True
     if result.profile is not None and "rest_position" not in result.extra:
         try:   # where the arm stops with zero current after tf: what a user will see
-            from ff_planner.model.simulate import rest_position
-
-            result.extra["rest_position"] = np.asarray(
-                rest_position(result.params, result.profile, result.q0), dtype=float).tolist()
+            rest = rest_position(checked.params, result.profile, [float(x) for x in result.q0])
+            result.extra["rest_position"] = [float(x) for x in rest]
         except (ValueError, ArithmeticError):
             pass
     if not result.success:
         result.best_effort = result.profile is not None
         if result.error_code == "OK":
-            result.error_code = ("TIME_BUDGET_EXHAUSTED" if elapsed > request.time_budget
+            result.error_code = ("TIME_BUDGET_EXHAUSTED" if elapsed > req.time_budget
                                  else "NO_ROBUST_PLAN")
         if result.profile is not None and "best plan" not in result.message:
             result.message = f"{result.message} (best plan found, not meeting the tolerances)"

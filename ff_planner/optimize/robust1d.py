@@ -19,8 +19,9 @@ compiled solver for other planners (robust2d's joint 1).
   breakaway edge) is refused: its one-sided derivatives differ.
 - objective "robust-sampled" (section 6.2): among robust plans, the one — refined by SLSQP along
   the robust set — with the least RMS error of the REST position over sampled parameter values
-  (each uncertain parameter at ±10 % and ±20 %, and the corners of the ±20 % box). When no
-  derivative-robust plan is found it minimises that RMS subject to reaching qf at rest only.
+  (``sample_box.sample_scales``: each uncertain parameter at ±10 % and ±20 %, and the corners
+  of the ±20 % box). When no derivative-robust plan is found it minimises that RMS subject to
+  reaching qf at rest only.
 
 When no plan meets the tolerances the best one is returned with success=False,
 best_effort=True and error_code NO_ROBUST_PLAN (or TIME_BUDGET_EXHAUSTED); the message says so.
@@ -31,18 +32,23 @@ q(tf) at ±10 % and ±40 % per parameter and all together ("finite_change"), and
 from __future__ import annotations
 
 import functools
-import itertools
 import math
 import time
+from dataclasses import replace as dc_replace
 from typing import Callable, Optional, Sequence
 
 import numpy as np
+from scipy.optimize import minimize
 
+from ff_planner.core.errors import PlanningError
 from ff_planner.model.arm1dof import FRICTION, friction_scale
 from ff_planner.model.arm1dof_derivatives import NP, Q_, VC_, hd_sim, workspace
+from ff_planner.model.friction import stop_speed
 from ff_planner.model.params import Arm1DofParams
-from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
+from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult
+from ff_planner.model.simulate import simulate
 from ff_planner.optimize import lm1d as _lm1d
+from ff_planner.optimize.sample_box import FINITE_CHANGES, sample_scales
 
 Progress = Optional[Callable[[dict], None]]
 
@@ -82,54 +88,15 @@ def lm_settings(k: int) -> dict:
 
 def stop_speed_bound(params: Arm1DofParams, coast: float, margin: float = STOP_MARGIN) -> float:
     """Largest coast-entry speed (rad/s) from which zero current stops the arm ``margin`` s
-    before tf: |v| = (pc/J)·τ·φ1(−aτ), τ = coast − margin, a = −pv/J."""
-    tau = coast - margin
-    if tau <= 0.0:
-        return 0.0
-    a = -params.pv / params.J
-    z = -a * tau
-    phi1 = math.expm1(z) / z if z != 0.0 else 1.0
-    return params.pc / params.J * tau * phi1
-
-
-def sample_scales(uncertain: Sequence[str], levels: Sequence[float] = (0.1, 0.2),
-                  corner: float = 0.2) -> np.ndarray:
-    """Parameter scale factors (S, 3) for pv, pc, pt: each uncertain one at ±levels alone, and
-    the corners of the ±corner box."""
-    idx = [FRICTION.index(u) for u in uncertain]
-    rows = []
-    for i in idx:
-        for lv in levels:
-            for sg in (-1.0, 1.0):
-                r = np.ones(NP)
-                r[i] = 1.0 + sg * lv
-                rows.append(r)
-    if len(idx) > 1:
-        for signs in itertools.product((-1.0, 1.0), repeat=len(idx)):
-            r = np.ones(NP)
-            for i, sg in zip(idx, signs):
-                r[i] = 1.0 + sg * corner
-            rows.append(r)
-    return np.array(rows) if rows else np.ones((1, NP))
-
-
-CHANGES = (-0.4, -0.1, 0.1, 0.4)
-
-
-def finite_change(params: Arm1DofParams, profile: CurrentProfile, q0: float, qf: float,
-                  uncertain: Sequence[str], changes: Sequence[float] = CHANGES) -> dict:
-    """Errors (rad) of the rest position and of q(tf), and q̇(tf), when friction parameters are
-    off by finite relative ``changes`` — one at a time and all uncertain ones together.
-    rest_error is None where the arm never stops (negative viscous friction outrunning
-    Coulomb friction at that speed)."""
-    return verify(params, profile, q0, qf, uncertain, changes=changes)["finite_change"]
+    before tf: ``friction.stop_speed`` with τ = coast − margin."""
+    return stop_speed(params.J, params.pv, params.pc, coast - margin)
 
 
 def _changes_array(changes: Sequence[float]) -> np.ndarray:
     return np.ascontiguousarray(changes, dtype=float)
 
 
-_CHANGES_ARR = _changes_array(CHANGES)
+_CHANGES_ARR = _changes_array(FINITE_CHANGES)
 
 
 def _verification(out: np.ndarray, pscale: np.ndarray, qf: float, tol: float, i_max: float,
@@ -184,7 +151,7 @@ def _verify_out(params: Arm1DofParams, times: np.ndarray, cur: np.ndarray, tf: f
 
 
 def verify(params: Arm1DofParams, profile: CurrentProfile, q0: float, qf: float,
-           uncertain: Sequence[str], tol: float = 1e-6, changes: Sequence[float] = CHANGES
+           uncertain: Sequence[str], tol: float = 1e-6, changes: Sequence[float] = FINITE_CHANGES
            ) -> dict:
     """Judge a plan by true derivatives: exact, central differences (1e-6 relative) and the
     paper's 0.1 % forward quotient; the kink radius; goal and rest at tf; |I| ≤ i_max; finite
@@ -259,7 +226,7 @@ class _Problem:
         it = np.zeros(m, np.int64)
         f = np.full(m, np.inf)
         kk = np.zeros(m)
-        done = _lm1d.multistart(*self.args(), starts, self.W, self.vb, s["wpen"], s["wq"],
+        done = _lm1d.multistart(*self.args(), starts, self.W, self.vb, s["wpen"], s["wq"],  # type: ignore[call-arg]
                                 s["lam0"], self.tol_q, self.tol_d, MIN_KINK, s["max_iter"],
                                 s["abandon_iter"], s["abandon_norm"], s["max_reject"],
                                 s["lam_down"], s["lam_up"], stop_first, st, it, f, kk)
@@ -341,8 +308,10 @@ def step_times(tf: float, coast: float, n: int, grid: Optional[float] = None) ->
 
 
 def _check_request(request: PlanRequest) -> Arm1DofParams:
-    request.validate()
-    if request.model != "arm1dof":
+    """What this planner needs beyond ``planner.check``: the 1-DOF arm, a robust objective, at
+    least one uncertain parameter, a coast the arm can stop in; returns the arm's parameters."""
+    params = request.resolved_params()
+    if request.model != "arm1dof" or not isinstance(params, Arm1DofParams):
         raise PlanningError(f"plan_robust_1dof plans the arm1dof model, not '{request.model}'")
     if request.objective not in ("robust-derivative", "robust-sampled"):
         raise PlanningError(f"plan_robust_1dof serves robust-derivative and robust-sampled, not "
@@ -351,7 +320,7 @@ def _check_request(request: PlanRequest) -> Arm1DofParams:
         raise PlanningError("name at least one uncertain friction parameter (pv, pc, pt)")
     if request.coast <= STOP_MARGIN:
         raise PlanningError(f"coast must exceed {STOP_MARGIN} s so that the arm can stop in it")
-    return request.resolved_params()
+    return params
 
 
 def plan_robust_1dof(request: PlanRequest, progress: Progress = None,
@@ -515,7 +484,7 @@ def _result(request, prob, currents, success, message, tried, iters, warm, t0, s
         ver_out = _verify_out(prob.params, prob.times, np.ascontiguousarray(currents, float),
                               prob.tf, prob.q0, prob.pscale, _CHANGES_ARR)
     check = _verification(ver_out, prob.pscale, prob.goal, float(request.tol), prob.i_max,
-                          CHANGES)
+                          FINITE_CHANGES)
     robust = check.pop("robust")
     fc = check.pop("finite_change")
     check["robust"] = robust
@@ -574,8 +543,6 @@ def _constraints(prob: _Problem, I: np.ndarray, with_derivs: bool):
 def _refine_sampled(prob: _Problem, I0: np.ndarray, scales: np.ndarray, with_derivs: bool,
                     budget: float) -> tuple[np.ndarray, float]:
     """SLSQP on the sampled RMS from I0, keeping the equalities (exact Jacobians)."""
-    from scipy.optimize import minimize
-
     m = scales.shape[0]
 
     def fun(I):
@@ -612,7 +579,7 @@ def _rms(prob: _Problem, I: np.ndarray, scales: np.ndarray) -> float:
 
 
 def _finish_sampled(request, prob, found, best_I, tried, iters, warm, t0, stats, out_of_time):
-    scales = sample_scales(request.uncertain)
+    scales = sample_scales(request.uncertain, FRICTION)
     with_derivs = bool(found)
     cands = found if found else ([best_I] if best_I is not None else [])
     best, best_rms = None, math.inf
@@ -669,9 +636,7 @@ def warmup() -> float:
     plan_robust_1dof(PlanRequest(starts=200, seed=0, uncertain=("pc",)))
     plan_robust_1dof(PlanRequest(objective="robust-sampled", starts=200, seed=0,
                                  uncertain=("pc",)))
-    from ff_planner.model.simulate import simulate
-
-    simulate(Arm1DofParams(), CurrentProfile.uniform([1.0, -1.0], 1.0), [0.0], trajectory=True)
+    simulate(Arm1DofParams(), CurrentProfile.uniform([[1.0], [-1.0]], 1.0), [0.0], trajectory=True)
     return time.perf_counter() - t0
 
 
@@ -684,8 +649,6 @@ def smallest_robust_steps(request: PlanRequest, n_max: int = 12,
     with N steps" is stated with what was tried. Each N gets ``request.starts`` starts and
     ``request.time_budget`` seconds.
     """
-    from dataclasses import replace as dc_replace
-
     evidence = []
     k = len(request.uncertain)
     for n in range(max(1, k + 2 if request.steps is None else request.steps), n_max + 1):
@@ -698,8 +661,3 @@ def smallest_robust_steps(request: PlanRequest, n_max: int = 12,
         if r.success and r.robust:
             return r, evidence
     return None, evidence
-
-
-def warmup_main() -> None:
-    """Console entry point: compile/cache the 1-DOF kernels now and print how long it took."""
-    print(f"ff_planner 1-DOF kernels ready in {warmup():.2f} s")

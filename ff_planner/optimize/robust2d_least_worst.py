@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Callable, Optional
+from typing import Any, Callable, Optional
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -18,8 +18,9 @@ from scipy.optimize import least_squares
 from ff_planner.model import scara2
 from ff_planner.model.params import Scara2Params
 from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult
+from ff_planner.optimize.sample_box import SAMPLE_LEVELS, one_at_a_time
 
-SAMPLE_FRACTION = 0.1
+SAMPLE_FRACTION = SAMPLE_LEVELS[0]   # each uncertain parameter at ±10 % alone
 _W_NOMINAL = 10.0
 
 
@@ -38,11 +39,10 @@ class _Sampled:
         base = scara2._pack(p)
         idx = {"pv1": 0, "pv2": 1, "pc1": 2, "pc2": 3, "pt1": 4, "pt2": 5}
         self.Ps = [base]
-        for n in req.uncertain:
-            for s in (1.0, -1.0):
-                P = base.copy()
-                P[idx[n]] *= 1.0 + s * SAMPLE_FRACTION
-                self.Ps.append(P)
+        for n, change in one_at_a_time(req.uncertain, (SAMPLE_FRACTION,), signs=(1.0, -1.0)):
+            P = base.copy()
+            P[idx[n]] *= 1.0 + change
+            self.Ps.append(P)
         self.y0 = np.concatenate([self.q0, np.zeros(2)]).astype(np.complex128)
         self.imax = np.array([p.i_max1, p.i_max2])
 
@@ -79,11 +79,11 @@ class _Sampled:
                 J.append(rows)
         if jac:
             return np.array(res), np.vstack(J)
-        res = np.array(res)
-        score = float(np.sum(res ** 2))
+        r = np.array(res)
+        score = float(np.sum(r ** 2))
         if score < self.best_score:
             self.best_score, self.best_x = score, x.copy()
-        return res
+        return r
 
     def jac(self, x):
         return self.residuals(x, jac=True)[1]
@@ -139,7 +139,7 @@ def plan_least_worst(request: PlanRequest, p: Scara2Params, progress: Optional[C
             progress({"stage": "least-worst", "starts_done": starts, "best": best[0],
                       "elapsed": time.perf_counter() - t_start})
     elapsed = time.perf_counter() - t_start
-    common = dict(model="scara2", params=p, q0=np.asarray(request.q0, float),
+    common: dict[str, Any] = dict(model="scara2", params=p, q0=np.asarray(request.q0, float),
                   qf=np.asarray(request.qf, float), uncertain=list(request.uncertain),
                   objective=request.objective, starts_tried=starts, iterations=iters,
                   solve_time=elapsed)

@@ -8,7 +8,6 @@ either joint while the hold margin lasts. Units: rad, A, s.
 """
 from __future__ import annotations
 
-import itertools
 import time
 from typing import Sequence
 
@@ -16,31 +15,18 @@ import numpy as np
 from scipy.optimize import minimize
 
 from ff_planner.model import arm1dof
-
-LEVELS = (0.1, 0.2)
-CORNER = 0.2
-
-
-def sample_scales(names: Sequence[str]) -> np.ndarray:
-    """(S, 3) scale factors for (pv, pc, pt) of joint 1."""
-    idx = {"pv": 0, "pc": 1, "pt": 2}
-    rows = []
-    for n in names:
-        for lv in LEVELS:
-            for s in (1.0, -1.0):
-                r = np.ones(3)
-                r[idx[n]] = 1.0 + s * lv
-                rows.append(r)
-    if len(names) > 1:
-        for signs in itertools.product((1.0, -1.0), repeat=len(names)):
-            r = np.ones(3)
-            for n, s in zip(names, signs):
-                r[idx[n]] = 1.0 + s * CORNER
-            rows.append(r)
-    return np.array(rows) if rows else np.ones((1, 3))
+from ff_planner.model.arm1dof import FRICTION
+from ff_planner.optimize.hold_joint import Joint1Problem
+from ff_planner.optimize.sample_box import sample_scales
 
 
-def rest_errors(hp, x: np.ndarray, scales: np.ndarray) -> np.ndarray:
+def joint1_scales(names: Sequence[str]) -> np.ndarray:
+    """(S, 3) scale factors for joint 1's (pv, pc, pt): ``sample_box.sample_scales`` of the
+    uncertain joint-1 parameters ``names``, the + sign first in each pair."""
+    return sample_scales(names, FRICTION, signs=(1.0, -1.0))
+
+
+def rest_errors(hp: Joint1Problem, x: np.ndarray, scales: np.ndarray) -> np.ndarray:
     """Joint-1 rest-position errors (rad) at the sampled friction scales."""
     x = np.ascontiguousarray(x, dtype=float)
     base = np.array([hp.fr["pv"], hp.fr["pc"], hp.fr["pt"]])
@@ -53,11 +39,11 @@ def rest_errors(hp, x: np.ndarray, scales: np.ndarray) -> np.ndarray:
     return out
 
 
-def refine_sampled(hp, x0: np.ndarray, names: Sequence[str], deadline: float,
+def refine_sampled(hp: Joint1Problem, x0: np.ndarray, names: Sequence[str], deadline: float,
                    tol: float) -> np.ndarray | None:
     """Joint-1 currents with smaller sampled rest errors that still meet every constraint of
-    ``hp`` (a robust2d._Joint1Problem with the link-2 hold), or None if no improvement."""
-    scales = sample_scales(names)
+    ``hp`` (a ``hold_joint.Joint1Problem`` with the link-2 hold), or None if no improvement."""
+    scales = joint1_scales(names)
     k = len(hp.names)
 
     def obj(x):
@@ -71,7 +57,7 @@ def refine_sampled(hp, x0: np.ndarray, names: Sequence[str], deadline: float,
 
     def ineq(x):
         xs = np.ascontiguousarray(x, dtype=float)
-        _, vN, _, _ = hp._q(xs, hp.tN, hp.fr["pv"], hp.fr["pc"], hp.fr["pt"])
+        _, vN, _, _ = hp.final_state(xs, hp.tN, hp.fr["pv"], hp.fr["pc"], hp.fr["pt"])
         s = abs(vN)
         _, frac = hp.hold(xs)
         return np.concatenate([[s - hp.v_lo, hp.v_hi - s], frac - hp.hold_min])

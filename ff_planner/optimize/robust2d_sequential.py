@@ -21,19 +21,21 @@ import numpy as np
 
 from ff_planner.model import scara2
 from ff_planner.model.params import Scara2Params
-from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult
+from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
+from ff_planner.optimize.hold_joint import Joint1Problem, hold_torques, joint1_params, joint2_params
+from ff_planner.optimize.robust1d import plan_robust_1dof
 
 SPLITS = {1: (0.7, 0.6, 0.5), 2: (0.3, 0.4, 0.5)}   # share of tf of the first phase, by its joint
 HOLD_MIN = 0.1               # held joint must keep 10 % of its stiction unused
 
 
 def _phase(p: Scara2Params, joint: int, qa0: float, qaf: float, q_other: float, t: float,
-           request: PlanRequest, names: tuple, seed: int, budget: float, zero_coast: bool):
+           request: PlanRequest, names: tuple, seed: int, budget: float, zero_coast: bool
+           ) -> Optional[tuple[np.ndarray, np.ndarray, np.ndarray, float]]:
     """1-DOF robust plan for ``joint`` over t s with the other joint held at q_other.
     Returns (times (n+1,), I_moving (n,), T_held (n+1,), min hold fraction) or None."""
-    from ff_planner.optimize import robust1d
-    from ff_planner.optimize.robust2d import _Joint1Problem, hold_torques, joint1_params, joint2_params
-
+    if t <= request.coast:      # the phase must be longer than its zero-current coast
+        return None
     stop = time.perf_counter() + budget
     pm = joint1_params(p) if joint == 1 else joint2_params(p)
     held = 2 if joint == 1 else 1
@@ -45,27 +47,28 @@ def _phase(p: Scara2Params, joint: int, qa0: float, qaf: float, q_other: float, 
                               coast=request.coast, params=pm, starts=400, seed=seed + 7919 * s,
                               time_budget=budget, tol=request.tol)
             try:
-                r = robust1d.plan_robust_1dof(req)
-            except Exception:
+                r = plan_robust_1dof(req)
+            except PlanningError:
                 return None
-            if not r.success:
+            prof0 = r.profile
+            if not r.success or prof0 is None:
                 break           # more starts at this n rarely help: try more steps
             if time.perf_counter() > stop:
                 return None
-            x = r.profile.currents[:, 0].copy()
-            T, frac = hold_torques(p, held, r.profile, qa0, q_other, zero_coast=zero_coast)
+            x = prof0.currents[:, 0].copy()
+            T, frac = hold_torques(p, held, prof0, qa0, q_other, zero_coast=zero_coast)
             if frac.min() < HOLD_MIN:   # continuation along the robust set to a held joint
-                hp = _Joint1Problem(pm, qa0, qaf, t, request.coast, len(x), tuple(names), p2=p,
+                hp = Joint1Problem(pm, qa0, qaf, t, request.coast, len(x), tuple(names), p2=p,
                                     q2=q_other, hold_min=HOLD_MIN, held=held,
                                     zero_coast=zero_coast)
                 x2, fun, _ = hp.solve(x, max_nfev=60)
                 if float(np.max(np.abs(fun))) > 0.1 * request.tol:
                     continue
                 x = x2
-                prof = CurrentProfile(r.profile.step_times, x.reshape(-1, 1), t, request.coast)
+                prof = CurrentProfile(prof0.step_times, x.reshape(-1, 1), t, request.coast)
                 T, frac = hold_torques(p, held, prof, qa0, q_other, zero_coast=zero_coast)
             if frac.min() >= 0.5 * HOLD_MIN:
-                return r.profile.step_times, x, T, float(frac.min())
+                return prof0.step_times, x, T, float(frac.min())
     return None
 
 

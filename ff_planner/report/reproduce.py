@@ -1,4 +1,6 @@
-"""``ff-reproduce``: recompute the paper's results and write a markdown report with figures.
+"""The paper-reproduction report: recompute the paper's results, write markdown with figures.
+
+``run(out)`` is the command ``ff-reproduce`` (``ff_planner.cli.reproduce``).
 
 Sections (paper value beside ours): the Coulomb-only example of section 3.2 / Fig. 3 (table 1
 arm), the 1-DOF single-parameter optimisations (N = 3, Fig. 5), the three-parameter one (N = 5,
@@ -9,22 +11,42 @@ and rest positions under finite parameter changes. ``--quick`` uses fewer starts
 """
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import platform
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Optional, Sequence
+from typing import Any, Optional, Sequence, TypedDict
 
 import numpy as np
 
 from ff_planner.model.params import PRESETS, Arm1DofParams, friction_scaled
 from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
 
-PAPER = {
+
+class Table4Row(TypedDict):
+    """Paper table 4, one motion: ∂q(tf)/∂p and ∂q̇(tf)/∂p per friction parameter."""
+
+    dq: dict[str, float]
+    dqd: dict[str, float]
+
+
+class PaperValues(TypedDict):
+    """The paper's numbers that the report compares against (ms, s, rad)."""
+
+    single_sens: float
+    single_ms_per_start: float
+    single_starts: int
+    three_ms_per_start: float
+    three_starts: int
+    three_total_s: float
+    thresholds: dict[str, float]      # Fig. 6: rad, per parameter
+    fig3: dict[str, float]
+    table4: dict[str, Table4Row]
+
+
+PAPER: PaperValues = {
     "single_sens": 1e-9, "single_ms_per_start": 26.0, "single_starts": 50,
     "three_ms_per_start": 53.0, "three_starts": 100, "three_total_s": 5.3,
     "thresholds": {"pv": 1.8, "pt": 2.3, "pc": 6.0},
@@ -58,6 +80,14 @@ class Report:
         for r in rows:
             self.lines.append("| " + " | ".join(esc(_fmt(x)) for x in r) + " |")
         self.lines.append("")
+
+
+def _arm(name: str) -> Arm1DofParams:
+    """The 1-DOF preset ``name`` (table1, table2)."""
+    p = PRESETS[name]
+    if not isinstance(p, Arm1DofParams):
+        raise TypeError(f"preset {name!r} is not a 1-DOF arm")
+    return p
 
 
 def _fmt(x: Any) -> str:
@@ -167,6 +197,11 @@ def coulomb_example(params: Arm1DofParams, tf: float = 1.0, coast: float = 0.05,
     return CurrentProfile(t, np.array(torque).reshape(-1, 1) / k, tf, coast)
 
 
+def _joint0(samples: Optional[np.ndarray]) -> np.ndarray:
+    """Joint 1 of a sampled trajectory (M, n_joints); empty when none was recorded."""
+    return np.zeros(0) if samples is None else samples[:, 0]
+
+
 def _sign_integrals(params, profile, q0):
     from ff_planner.model.simulate import simulate
 
@@ -182,13 +217,13 @@ def _sign_integrals(params, profile, q0):
 def _fig3(params, profile, q0, qf, path):
     from matplotlib.figure import Figure
 
-    from ff_planner.export.plotting import _save, _step_xy
+    from ff_planner.export.plotting import save_figure, step_xy
     from ff_planner.model.simulate import simulate
 
     tr, i1, i2 = _sign_integrals(params, profile, q0)
     fig = Figure(figsize=(11, 9))
     ax = fig.subplots(3, 2)
-    x, y = _step_xy(profile, 0)
+    x, y = step_xy(profile, 0)
     ax[0, 0].plot(x, y)
     ax[0, 0].set(xlabel="t (s)", ylabel="current (A)", title="(a) current")
     ax[0, 1].plot(tr.t, tr.q[:, 0])
@@ -211,14 +246,14 @@ def _fig3(params, profile, q0, qf, path):
     for a in ax.ravel():
         a.grid(True, lw=0.3)
     fig.tight_layout()
-    _save(fig, path)
+    save_figure(fig, path)
     return float(i1[-1]), float(i2[-1])
 
 
 def section_fig3(rep: Report) -> None:
     from ff_planner.model.sensitivity import sensitivities
 
-    p = PRESETS["table1"]
+    p = _arm("table1")
     rep.add("## 1. Coulomb friction only: section 3.2, Fig. 3 (table 1 arm)", "")
     t0 = time.perf_counter()
     prof = coulomb_example(p)
@@ -264,8 +299,9 @@ def section_fig3(rep: Report) -> None:
 # --- sections 4.1: single and three-parameter optimisations ---------------------------------
 def _plan_row(name: str, res: Optional[PlanResult], err: Optional[str], j: Optional[dict],
               paper_ms: float) -> list:
-    if res is None:
-        return [name, "—", "not reproduced: " + (err or ""), "", "", "", "", ""]
+    if res is None or res.profile is None or j is None:
+        why = err or (res.message if res is not None else "")
+        return [name, "—", "not reproduced: " + why, "", "", "", "", ""]
     per = res.solve_time / max(res.starts_tried, 1) * 1e3
     return [name, res.profile.n_steps, "yes" if res.robust else "NO", j["max_true"],
             j["max_quoted"], j["goal_error"], f"{res.solve_time * 1e3:.1f} ms / {res.starts_tried}",
@@ -275,7 +311,7 @@ def _plan_row(name: str, res: Optional[PlanResult], err: Optional[str], j: Optio
 def section_single(rep: Report, starts: int, seed: int) -> None:
     from ff_planner.export.plotting import plot_motion
 
-    p = PRESETS["table2"]
+    p = _arm("table2")
     rep.add("## 2. One uncertain parameter at a time, N = 3 (section 4.1.2, Fig. 5)", "",
             "Task: 0 → 1 rad in tf = 1 s, table 2 arm, coast 0.05 s, objective robust-derivative, "
             f"{starts} seeded starts. Paper: every sensitivity < 1e-9 (forward 0.1 % quotient), "
@@ -326,7 +362,7 @@ def _result_record(res: Optional[PlanResult], err: Optional[str]) -> dict:
 def section_three(rep: Report, starts: int, seed: int, repeats: int) -> None:
     from ff_planner.export.plotting import plot_motion
 
-    p = PRESETS["table2"]
+    p = _arm("table2")
     rep.add("## 3. Three uncertain parameters, N = 5 (section 4.1.2, Fig. 7)", "",
             f"Same task, uncertain pv, pc, pt, N = 5, {starts} starts, seeds {seed}..{seed + repeats - 1}. "
             "Paper: all derivatives zero (forward quotient), 100 starts at 53 ms each (5.3 s).", "")
@@ -386,9 +422,11 @@ def _sampled_errors(params, profile, q0: float, qf: float) -> tuple[float, float
 
 def _sampled_comparison(rep: Report, res_derivative: PlanResult, starts: int, seed: int) -> None:
     """Paper section 6.2's alternative: minimise the sampled error on top of zero derivatives."""
-    p = PRESETS["table2"]
-    rows, rec = [], {}
-    cands = [("robust-derivative, N = 5 (above)", res_derivative, None)]
+    p = _arm("table2")
+    rows: list[list[Any]] = []
+    rec: dict[str, Any] = {}
+    cands: list[tuple[str, Optional[PlanResult], Optional[str]]] = [
+        ("robust-derivative, N = 5 (above)", res_derivative, None)]
     for n in (5, 8):
         res, err = _plan(PlanRequest(uncertain=FRICTION, steps=n, starts=starts, seed=seed,
                                      objective="robust-sampled", time_budget=60.0))
@@ -418,7 +456,8 @@ def _motion_file_check(rep: Report, res: PlanResult) -> None:
     from ff_planner.export.motion_file import verify_motion, write_motion
 
     path = write_motion(rep.out / "motion_k3.json", res)
-    rows, rec = [], {}
+    rows: list[list[Any]] = []
+    rec: dict[str, Any] = {}
     scales = [{}, {"pv": 1.001}, {"pc": 1.001}, {"pt": 1.001}, {"pv": 0.999, "pc": 0.999, "pt": 0.999},
               {"pv": 1.1}, {"pc": 1.1}, {"pt": 1.1}, {"pv": 1.1, "pc": 1.1, "pt": 1.1},
               {"pv": 0.9, "pc": 0.9, "pt": 0.9}]
@@ -515,7 +554,7 @@ def section_sweep(rep: Report, distances: np.ndarray, starts: int, seed: int) ->
                     rec[name]["wide_starts"] = {"max_abs_sens": vals, "robust": robust}
     rep.data["sweep"] = {"curves": rec, "thresholds": thresholds, "wide_start_thresholds": wide,
                          "time_s": time.perf_counter() - t0}
-    plot_curves(distances, curves, rep.out / "fig6_sweep.png", xlabel="goal position qf (rad)",
+    plot_curves(distances.tolist(), curves, rep.out / "fig6_sweep.png", xlabel="goal position qf (rad)",
                 ylabel="max |∂q(tf)/∂p| (true)", title="Fig. 6 analogue: robustness vs goal distance",
                 logy=True, vlines={f"paper {k}": PAPER["thresholds"][k] for k in FRICTION})
     header = ["parameter", "paper threshold (rad)", "ours: last robust distance",
@@ -545,11 +584,11 @@ def _fmt_opt(x) -> str:
 def section_table4(rep: Report) -> None:
     from matplotlib.figure import Figure
 
-    from ff_planner.export.plotting import _save, _step_xy
+    from ff_planner.export.plotting import save_figure, step_xy
     from ff_planner.model.simulate import simulate
     from ff_planner.optimize.baselines import R_TERMINAL, finite_differences
 
-    p = PRESETS["table2"]
+    p = _arm("table2")
     rep.add("## 5. Time- and energy-optimal motions: section 6.5, table 4, Fig. 11", "",
             "Time-optimal: bang-bang at ±I_max reaching 1 rad at rest at t₂, then zero current to "
             "tf (padded at rest). Energy-optimal: minimum R∫I²dt with 100 equal steps over tf = 1 s "
@@ -564,8 +603,8 @@ def section_table4(rep: Report) -> None:
     ax = fig.subplots(2, 2)
     for col, obj in enumerate(("time-optimal", "energy-optimal")):
         res, err = _plan(PlanRequest(objective=obj, uncertain=FRICTION))
-        if res is None:
-            rows.append([obj, "", "not reproduced: " + err, "", "", ""])
+        if res is None or res.profile is None:
+            rows.append([obj, "", "not reproduced: " + (err or (res.message if res else "")), "", "", ""])
             continue
         prof = res.profile
         names = FRICTION
@@ -590,22 +629,22 @@ def section_table4(rep: Report) -> None:
                          f"{_fmt(r[n]['rel_dqd_bwd'])}",
                          f"{_fmt(r[n]['dq'])} / {_fmt(r[n]['dqd'])}"])
         rec[obj] = r
-        x, y = _step_xy(prof, 0)
+        x, y = step_xy(prof, 0)
         ax[0, col].plot(x, y)
         ax[0, col].set(xlabel="t (s)", ylabel="current (A)", title=f"{obj}: current")
         nom = simulate(p, prof, [0.0], trajectory=True)
-        ax[1, col].plot(nom.t, nom.q[:, 0], lw=2, label="nominal")
+        ax[1, col].plot(nom.t, _joint0(nom.q), lw=2, label="nominal")
         for s, ls in ((-0.4, "--"), (0.4, "-.")):
             pp = friction_scaled(p, {n: 1.0 + s for n in names})
             tr = simulate(pp, prof, [0.0], trajectory=True)
-            ax[1, col].plot(tr.t, tr.q[:, 0], "r", ls=ls, lw=1, label=f"all friction {s:+.0%}")
+            ax[1, col].plot(tr.t, _joint0(tr.q), "r", ls=ls, lw=1, label=f"all friction {s:+.0%}")
         ax[1, col].axhline(1.0, color="gray", lw=0.6, ls=":")
         ax[1, col].set(xlabel="t (s)", ylabel="q (rad)", title=f"{obj}: position")
         ax[1, col].legend(fontsize=8)
     for a in ax.ravel():
         a.grid(True, lw=0.3)
     fig.tight_layout()
-    _save(fig, rep.out / "fig11_baselines.png")
+    save_figure(fig, rep.out / "fig11_baselines.png")
     rep.data["table4"] = rec
     rep.table(["motion", "p", "paper ∂q/∂p / ∂q̇/∂p", "ours p·∂q/∂p / p·∂q̇/∂p (central)",
                "ours relative, 0.1 % forward q / q̇ / 0.1 % backward q̇",
@@ -652,7 +691,8 @@ def section_scara2(rep: Report, starts: int, seed: int) -> None:
               [["yes" if res.robust else "NO", mx, np.round(res.q_final, 9).tolist(),
                 f"{res.solve_time:.2f} s / {res.starts_tried}", "≈ 0, 10 h"]])
     rep.add(f"Planner's account: {res.message}", "")
-    plot_motion(res.params, res.profile, res.q0, res.qf, names,
+    plot_motion(res.params or req.resolved_params(), res.profile, np.asarray(res.q0).tolist(),
+                np.asarray(res.qf).tolist(), names,
                 rep.out / "fig9_scara2.png", n_sweep=21,
                 title="2-DOF SCARA, robust to six friction parameters (paper Fig. 9 style)")
     rep.add("![Fig. 9 analogue](fig9_scara2.png)", "")
@@ -764,35 +804,6 @@ def _not_reproduced(data: dict) -> list[str]:
 
 
 def _clean(x):
-    from ff_planner.export.motion_file import _jsonable
+    from ff_planner.export.motion_file import jsonable
 
-    return _jsonable(x)
-
-
-def main(argv: Optional[Sequence[str]] = None) -> int:
-    """Entry point of ``ff-reproduce``."""
-    ap = argparse.ArgumentParser(prog="ff-reproduce", description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default="docs/reproduction", help="output folder (default docs/reproduction)")
-    ap.add_argument("--quick", action="store_true", help="fewer starts and sweep points")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--only", nargs="+", choices=list(SECTIONS),
-                    help="run only these sections")
-    try:
-        args = ap.parse_args(argv)
-    except SystemExit as e:
-        return int(e.code or 0)
-    try:
-        path = run(Path(args.out), quick=args.quick, seed=args.seed,
-                   sections=args.only or SECTIONS)
-    except OSError as e:
-        print(f"ff-reproduce: error: cannot write to {args.out!r}: {e.strerror or e}", file=sys.stderr)
-        return 2
-    except Exception as e:   # no traceback for users
-        print(f"ff-reproduce: internal error: {type(e).__name__}: {e}", file=sys.stderr)
-        return 1
-    print(f"ff-reproduce: wrote {path}")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+    return jsonable(x)

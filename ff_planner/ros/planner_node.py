@@ -22,6 +22,8 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from ff_msgs.srv import PlanTrajectory
 from ff_msgs_py.convert import error_response, result_to_response
+from ff_planner.library.warm import PlanFn
+from ff_planner.optimize.planner import plan
 from ff_planner.service.planner_service import PlannerService, RequestFields, ServiceConfigError, config_from_mapping
 
 NODE_ONLY = ("diagnostics_period", "executor_threads")
@@ -29,9 +31,12 @@ ROS_BUILTIN = ("use_sim_time", "start_type_description_service")  # declared by 
 
 
 class PlannerNode(Node):
-    """The ``ff_planner`` node. Raises ServiceConfigError on a bad configuration."""
+    """The ``ff_planner`` node. Raises ServiceConfigError on a bad configuration.
 
-    def __init__(self, **kwargs: Any) -> None:
+    ``plan_fn``: the planner the workers run (default: the facade ``ff_planner.optimize.planner.plan``).
+    """
+
+    def __init__(self, plan_fn: PlanFn = plan, **kwargs: Any) -> None:
         super().__init__("ff_planner", automatically_declare_parameters_from_overrides=True, **kwargs)
         values = {name: p.value for name, p in self._parameters.items()
                   if name not in ROS_BUILTIN and not name.startswith("qos_overrides")}
@@ -40,10 +45,10 @@ class PlannerNode(Node):
         config = config_from_mapping(values)
         if self.executor_threads <= 0:
             self.executor_threads = config.max_pending + 4
-        self.service = PlannerService(config, log=lambda m: self.get_logger().warning(m))
+        self.service = PlannerService(config, plan_fn=plan_fn, log=lambda m: self.get_logger().warning(m))
         self.get_logger().info(
             f"starting {config.workers} planner workers (library: {config.library_path or 'off'}, "
-            f"planner: {config.plan_entry})")
+            f"planner: {self.service.planner_name})")
         self.service.start()
         # a deep request queue: a burst of requests waits in DDS instead of being dropped (the
         # default depth of 10 loses requests); admission control then answers or refuses each one
@@ -102,14 +107,14 @@ class PlannerNode(Node):
         super().destroy_node()
 
 
-def main(argv: Optional[list[str]] = None) -> int:
-    """Console script ``ff-planner-node``."""
+def main(argv: Optional[list[str]] = None, plan_fn: PlanFn = plan) -> int:
+    """Console script ``ff-planner-node``; ``plan_fn`` replaces the planner (a module-level function)."""
     rclpy.init(args=argv if argv is not None else sys.argv)
     node: Optional[PlannerNode] = None
     code = 0
     try:
         try:
-            node = PlannerNode()
+            node = PlannerNode(plan_fn=plan_fn)
         except ServiceConfigError as exc:
             print(f"ff_planner: bad configuration: {exc}", file=sys.stderr)
             return 2

@@ -1,10 +1,12 @@
 """The planner node's logic without ROS: validation, motion library, worker processes, statistics.
 
-``PlannerService.handle(request)`` turns a :class:`PlanRequest` into a :class:`PlanResult` and never
-raises: bad requests come back with ``success=False``, an error code (PlanTrajectory names) and a
+``PlannerService.handle_fields(fields)`` turns the fields of a request into a :class:`PlanResult` and
+never raises: bad requests come back with ``success=False``, an error code (PlanTrajectory names) and a
 message saying what to change.
 
-Order of work for a valid request:
+A request is checked once, here (``ff_planner.optimize.planner.check``: fields, model, objective,
+reachability, then this node's limits); the worker plans the ``CheckedRequest`` without checking
+it again. Order of work for a valid request:
 1. motion library, exact task (same parameters): a stored plan is returned at once (warm);
    a stored "no plan here" is returned at once when it is a hard fact (UNREACHABLE) or came from a
    search at least as thorough (starts) as asked;
@@ -18,12 +20,11 @@ worker killed and replaced). At most ``workers − 1`` scara2 (long) plans run o
 once, so a worker is always left for 1-DOF requests. More than ``max_pending`` requests waiting or
 running, or more than ``max_pending_long`` scara2 ones, are refused at once (TIME_BUDGET_EXHAUSTED,
 "planner overloaded"): a caller's thread never waits behind an unbounded queue, and 2-DOF requests
-can never take every place. Time budgets are counted from the
-moment a request arrives, queueing included.
+can never take every place. Time budgets are counted from the moment a request arrives, queueing
+included.
 """
 from __future__ import annotations
 
-import importlib
 import math
 import multiprocessing
 import os
@@ -38,21 +39,16 @@ from pathlib import Path
 from typing import Any, Callable, Mapping, Optional, Sequence
 
 import numpy as np
+from pebble import ProcessPool
 
-from ff_planner.library.store import (
-    LibraryError,
-    MotionLibrary,
-    MotionRecord,
-    WarmStartUnavailable,
-    record_from_result,
-    task_key,
-    warm_plan,
-)
-from ff_planner.model.params import MODELS, ParameterError, Params, default_params, preset
-from ff_planner.model.profile import OBJECTIVES, PlanningError, PlanRequest, PlanResult
+from ff_planner.core.errors import ParameterError, PlanningError, WarmStartUnavailable, error_code_of
+from ff_planner.library.refusal import as_vector, failure
+from ff_planner.library.store import LibraryError, MotionLibrary, MotionRecord, record_from_result, task_key
+from ff_planner.library.warm import PlanFn, warm_plan
+from ff_planner.model.params import MODELS, Params, check_model, default_params, preset
+from ff_planner.model.profile import PlanRequest, PlanResult
+from ff_planner.optimize.planner import CheckedRequest, check, plan
 
-#: The facade with a warm start (``initial_currents``); one adapter shared with ``ff-library build``.
-DEFAULT_PLAN_ENTRY = "ff_planner.library.build:plan_for_library"
 SHIFT_EPS = 1e-9          # rad / s: canonical distance below which a stored task is the same motion
 LONG_MODELS = ("scara2",)  # models whose plans take long (seconds to minutes)
 
@@ -85,10 +81,10 @@ class ServiceConfig:
     max_pending_long: int = 0            # scara2 requests waiting or running; 0 = max_pending // 2
     grace: float = 0.5                   # s beyond the time budget before a worker is killed
     motion_dir: str = ""                 # "" = no motion files
-    plan_entry: str = DEFAULT_PLAN_ENTRY
     warmup: bool = True                  # plan a small task in each worker at start (JIT caches)
 
     def validate(self) -> None:
+        """Raise ServiceConfigError naming the first setting that cannot be used."""
         if self.default_model not in MODELS:
             raise ServiceConfigError(f"default_model {self.default_model!r} is unknown; use one of "
                                      f"{', '.join(MODELS)}")
@@ -109,8 +105,6 @@ class ServiceConfig:
                 raise ServiceConfigError(f"{name} must be a finite number > 0, got {v}")
         if not (self.coast >= 0 and math.isfinite(self.coast)):
             raise ServiceConfigError(f"coast must be >= 0 s, got {self.coast}")
-        if ":" not in self.plan_entry:
-            raise ServiceConfigError(f"plan_entry must read 'module:function', got {self.plan_entry!r}")
 
     def model_params(self, model: str) -> Params:
         """The node's parameters for ``model``: its preset with the configured overrides."""
@@ -123,104 +117,50 @@ class ServiceConfig:
             raise ServiceConfigError(f"configured overrides for {model}: {exc}") from None
 
 
-# --- results for refusals ---------------------------------------------------------------------
-def _vec(x: Any) -> np.ndarray:
-    try:
-        return np.asarray(list(x), dtype=float).ravel()
-    except (TypeError, ValueError):
-        return np.zeros(0)
-
-
-def failure(request: Optional[PlanRequest], code: str, message: str, **kw: Any) -> PlanResult:
-    """A PlanResult refusing ``request`` with error ``code`` and ``message``."""
-    r = request
-    return PlanResult(success=False, message=message, profile=None,
-                      model=getattr(r, "model", "") or "", params=None,
-                      q0=_vec(getattr(r, "q0", ())), qf=_vec(getattr(r, "qf", ())),
-                      uncertain=list(getattr(r, "uncertain", ()) or ()),
-                      objective=getattr(r, "objective", "") or "", error_code=code, **kw)
-
-
-def error_code_of(exc: BaseException) -> str:
-    """PlanTrajectory error name for an exception raised while reading or validating a request."""
-    if isinstance(exc, PlanningError):
-        return exc.code
-    if isinstance(exc, ParameterError):
-        text = str(exc)
-        if "unknown model" in text:
-            return "UNKNOWN_MODEL"
-        if "unknown" in text:
-            return "UNKNOWN_PARAMETER"
-        return "INVALID_REQUEST"
-    if isinstance(exc, (ValueError, TypeError)):
-        return "INVALID_REQUEST"
-    return "INTERNAL_ERROR"
-
-
 # --- worker side (runs in the pool's processes) ------------------------------------------------
-_PLAN_FN: Optional[Callable] = None
-
-
-def load_entry(entry: str) -> Callable:
-    """'module:function' -> the function."""
-    mod, _, fn = entry.partition(":")
-    return getattr(importlib.import_module(mod), fn)
-
-
-def _worker_init(entry: str, warmup: bool) -> None:
-    """Pool initializer: import the planner and plan one small task (loads JIT caches)."""
-    global _PLAN_FN
-    try:
-        _PLAN_FN = load_entry(entry)
-    except Exception:  # the planner may not be importable; every job will then say so
-        _PLAN_FN = None
+def _worker_init(plan_fn: PlanFn, warmup: bool) -> None:
+    """Pool initializer: plan one small task, cold and warm, k = 1 and 3 (loads the JIT caches of
+    both paths), so that no request pays for them."""
+    if not warmup:
         return
-    if warmup:   # cold and warm 1-DOF plans, k = 1 and 3: loads the compiled code of both paths
-        for unc in (["pc"], ["pv", "pc", "pt"]):
-            try:
-                req = PlanRequest(model="arm1dof", q0=[0.0], qf=[1.0], tf=1.0, uncertain=unc, starts=20,
-                                  time_budget=120.0)
-                res = _PLAN_FN(req)
-                if res.profile is not None:
-                    _PLAN_FN(replace(req, qf=[1.01]), initial_currents=res.profile.currents)
-            except Exception:  # noqa: BLE001 - a planner without warm starts, or none at all
-                pass
+    for unc in (["pc"], ["pv", "pc", "pt"]):
+        try:
+            req = PlanRequest(model="arm1dof", q0=[0.0], qf=[1.0], tf=1.0, uncertain=unc, starts=20,
+                              time_budget=120.0)
+            res = plan_fn(req)
+            if res.profile is not None:
+                plan_fn(replace(req, qf=[1.01]), initial_currents=res.profile.currents)
+        except Exception:  # noqa: BLE001 - warming is best effort; a request reports real errors
+            pass
 
 
 def _ping() -> int:
     return os.getpid()
 
 
-def _solve(request: PlanRequest, deadline: float, initial_currents: Optional[np.ndarray],
-           entry: str) -> PlanResult:
-    """One plan in a worker: cold (multistart) or warm (from ``initial_currents``), within ``deadline``
-    (time.monotonic(), shared by all processes on Linux)."""
-    global _PLAN_FN
+def _solve(checked: CheckedRequest, deadline: float, initial_currents: Optional[np.ndarray],
+           plan_fn: PlanFn) -> PlanResult:
+    """One plan in a worker: cold (multistart) or warm (from ``initial_currents``, A), within
+    ``deadline`` (time.monotonic(), shared by all processes on Linux). Raises WarmStartUnavailable
+    when the planner cannot start from the currents; every other error becomes a refusal."""
+    request = checked.request
     t0 = time.monotonic()
     left = deadline - t0
     if left <= 0.0:
         return failure(request, "TIME_BUDGET_EXHAUSTED",
                        f"the time budget of {request.time_budget:.3g} s ran out while waiting for a "
                        f"free worker; raise time_budget or retry later")
-    req = replace(request, time_budget=min(float(request.time_budget), left))
+    req = replace(checked, request=replace(request, time_budget=min(float(request.time_budget), left)))
     try:
-        if _PLAN_FN is None:
-            _PLAN_FN = load_entry(entry)
         if initial_currents is not None:
-            fake = MotionRecord(task_key="neighbour", model=req.model, params_hash="", objective=req.objective,
-                                uncertain=list(req.uncertain), steps=req.n_steps(), coast=req.coast,
-                                q0=list(req.q0), qf=list(req.qf), tf=req.tf, status="solved",
-                                motion={"currents": np.asarray(initial_currents).tolist()})
-            result = warm_plan(req, fake, plan_fn=_PLAN_FN)
+            result = warm_plan(req, initial_currents, plan_fn)
         else:
-            result = _PLAN_FN(req)
+            result = plan_fn(req)
     except WarmStartUnavailable:
         raise
-    except PlanningError as exc:
+    except (PlanningError, ParameterError) as exc:
         result = failure(request, exc.code, str(exc))
-    except ParameterError as exc:
-        result = failure(request, error_code_of(exc), str(exc))
-    except Exception as exc:  # a planner bug must not take the node down; report it
+    except Exception as exc:  # noqa: BLE001 - a planner bug must not take the node down; report it
         tb = traceback.format_exception_only(type(exc), exc)[-1].strip()
         result = failure(request, "INTERNAL_ERROR", f"planner error: {tb}")
     result.solve_time = result.solve_time or (time.monotonic() - t0)
@@ -247,11 +187,18 @@ class RequestFields:
 
 
 class PlannerService:
-    """Serve plan requests (thread-safe; call :meth:`start` first and :meth:`close` at the end)."""
+    """Serve plan requests (thread-safe; call :meth:`start` first and :meth:`close` at the end).
 
-    def __init__(self, config: ServiceConfig, log: Optional[Callable[[str], None]] = None) -> None:
+    ``plan_fn`` is the planner, ``plan(checked, progress, initial_currents=...)`` taking a
+    ``CheckedRequest`` (default: the facade ``ff_planner.optimize.planner.plan``); a module-level
+    function, as it is sent to the worker processes by reference.
+    """
+
+    def __init__(self, config: ServiceConfig, plan_fn: PlanFn = plan,
+                 log: Optional[Callable[[str], None]] = None) -> None:
         config.validate()
         self.config = config
+        self.plan_fn = plan_fn
         self.log = log or (lambda msg: None)
         self.params = {m: config.model_params(m) for m in MODELS}
         self.library: Optional[MotionLibrary] = None
@@ -263,30 +210,36 @@ class PlannerService:
         except (LibraryError, sqlite3.Error, OSError) as exc:
             raise ServiceConfigError(f"cannot open library_path {config.library_path!r} / motion_dir "
                                      f"{config.motion_dir!r}: {exc}; fix the path or set it to \"\"") from None
-        self._pool = None
+        self._pool: Optional[ProcessPool] = None
         self._lock = threading.Lock()
         self._pending = 0
         self._pending_long = 0
         self.long_limit = max(1, min(config.max_pending - 1, config.max_pending_long or config.max_pending // 2))
         self._long_slots = threading.BoundedSemaphore(max(1, config.workers - 1))
-        self._stats: Counter = Counter()
-        self._times: dict[str, deque] = {}
+        self._stats: Counter[str] = Counter()
+        self._times: dict[str, deque[float]] = {}
         self._closed = False
-        self._warm_supported = True   # set False when the planner turns out to lack initial_currents
+        self._no_warm: set[tuple[str, str]] = set()   # (model, objective) whose planner cannot warm start
+
+    @property
+    def planner_name(self) -> str:
+        """``module.function`` of the plan function (for logs)."""
+        fn = self.plan_fn
+        return f"{getattr(fn, '__module__', '?')}.{getattr(fn, '__qualname__', repr(fn))}"
 
     # lifecycle
     def start(self, wait: float = 300.0) -> None:
         """Start the worker processes (spawned: no fork of a ROS process) and wait until they answer."""
-        from pebble import ProcessPool
-
         ctx = multiprocessing.get_context("spawn")
-        self._pool = ProcessPool(max_workers=self.config.workers, initializer=_worker_init,
-                                 initargs=(self.config.plan_entry, self.config.warmup), context=ctx)
-        futs = [self._pool.schedule(_ping) for _ in range(self.config.workers)]
+        pool = ProcessPool(max_workers=self.config.workers, initializer=_worker_init,
+                           initargs=(self.plan_fn, self.config.warmup), context=ctx)
+        self._pool = pool
+        futs = [pool.schedule(_ping) for _ in range(self.config.workers)]
         for f in futs:
             f.result(timeout=wait)
 
     def close(self) -> None:
+        """Stop the workers (a running plan is abandoned) and close the library."""
         self._closed = True
         if self._pool is not None:
             self._pool.stop()
@@ -296,25 +249,18 @@ class PlannerService:
             self.library.close()
 
     # requests
-    def make_request(self, f: RequestFields) -> PlanRequest:
-        """Fields -> validated PlanRequest; raises PlanningError/ParameterError (see error_code_of)."""
-        model = f.model or self.config.default_model
-        if model not in MODELS:
-            raise ParameterError(f"unknown model {model!r}; known models: {', '.join(MODELS)}")
+    def make_request(self, f: RequestFields) -> CheckedRequest:
+        """Fields -> checked request (node defaults filled in, node limits applied); raises
+        PlanningError/ParameterError whose ``.code`` is the PlanTrajectory error name."""
+        model = check_model(f.model or self.config.default_model)
         names, values = list(f.override_names), list(f.override_values)
         if len(names) != len(values):
             raise PlanningError(f"{len(names)} override names but {len(values)} override values; "
                                 f"give one value per name")
         params = self.params[model]
         if names:
-            unknown = [n for n in names if n not in params.keys()]
-            if unknown:
-                raise ParameterError(f"unknown parameter(s) {unknown} for model '{model}'; valid keys "
-                                     f"are: {', '.join(params.keys())}")
-            params = params.replace(**dict(zip(names, values)))
+            params = params.replace(**dict(zip(names, values)))   # unknown names: UNKNOWN_PARAMETER
         objective = f.objective or "robust-derivative"
-        if objective not in OBJECTIVES:
-            raise PlanningError(f"unknown objective {objective!r}; use one of {', '.join(OBJECTIVES)}")
         c = self.config
         tf = float(f.move_time)
         if not math.isfinite(tf) or tf <= 0:
@@ -339,12 +285,11 @@ class PlannerService:
         req = PlanRequest(model=model, q0=[float(x) for x in f.q0], qf=[float(x) for x in f.qf], tf=tf,
                           uncertain=uncertain, objective=objective, steps=steps, starts=starts,
                           seed=int(f.seed), time_budget=budget, coast=c.coast, params=params, tol=c.tol)
-        req.validate()
-        _check_reachable(req)
+        checked = check(req)   # UNREACHABLE answered at once, before the library lookup
         if req.n_steps() > c.max_steps:
             raise PlanningError(f"{req.n_steps()} steps per joint exceeds this planner's limit of "
                                 f"{c.max_steps}; ask for fewer steps or uncertain parameters")
-        return req
+        return checked
 
     def handle_fields(self, f: RequestFields) -> PlanResult:
         """Validate and serve one request; never raises."""
@@ -360,12 +305,14 @@ class PlannerService:
             return res
         return self.handle(req, received=t0)
 
-    def handle(self, request: PlanRequest, received: Optional[float] = None) -> PlanResult:
-        """Serve a validated request (see module docstring); never raises."""
+    def handle(self, checked: CheckedRequest, received: Optional[float] = None) -> PlanResult:
+        """Serve a checked request (see module docstring; ``received``: time.monotonic() of its
+        arrival, default now); never raises."""
         t0 = received if received is not None else time.monotonic()
+        request = checked.request
         deadline = t0 + float(request.time_budget)
         try:
-            result, source = self._serve(request, deadline)
+            result, source = self._serve(checked, deadline)
         except Exception as exc:  # noqa: BLE001 - the node must keep serving
             tb = traceback.format_exception_only(type(exc), exc)[-1].strip()
             self.log(f"internal error: {traceback.format_exc()}")
@@ -377,9 +324,10 @@ class PlannerService:
             self._write_motion(request, result)
         return result
 
-    def _serve(self, request: PlanRequest, deadline: float) -> tuple[PlanResult, str]:
+    def _serve(self, checked: CheckedRequest, deadline: float) -> tuple[PlanResult, str]:
+        request = checked.request
         lib = self.library
-        warm_from = None
+        warm_from: Optional[tuple[float, MotionRecord]] = None
         if lib is not None:
             rec = lib.lookup(request)
             if rec is not None and self._usable(rec, request):
@@ -394,26 +342,26 @@ class PlannerService:
                 if (request.objective.startswith("robust") and cur is not None
                         and cur.shape == (request.n_steps(), len(request.q0))):
                     warm_from = (dist, rec)   # baselines are closed-form: nothing to warm start
-        if warm_from is not None and self._warm_supported:
+        note = ""
+        if warm_from is not None and (request.model, request.objective) not in self._no_warm:
             dist, rec = warm_from
-            result = self._run(request, deadline, rec.currents())
-            if result.error_code == "WARM_UNAVAILABLE":
-                if "initial_currents" in result.message:   # the planner itself cannot warm start
-                    self._warm_supported = False
-                    self.log(f"warm starts disabled: {result.message}")
-                result = None
-            elif result.success:
-                result.warm_start = True
-                result.message = (f"warm start from library entry {rec.task_key} (distance {dist:.3g}); "
-                                  + (result.message or ""))
-                self._store(request, result, "warm", rec.task_key)
-                return result, "warm"
-            elif result.error_code == "TIME_BUDGET_EXHAUSTED" or time.monotonic() >= deadline:
-                return result, "warm"
-            note = f"warm start from {rec.task_key} failed ({result.message if result else 'unavailable'}); "
-        else:
-            note = ""
-        result = self._run(request, deadline, None)
+            try:
+                result = self._run(checked, deadline, rec.currents())
+            except WarmStartUnavailable as exc:   # this model's planner cannot start from currents
+                self._no_warm.add((request.model, request.objective))
+                self.log(f"warm starts off for {request.model} {request.objective}: {exc}")
+                note = f"warm start from {rec.task_key} failed (unavailable: {exc}); "
+            else:
+                if result.success:
+                    result.warm_start = True
+                    result.message = (f"warm start from library entry {rec.task_key} (distance {dist:.3g}); "
+                                      + (result.message or ""))
+                    self._store(request, result, "warm", rec.task_key)
+                    return result, "warm"
+                if result.error_code == "TIME_BUDGET_EXHAUSTED" or time.monotonic() >= deadline:
+                    return result, "warm"
+                note = f"warm start from {rec.task_key} failed ({result.message}); "
+        result = self._run(checked, deadline, None)
         if note:
             result.message = note + (result.message or "")
         result.warm_start = False
@@ -435,9 +383,14 @@ class PlannerService:
             return f"from the motion library ({what} {rec.task_key}, solved {rec.solved_how})"
         return f"known from the motion library: no plan here ({rec.error_code}): {rec.reason}"
 
-    def _run(self, request: PlanRequest, deadline: float, initial: Optional[np.ndarray]) -> PlanResult:
-        """Run one plan in the pool, with admission control and the deadline enforced."""
-        if self._pool is None or self._closed:
+    def _run(self, checked: CheckedRequest, deadline: float, initial: Optional[np.ndarray]) -> PlanResult:
+        """Run one plan in the pool, with admission control and the deadline enforced.
+
+        Raises WarmStartUnavailable (from the worker) when ``initial`` currents cannot be used.
+        """
+        request = checked.request
+        pool = self._pool
+        if pool is None or self._closed:
             return failure(request, "INTERNAL_ERROR", "planner workers are not running")
         long = request.model in LONG_MODELS
         with self._lock:
@@ -462,13 +415,12 @@ class PlannerService:
                                    f"all long-plan workers stayed busy for the whole time budget of "
                                    f"{request.time_budget:.3g} s; retry later or raise time_budget")
             try:
-                fut = self._pool.schedule(_solve, args=(request, deadline, initial, self.config.plan_entry),
-                                          timeout=max(0.0, deadline - time.monotonic()) + 2 * self.config.grace)
+                fut = pool.schedule(_solve, args=(checked, deadline, initial, self.plan_fn),
+                                    timeout=max(0.0, deadline - time.monotonic()) + 2 * self.config.grace)
                 try:
                     return fut.result(timeout=max(0.0, deadline - time.monotonic()) + self.config.grace)
-                except WarmStartUnavailable as exc:
-                    r = failure(request, "WARM_UNAVAILABLE", str(exc))
-                    return r
+                except WarmStartUnavailable:
+                    raise
                 except FutureTimeout:
                     fut.cancel()  # pebble: a running task's worker is killed and replaced
                     with self._lock:
@@ -537,18 +489,9 @@ class PlannerService:
         return out
 
 
-def _check_reachable(request: PlanRequest) -> None:
-    """The planner's reachability bound, in this process (fast UNREACHABLE answers), if available."""
-    try:
-        from ff_planner.optimize.planner import check_reachable
-    except ImportError:
-        return
-    check_reachable(request)
-
-
 def _partial(f: RequestFields) -> PlanRequest:
     """A PlanRequest-like object echoing what can be read of an invalid request."""
-    return PlanRequest(model=f.model, q0=list(_vec(f.q0)), qf=list(_vec(f.qf)), tf=0.0,
+    return PlanRequest(model=f.model, q0=list(as_vector(f.q0)), qf=list(as_vector(f.qf)), tf=0.0,
                        uncertain=list(f.uncertain), objective=f.objective)
 
 
@@ -574,9 +517,10 @@ def config_from_mapping(values: Mapping[str, Any]) -> ServiceConfig:
         if len(parts) == 2 and parts[0] in MODELS and parts[1] == "preset":
             presets[parts[0]] = str(v)
         elif len(parts) == 3 and parts[0] in MODELS and parts[1] == "params":
-            if parts[2] not in MODELS[parts[0]].keys():
+            keys = default_params(parts[0]).keys()
+            if parts[2] not in keys:
                 raise ServiceConfigError(f"unknown model parameter {parts[2]!r} in {name!r}; valid keys "
-                                         f"for {parts[0]}: {', '.join(MODELS[parts[0]].keys())}")
+                                         f"for {parts[0]}: {', '.join(keys)}")
             overrides.setdefault(parts[0], {})[parts[2]] = float(v)
         else:
             unknown.append(name)

@@ -7,6 +7,7 @@ import pytest
 from ff_msgs.msg import CurrentProfile as CurrentProfileMsg
 from ff_msgs.srv import PlanTrajectory
 from ff_msgs_py import convert
+from ff_planner.core.errors import ERROR_NAMES
 from ff_planner.model.params import ParameterError, default_params
 from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult
 
@@ -91,3 +92,18 @@ def test_result_to_response():
     # every error name maps onto the service's constant of the same name
     for name, value in convert.ERROR_CODES.items():
         assert getattr(PlanTrajectory.Response, name) == value
+
+
+def _interface_error_constants() -> dict[str, int]:
+    """The integer constants of the generated PlanTrajectory.Response class (uint8 error codes)."""
+    cls = PlanTrajectory.Response
+    return {n: getattr(cls, n) for n in dir(cls)
+            if n.isupper() and isinstance(getattr(cls, n), int) and not isinstance(getattr(cls, n), bool)}
+
+
+def test_error_names_are_exactly_the_interface_constants():
+    constants = _interface_error_constants()
+    assert set(ERROR_NAMES) == set(constants)
+    assert len(set(constants.values())) == len(constants), "two error names share a code"
+    assert sorted(constants, key=constants.__getitem__) == list(ERROR_NAMES)   # ERROR_NAMES in code order
+    assert convert.ERROR_CODES == constants

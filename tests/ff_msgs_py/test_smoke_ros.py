@@ -1,10 +1,13 @@
-"""Foundation smoke test: an ff_msgs service served by another process, called over DDS on loopback."""
+"""Smoke test: an ff_msgs service served by another process, called over DDS on loopback."""
 from __future__ import annotations
 
+import pytest
 from rclpy.executors import SingleThreadedExecutor
 
 from ff_msgs.srv import PlanTrajectory
-from ff_msgs_py.launch import start_module, wait_for_line
+from ff_msgs_py.launch import domain_in_use, free_domain_id, start_module, wait_for_line
+
+pytestmark = pytest.mark.integration
 
 
 def call(node, client, request, timeout=10.0):
@@ -36,8 +39,6 @@ def test_plan_service_in_other_process(ros_env, rclpy_node):
 
 
 def test_free_domain_skips_a_domain_in_use(ros_env):
-    from ff_msgs_py.launch import domain_in_use, free_domain_id
-
     busy = int(ros_env["ROS_DOMAIN_ID"])
     proc = start_module("plan_echo_domain", "tests.support.plan_echo_node", [], ros_env)
     try:

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import time
 import uuid
-from typing import Callable
+from typing import Any, Callable
 
 import canopen
 
+from ff_hwbridge.drive.config import BridgeConfig, load_config
 from ff_hwbridge.sim.rig_process import RigProcess, free_port  # noqa: F401  (re-exported for tests)
 
 
@@ -44,6 +45,21 @@ def open_network(channel: str, interface: str = "virtual", notifier_cycle: float
     else:
         net.connect()
     return net
+
+
+def mini_config(channel: str, family: str = "epos4", n: int = 1, **over: Any) -> BridgeConfig:
+    """Master settings for ``n`` joints (node ids 1..n) of ``tests.support.mini_drive.MiniEpos``
+    drives on the virtual ``channel``: 10 A limit, 3 A nominal current, 5 ms SYNC, 10 ms
+    heartbeat, 0.3 s heartbeat timeout, 0.1 s setpoint watchdog; ``over`` replaces top-level keys."""
+    joints = [{"name": f"joint{i + 1}", "node_id": i + 1, "family": family, "current_limit": 10.0,
+               "units": {"nominal_current": 3.0, "torque_constant": 0.0267, "counts_per_rev": 2048,
+                         "gear_ratio": 54}} for i in range(n)]
+    data: dict[str, Any] = {"bus": {"interface": "virtual", "channel": channel}, "joints": joints,
+                            "sync_period": 0.005, "heartbeat_producer_ms": 10,
+                            "heartbeat_timeout": 0.3, "setpoint_timeout": 0.1,
+                            "boot_timeout": 2.0, "sdo_timeout": 2.0}
+    data.update(over)
+    return load_config(data)
 
 
 def configure_and_enable(master, timeout: float = 2.0) -> None:

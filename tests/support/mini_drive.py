@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import struct
 import threading
+import time
 
 import can
 import canopen
@@ -35,7 +36,8 @@ class MiniEpos:
         self.rpm = 0
         self.answer_sync = True
         self.drop_rx = False
-        self.rx_log: list[tuple[int, int]] = []
+        self.rx_log: list[tuple[int, int]] = []           # (controlword, raw setpoint) per RPDO
+        self.rx_wall_ns: list[int] = []                   # time.time_ns() at each RPDO's arrival
         self.transitions: list[int] = []
         self.lock = threading.Lock()
         self.dirty = False
@@ -84,6 +86,7 @@ class MiniEpos:
             self._reload()
 
     def _on_rpdo(self, can_id: int, data: bytes, ts: float) -> None:
+        arrived = time.time_ns()
         self.maps()
         if self.drop_rx:
             return
@@ -103,6 +106,7 @@ class MiniEpos:
         sp = rec.get(0x6071, rec.get(0x2030, 0))
         self.setpoint_raw = sp if self.state is State.OPERATION_ENABLED else 0
         self.rx_log.append((cw, sp))
+        self.rx_wall_ns.append(arrived)
 
     def _on_sync(self, can_id: int, data: bytes, ts: float) -> None:
         if self.node.nmt.state != "OPERATIONAL" or not self.answer_sync:

@@ -1,9 +1,10 @@
-"""A minimal node serving ff_msgs/srv/PlanTrajectory, for the foundation smoke test.
+"""A minimal node serving ff_msgs/srv/PlanTrajectory, for the ROS smoke test (tests/ff_msgs_py).
 
 It answers with a one-step profile that holds the request's goal as q_final, so the caller can
 check the interface round trip over DDS in another process.
 """
 import rclpy
+from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 
 from ff_msgs.srv import PlanTrajectory
@@ -28,7 +29,7 @@ def main() -> None:
     node.get_logger().info("plan_echo ready")
     try:
         rclpy.spin(node)
-    except (KeyboardInterrupt, rclpy.executors.ExternalShutdownException):
+    except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
         node.destroy_node()

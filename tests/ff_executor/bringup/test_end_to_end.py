@@ -1,4 +1,4 @@
-"""Issue 7's CI integration test: the whole chain across processes.
+"""The whole chain across processes.
 
 planner SERVICE → executor ACTION → bridge (lifecycle node) → CAN hub on 127.0.0.1 → simulated EPOS
 + arm whose true Coulomb friction is 20 % above the planner's model. The robust plan must land
@@ -9,10 +9,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from action_msgs.msg import GoalStatus
 
-from ff_executor.bringup.demo import MOTIONS, run_motions
+from ff_executor.bringup.demo import MOTIONS, plan_request, run_motions
 from ff_executor.bringup.stack import Stack, StackOptions
 from ff_executor.ros.client import StackClient
+
+pytestmark = pytest.mark.integration
 
 
 @pytest.fixture(scope="module")
@@ -55,10 +58,6 @@ def test_robust_lands_and_baseline_misses_with_coulomb_20_percent_off(stack_clie
 
 
 def test_cancel_mid_move_stops_the_arm_across_the_chain(stack_client):
-    from action_msgs.msg import GoalStatus
-
-    from ff_executor.bringup.demo import plan_request
-
     stack, client = stack_client
     resp = client.plan(plan_request("robust-derivative"))
     client.reset_arm([0.0])

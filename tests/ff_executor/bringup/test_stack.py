@@ -40,6 +40,7 @@ def test_bridge_config_is_valid_for_the_bridge_and_loopback():
         assert data["bus"]["channel"].startswith("ws://127.0.0.1:")
 
 
+@pytest.mark.integration
 def test_stack_starts_all_four_and_stops_them_by_pid(tmp_path):
     stack = Stack(StackOptions(true_scale={"pc": 1.2}, run_dir=str(tmp_path)), log=lambda s: None)
     stack.start()
@@ -50,8 +51,8 @@ def test_stack_starts_all_four_and_stops_them_by_pid(tmp_path):
         env = stack.env
         assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
         assert stack.hub_url.startswith("ws://127.0.0.1:")
-        assert stack._has_service("/ff_planner/plan")
-        assert stack._lifecycle_state("ff_hwbridge") == "active"
+        assert stack.has_service("/ff_planner/plan")
+        assert stack.lifecycle_state("ff_hwbridge") == "active"
         stack.set_true_params({"pc": 0.25})
         with pytest.raises(ParameterError):
             stack.set_true_params({"nope": 1.0})
@@ -62,6 +63,7 @@ def test_stack_starts_all_four_and_stops_them_by_pid(tmp_path):
     assert not any(p.alive() for p in procs)
 
 
+@pytest.mark.integration
 def test_ff_bringup_stops_everything_when_a_child_dies(tmp_path, ros_env):
     env = dict(ros_env)
     proc = subprocess.Popen([sys.executable, "-u", "-m", "ff_executor.bringup.stack", "--no-planner",
@@ -93,6 +95,7 @@ def test_ff_bringup_stops_everything_when_a_child_dies(tmp_path, ros_env):
             proc.wait(30)
 
 
+@pytest.mark.integration
 def test_timed_wrapper_runs_the_module_with_a_fine_switch_interval(tmp_path):
     mod = tmp_path / "probe_mod.py"
     mod.write_text("import sys\nprint('interval', round(sys.getswitchinterval() * 1e6), sys.argv[1:])\n")

@@ -20,7 +20,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 
-from ff_executor.ros.client import _safe_action_client_class
+from ff_executor.ros.client import SafeActionClient
 from ff_msgs.action import ExecuteProfile
 from ff_msgs.msg import CurrentSetpoint
 from ff_msgs_py.convert import ns_to_time, profile_to_msg, setpoint_to_tuple
@@ -29,6 +29,8 @@ from ff_planner.model.arm1dof import advance
 from ff_planner.model.params import default_params
 from ff_planner.model.profile import CurrentProfile
 from ff_planner.model.simulate import rest_position
+
+pytestmark = pytest.mark.integration
 
 CUR = [-3.70, 2.27, 0.58, 6.94, -4.76]
 PARAMS = default_params("arm1dof")
@@ -137,7 +139,7 @@ def stack(ros_env, tmp_path_factory):
     spin.start()
     try:
         assert wait_for_line(proc, "ff_executor ready", 30), proc.output()
-        client = _safe_action_client_class()(client_node, ExecuteProfile, "/ff_executor/execute")
+        client = SafeActionClient(client_node, ExecuteProfile, "/ff_executor/execute")
         assert client.wait_for_server(timeout_sec=15), "action server not discovered"
         yield bridge, client, proc
     finally:

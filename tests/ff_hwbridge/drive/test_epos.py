@@ -11,29 +11,17 @@ import time
 
 import pytest
 
-from ff_hwbridge.drive.config import load_config
 from ff_hwbridge.drive.epos import EposError, EposMaster
 from ff_hwbridge.protocol.cia402 import State
-from tests.support.canopen_helpers import configure_and_enable, unique_channel, waiter
+from tests.support.canopen_helpers import configure_and_enable, mini_config, unique_channel, waiter
 from tests.support.mini_drive import MiniEpos
-
-
-def _config(channel: str, family: str = "epos4", n: int = 1, **over):
-    joints = [{"name": f"joint{i + 1}", "node_id": i + 1, "family": family, "current_limit": 10.0,
-               "units": {"nominal_current": 3.0, "torque_constant": 0.0267, "counts_per_rev": 2048,
-                         "gear_ratio": 54}} for i in range(n)]
-    data = {"bus": {"interface": "virtual", "channel": channel}, "joints": joints,
-            "sync_period": 0.005, "heartbeat_producer_ms": 10, "heartbeat_timeout": 0.3,
-            "setpoint_timeout": 0.1, "boot_timeout": 2.0, "sdo_timeout": 2.0}
-    data.update(over)
-    return load_config(data)
 
 
 @pytest.fixture
 def rig(request):
     family, n = getattr(request, "param", ("epos4", 1))
     channel = unique_channel("ff-test")
-    cfg = _config(channel, family, n)
+    cfg = mini_config(channel, family, n)
     drives = [MiniEpos(channel, j.node_id, j.units) for j in cfg.joints]
     master = EposMaster(cfg)
     master.connect()
@@ -55,7 +43,7 @@ def test_configure_sets_mode_heartbeat_and_pdo_maps(rig):
         fam = d.family
         assert int(d.node.sdo[0x6060].raw) == (10 if fam == "epos4" else -3)
         assert int(d.node.sdo[0x1017].raw) == 10
-        assert _wait(lambda: d.node.nmt.state == "OPERATIONAL")
+        assert _wait(lambda d=d: d.node.nmt.state == "OPERATIONAL")
         sp = 0x6071 if fam == "epos4" else 0x2030
         assert d.rpdo_map == [(0x6040, 0), (sp, 0)]
         assert d.tpdo1_map == [(0x6041, 0), (0x6064, 0)]
@@ -142,7 +130,7 @@ def test_setpoint_watchdog_and_feedback_loss(rig):
 
 def test_missing_node_gives_clear_error():
     channel = unique_channel("ff-test")
-    master = EposMaster(_config(channel, boot_timeout=0.2))
+    master = EposMaster(mini_config(channel, boot_timeout=0.2))
     master.connect()
     try:
         with pytest.raises(EposError, match="no boot-up"):
@@ -190,7 +178,7 @@ def test_lost_quick_stop_is_repeated_and_lost_setpoint_heals(rig):
 
 def test_master_heartbeat_is_produced_and_consumed_by_the_drive():
     channel = unique_channel("ff-test")
-    cfg = _config(channel, master_heartbeat_ms=20)
+    cfg = mini_config(channel, master_heartbeat_ms=20)
     drive = MiniEpos(channel, 1, cfg.joints[0].units)
     seen = []
     drive.net.subscribe(0x77F, lambda cid, data, ts: seen.append(bytes(data)))

@@ -11,6 +11,8 @@ import pytest
 from ff_hwbridge.protocol.units import DriveUnits
 from tests.support.canopen_helpers import unique_channel, waiter
 
+pytestmark = pytest.mark.integration
+
 
 @pytest.fixture
 def bridge(ros_env):
@@ -42,7 +44,7 @@ def bridge(ros_env):
     try:
         yield node, client, drive
     finally:
-        node._teardown()
+        node.teardown()
         ex.shutdown()
         node.destroy_node()
         client.destroy_node()
@@ -56,6 +58,7 @@ _wait = waiter(3.0, 0.005)
 def test_lifecycle_setpoints_faults_and_reset(bridge):
     from diagnostic_msgs.msg import DiagnosticArray
     from lifecycle_msgs.msg import State as LcState
+    from lifecycle_msgs.srv import GetState
     from sensor_msgs.msg import JointState
     from std_srvs.srv import Trigger
 
@@ -68,8 +71,12 @@ def test_lifecycle_setpoints_faults_and_reset(bridge):
     assert node.master is not None
     assert _wait(lambda: drive.node.nmt.state == "OPERATIONAL")
     node.trigger_activate()
-    assert node._active
-    assert node._state_machine.current_state[0] == LcState.PRIMARY_STATE_ACTIVE
+    assert node.active
+    get_state = client.create_client(GetState, "/ff_hwbridge/get_state")
+    assert get_state.wait_for_service(timeout_sec=5.0)
+    fut_state = get_state.call_async(GetState.Request())
+    assert _wait(fut_state.done, 5.0)
+    assert fut_state.result().current_state.id == LcState.PRIMARY_STATE_ACTIVE
 
     js, diags, applied = [], [], []
     client.create_subscription(JointState, "/ff_hwbridge/joint_states", js.append, 10)
@@ -104,7 +111,7 @@ def test_lifecycle_setpoints_faults_and_reset(bridge):
     assert not node.master.latched
 
     node.trigger_deactivate()
-    assert not node._active and _wait(lambda: drive.transitions[-1] == 5)
+    assert not node.active and _wait(lambda: drive.transitions[-1] == 5)
     node.trigger_cleanup()
     assert node.master is None
 
@@ -129,36 +136,6 @@ def test_configure_error_goes_to_error_processing(ros_env):
         rclpy.shutdown(context=ctx)
 
 
-def test_scheduler_applies_in_stamp_order_never_early_and_drops_stale():
-    from ff_hwbridge.drive.scheduler import StampScheduler
-
-    applied = []
-    sched = StampScheduler(lambda stamp, p: applied.append((time.time_ns(), stamp, p))).start()
-    try:
-        t0 = time.time_ns() + 30_000_000
-        for k in (3, 1, 2, 0):                                  # submitted out of order
-            sched.submit(t0 + k * 5_000_000, k)
-        assert _wait(lambda: len(applied) == 4)
-        assert [p for _, _, p in applied] == [0, 1, 2, 3]
-        assert all(now >= stamp for now, stamp, _ in applied)   # never before its stamp
-        assert all(sent >= stamp for stamp, sent in sched.records)
-        sched.submit(t0, "stale")                               # older than the last applied
-        sched.submit(t0 + 14_000_000, "stale too")
-        time.sleep(0.05)
-        assert sched.stale == 2 and len(applied) == 4
-        sched.submit(time.time_ns() - 1_000_000, "late")            # past, but newer: applied at once
-        assert _wait(lambda: len(applied) == 5)
-        assert sched.late >= 1
-        sched.submit(time.time_ns() + 5_000_000, "x")
-        sched.submit(time.time_ns() + 500_000_000, "dropped")
-        assert _wait(lambda: len(applied) == 6)
-        assert sched.clear() == 1 and sched.pending == 0
-        st = sched.stats()
-        assert st.count == 6 and st.min_us >= 0.0 and st.p50_us <= st.max_us
-    finally:
-        sched.stop()
-
-
 def test_config_file_parameter_is_used(ros_env, tmp_path):
     import rclpy
     from rclpy.parameter import Parameter
@@ -181,20 +158,3 @@ def test_config_file_parameter_is_used(ros_env, tmp_path):
         node.destroy_node()
     finally:
         rclpy.shutdown(context=ctx)
-
-
-def test_scheduler_prepares_before_the_stamp():
-    from ff_hwbridge.drive.scheduler import StampScheduler
-
-    seen = []
-    sched = StampScheduler(lambda stamp, p: seen.append((time.time_ns(), stamp, p)),
-                           prepare=lambda p: (time.time_ns(), p * 2)).start()
-    try:
-        stamp = time.time_ns() + 20_000_000
-        sched.submit(stamp, 21)
-        assert _wait(lambda: seen)
-        applied_at, st, (prepared_at, value) = seen[0]
-        assert value == 42 and st == stamp
-        assert prepared_at <= applied_at and stamp <= applied_at   # prepared first, never early
-    finally:
-        sched.stop()

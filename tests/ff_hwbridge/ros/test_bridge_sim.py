@@ -15,6 +15,8 @@ from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.sim.rig_process import RigProcess, rig_master_config
 from tests.support.canopen_helpers import configure_and_enable, waiter
 
+pytestmark = pytest.mark.integration
+
 HB_MS = 10
 # s; heartbeat / feedback loss is detectable only after this. Generous: this 2-core machine is
 # shared, and a loaded scheduler can hold a process off the CPU for tens of ms.
@@ -23,7 +25,7 @@ SAFE_WITHIN = 0.05       # s
 
 
 class SimProcess(RigProcess):
-    """``python -m ff_hwbridge.sim.rig --host-hub PORT`` with a stdin command channel."""
+    """``python -m ff_hwbridge.cli.sim_rig --host-hub PORT`` with a stdin command channel."""
 
     def __init__(self, env):
         super().__init__(["--q0", "0.0"], env=env, stderr=tempfile.TemporaryFile("w+"))
@@ -69,7 +71,7 @@ def master(sim):
         configure_and_enable(m)
         # heartbeat loss is judged against heartbeat_timeout only once an OPERATIONAL heartbeat
         # was seen (before that the master allows its state_timeout): start from there
-        assert wait_for(lambda: all(d.seen_operational for d in m._drives)), "no OPERATIONAL heartbeat"
+        assert wait_for(lambda: all(m.heartbeats_operational())), "no OPERATIONAL heartbeat"
         yield m
     finally:
         m.disconnect()
@@ -159,7 +161,7 @@ def test_silent_master_stops_the_drive(ros_env):
             # the drive, its 0x77F frames do not (cause not found yet; reported). Not the drive's
             # behaviour under test, so record it as an expected failure of the set-up.
             pytest.xfail("the master's heartbeat frames never reached the simulated drive")
-        m._stop_master_heartbeat()                      # the master "dies" (its SYNC still runs)
+        m.stop_master_heartbeat()                       # the master "dies" (its SYNC still runs)
         assert wait_for(lambda: sim.currents() == [0.0], 1.0), sim.cmd("info 1")
         assert wait_for(lambda: m.latched, 1.0)
         assert "0x8130" in m.fault_reason, m.fault_reason

@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 
 import canopen
+import pytest
 from rcl_interfaces.srv import SetParameters
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
@@ -14,6 +15,8 @@ from std_srvs.srv import Trigger
 from ff_hwbridge.sim.drive import DriveConfig, build_object_dictionary
 from ff_msgs_py.launch import start_module, wait_for_line
 from tests.support.canopen_helpers import free_port, open_network
+
+pytestmark = pytest.mark.integration
 
 
 def call(node, client, request, timeout=10.0):
@@ -80,7 +83,7 @@ def test_sim_driver_node(ros_env, rclpy_node):
         assert res[0].successful
         remote.sdo.RESPONSE_TIMEOUT = 0.3
         try:
-            remote.sdo[0x1018][1].raw
+            _ = remote.sdo[0x1018][1].raw
             raise AssertionError("SDO answered while silent")
         except canopen.SdoCommunicationError:
             pass

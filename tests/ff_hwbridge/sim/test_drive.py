@@ -271,7 +271,7 @@ def test_tpdos_on_sync_only_when_operational():
         assert len(r.seen(0x181)) == n1
         r.node.sdo.RESPONSE_TIMEOUT = 0.2
         with pytest.raises(SdoCommunicationError):       # no SDO in STOPPED either
-            r.node.sdo[0x6060].raw
+            _ = r.node.sdo[0x6060].raw
     finally:
         r.close()
 
@@ -319,7 +319,7 @@ def test_fault_sdo_silent(rig):
     rig.drive.set_sdo_silent()
     rig.node.sdo.RESPONSE_TIMEOUT = 0.3
     with pytest.raises(SdoCommunicationError):
-        rig.node.sdo[0x6060].raw
+        _ = rig.node.sdo[0x6060].raw
     rig.drive.set_sdo_silent(False)
     assert rig.node.sdo[0x6060].raw == 0
 
@@ -387,7 +387,7 @@ def test_heartbeat_consumer_faults_on_a_silent_master(rig):
     finally:
         task.stop()
     assert wait_for(lambda: rig.drive.state is State.FAULT)
-    assert time.monotonic() - rig.drive._hb_seen[127] >= 0.1     # not before the timeout
+    assert time.monotonic() - rig.drive.heartbeats_seen()[127] >= 0.1     # not before the timeout
     assert rig.drive.applied_current == 0.0
     assert wait_for(lambda: any(d[:2] == b"\x30\x81" for d in rig.seen(0x81)))   # EMCY 0x8130
     rig.node.sdo[0x1016][1].raw = 0                       # consumer off, then fault reset

@@ -77,6 +77,7 @@ def test_json_summary_and_params_file(tmp_path, capsys):
     assert abs(d["q_final"][0] - 1.0) < 1e-8
 
 
+@pytest.mark.integration
 def test_help_via_subprocess():
     r = subprocess.run([sys.executable, "-m", "ff_planner.cli.plan", "--help"], capture_output=True,
                        text=True, timeout=60)
@@ -86,6 +87,7 @@ def test_help_via_subprocess():
         assert flag in r.stdout
 
 
+@pytest.mark.integration
 def test_unreachable_via_subprocess_no_traceback():
     r = subprocess.run([sys.executable, "-m", "ff_planner.cli.plan", "--qf", "1e3"],
                        capture_output=True, text=True, timeout=60)

@@ -1,6 +1,5 @@
-"""ff-library: grid files, continuation order, exactly-once builds on a Dask LocalCluster with a
-worker killed mid-run, failed/infeasible rows, the CLI, and the planner node answering from a
-built library."""
+"""ff-library: grid files, continuation order, exactly-once builds (serial, and on a Dask
+LocalCluster with a worker killed mid-run), failed/infeasible rows, the CLI."""
 from __future__ import annotations
 
 import json
@@ -15,10 +14,10 @@ import psutil  # a dependency of dask.distributed
 import pytest
 
 from ff_planner.cli.library import main as cli_main
-from ff_planner.library.build import build_library, plan_for_library, start_local_cluster
+from ff_planner.library.build import build_library, start_local_cluster
 from ff_planner.library.grid import GridError, continuation_tree, expand, load_grid, parse_grid
 from ff_planner.library.store import MotionLibrary
-from ff_planner.model.profile import PlanRequest
+from tests.support.stand_in_planners import broken_plan, delayed_plan
 
 # 1-DOF, Coulomb uncertainty (k = 1, N = 3): robust plans exist almost everywhere and are fast.
 GRID = {
@@ -26,19 +25,6 @@ GRID = {
     "starts": 200, "seed": 3, "time_budget": 60,
     "q0": [0.0, 0.25], "qf": {"start": 0.5, "stop": 1.25, "step": 0.25}, "tf": [0.9, 1.0],
 }
-
-# the planner, slowed down so that a worker can be killed while it is planning
-DELAY = 0.25
-
-
-def slow_plan(request: PlanRequest, progress=None, initial_currents=None):
-    time.sleep(DELAY)
-    return plan_for_library(request, progress, initial_currents)
-
-
-def broken_plan(request: PlanRequest, progress=None, initial_currents=None):
-    raise RuntimeError("planner exploded")
-
 
 def _content(lib: MotionLibrary) -> dict[str, tuple]:
     """What must not depend on workers or timing: status, how, neighbour, code, currents."""
@@ -145,9 +131,11 @@ def test_an_interrupted_build_resumes_to_the_same_library(tmp_path, serial_libra
     grid = expand(parse_grid(GRID))
     path = tmp_path / "lib.sqlite"
 
-    def stop(i, rec, n=[0]):
-        n[0] += 1
-        if n[0] == 4:
+    stored = []
+
+    def stop(i, rec):
+        stored.append(i)
+        if len(stored) == 4:
             raise KeyboardInterrupt   # the client dies after storing 4 distinct motions
     with pytest.raises(KeyboardInterrupt):
         build_library(grid, path, serial=True, progress=False, on_result=stop)
@@ -157,6 +145,7 @@ def test_an_interrupted_build_resumes_to_the_same_library(tmp_path, serial_libra
         assert _content(a) == _content(b)
 
 
+@pytest.mark.integration
 def test_dask_build_with_a_worker_killed_mid_run_matches_serial(tmp_path, serial_library, capsys):
     """2 worker processes on 127.0.0.1; SIGKILL one while it plans; every task stored exactly once
     and identical to the serial build."""
@@ -192,7 +181,7 @@ def test_dask_build_with_a_worker_killed_mid_run_matches_serial(tmp_path, serial
                      if c.status == psutil.CONN_LISTEN]
         assert len(listening) >= 5 and all(a.ip == "127.0.0.1" for a in listening), listening
         rep = build_library(grid, path, client=client, progress=False,
-                            plan_entry=f"{__name__}:slow_plan", on_result=on_result)
+                            plan_fn=delayed_plan, on_result=on_result)
         # the same grid again through the CLI on this (existing) scheduler: everything is skipped
         gfile = tmp_path / "grid.yaml"
         gfile.write_text(json.dumps(GRID))
@@ -222,7 +211,7 @@ def test_failed_and_infeasible_rows_keep_their_reason_and_failed_ones_are_retrie
     data = {**GRID, "q0": 0.0, "qf": [0.5, 8.0], "tf": 0.5}     # 8 rad in 0.5 s is out of reach (reach ~5.1 rad)
     grid = expand(parse_grid(data))
     path = tmp_path / "lib.sqlite"
-    rep = build_library(grid, path, serial=True, progress=False, plan_entry=f"{__name__}:broken_plan")
+    rep = build_library(grid, path, serial=True, progress=False, plan_fn=broken_plan)
     assert rep.failed == 2
     with MotionLibrary(path) as lib:
         rows = lib.records()
@@ -257,27 +246,3 @@ def test_cli_show_and_errors(tmp_path, serial_library, capsys):
     bad.write_text("model: arm1dof\nq0: 0\nqf: {start: 0, stop: 1}\ntf: 1\n")
     assert cli_main(["build", str(bad), "--library", str(tmp_path / "x.sqlite"), "--serial"]) == 2
     assert "start, stop, step" in capsys.readouterr().err
-
-
-# --- the planner node answers from the built library ------------------------------------------------
-def test_planner_service_answers_grid_requests_warm_from_the_library(serial_library):
-    from ff_planner.service.planner_service import PlannerService, RequestFields, ServiceConfig
-
-    path, _ = serial_library
-    svc = PlannerService(ServiceConfig(library_path=str(path), workers=1, warmup=False))
-    try:
-        # a grid task (and a shifted copy of one): answered from the library without planning
-        for q0, qf in ((0.0, 0.75), (0.25, 1.0), (1.0, 1.75)):
-            res = svc.handle_fields(RequestFields(model="arm1dof", q0=[q0], qf=[qf], move_time=1.0,
-                                                  uncertain=["pc"], starts=200))
-            assert res.success and res.warm_start, res.message
-            assert res.extra["source"] in ("hit", "shift") and "motion library" in res.message
-            assert res.extra["latency"] < 5.0
-        # a request between grid points: re-optimised from the nearest stored plan (worker process)
-        svc.start()
-        res = svc.handle_fields(RequestFields(model="arm1dof", q0=[0.0], qf=[0.85], move_time=0.95,
-                                              uncertain=["pc"], starts=200))
-        assert res.success and res.warm_start and res.extra["source"] == "warm", res.message
-        assert "warm start from library entry" in res.message
-    finally:
-        svc.close()

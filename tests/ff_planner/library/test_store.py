@@ -1,5 +1,5 @@
 """Motion library (ff_planner.library.store): keys, exactly-once writes from several processes,
-invalidation by parameters, nearest neighbours, upgrade rules, warm_plan's planner hand-off."""
+invalidation by parameters, nearest neighbours, upgrade rules."""
 from __future__ import annotations
 
 import multiprocessing
@@ -11,12 +11,10 @@ import pytest
 from ff_planner.library.store import (
     LibraryError,
     MotionLibrary,
-    WarmStartUnavailable,
     canonical_coords,
     params_hash,
     record_from_result,
     task_key,
-    warm_plan,
 )
 from ff_planner.model.params import default_params
 from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult
@@ -123,6 +121,7 @@ def _writer(path: str, worker: int, keys: int) -> list[bool]:
     return out
 
 
+@pytest.mark.integration
 def test_concurrent_writers_in_processes_store_each_task_once(tmp_path):
     path = str(tmp_path / "shared.sqlite")
     MotionLibrary(path).close()
@@ -153,29 +152,6 @@ def test_schema_version_mismatch_is_refused(tmp_path):
         MotionLibrary(path)
     with pytest.raises(LibraryError, match="empty"):
         MotionLibrary("")
-
-
-def test_warm_plan_hands_neighbour_currents_to_the_planner(lib):
-    req = _request()
-    lib.put(record_from_result(req, _result(req)))
-    neighbour = lib.nearest(_request(qf=1.05))[0][1]
-    seen = {}
-
-    def planner(request, progress=None, initial_currents=None):
-        seen["init"] = initial_currents
-        return _result(request)
-
-    res = warm_plan(_request(qf=1.05), neighbour, plan_fn=planner)
-    np.testing.assert_array_equal(seen["init"], neighbour.currents())
-    assert res.warm_start and res.extra["warm_from"] == neighbour.task_key
-
-    def cold_only(request, progress=None):
-        return _result(request)
-
-    with pytest.raises(WarmStartUnavailable, match="initial_currents"):
-        warm_plan(_request(qf=1.05), neighbour, plan_fn=cold_only)
-    with pytest.raises(WarmStartUnavailable, match="currents"):
-        warm_plan(_request(qf=1.05, steps=7), neighbour, plan_fn=planner)
 
 
 def test_failed_results_are_stored_as_failed_with_reason(lib):

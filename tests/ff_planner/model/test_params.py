@@ -26,7 +26,7 @@ def test_presets_are_the_papers_tables():
     t3 = preset("table3")
     assert (t3.pc1, t3.pc2, t3.n2, t3.kt2, t3.lc2, t3.Jc2) == (0.19, 0.60, 198.0, 0.0281, 0.33, 0.178)
     assert default_params("scara2") == t3 and n_joints("scara2") == 2 and n_joints("arm1dof") == 1
-    # the breakaway current of the table 2 arm, quoted in the issue: about 0.169 A
+    # the breakaway current of the table 2 arm: pc / (n·kt·(1 − pt)) ≈ 0.169 A
     assert breakaway_torque(t2.pc, t2.pt) / t2.torque_per_amp == pytest.approx(0.1689, abs=1e-4)
 
 

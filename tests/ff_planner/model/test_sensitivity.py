@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from ff_planner.model.arm1dof import derivatives, final_state
 from ff_planner.model.params import ParameterError, preset
@@ -114,10 +116,6 @@ def test_api_methods_agree_and_forward_is_the_paper_quotient():
         sensitivities(T2, prof, [0.0], names=["mu"])
     with pytest.raises(ParameterError, match="method"):
         sensitivities(T2, prof, [0.0], method="magic")
-
-
-from hypothesis import given, settings  # noqa: E402
-from hypothesis import strategies as st
 
 
 @settings(max_examples=25, deadline=None)

@@ -94,18 +94,18 @@ def test_baseline_going_backwards_and_2dof_refusal():
 def test_energy_optimal_dual_solver_matches_a_generic_qp_and_refuses_infeasible():
     from scipy.optimize import minimize
 
-    from ff_planner.optimize.baselines import _box_least_norm
+    from ff_planner.optimize.baselines import box_least_norm
 
     rng = np.random.default_rng(0)
     A = rng.normal(size=(2, 12))
     x_true = rng.uniform(0, 1, 12)
     b = A @ x_true
-    x = _box_least_norm(A, b, 0.1, 1.0)
+    x = box_least_norm(A, b, 0.1, 1.0)
     ref = minimize(lambda z: 0.1 * z @ z, x_true, jac=lambda z: 0.2 * z, method="SLSQP",
                    bounds=[(0, 1)] * 12, constraints=[{"type": "eq", "fun": lambda z: A @ z - b}],
                    options={"ftol": 1e-15, "maxiter": 500})
     np.testing.assert_allclose(A @ x, b, atol=1e-10)
     assert 0.1 * x @ x <= ref.fun + 1e-9 and np.all((x >= 0) & (x <= 1))
-    assert _box_least_norm(A, b * 100.0, 0.1, 1.0) is None   # needs x far above the box
+    assert box_least_norm(A, b * 100.0, 0.1, 1.0) is None   # needs x far above the box
     with pytest.raises(PlanningError, match="energy-optimal"):
         energy_optimal_1dof(P2, 0.0, 19.0, 1.0, 0.05)

@@ -1,16 +1,19 @@
-"""plan(): validation with error codes, the reachability check, dispatch, best-effort labels."""
+"""check() and plan(): validation with error codes, the reachability check, dispatch (warm starts
+included), best-effort labels."""
 from __future__ import annotations
 
 import math
+import pickle
 import time
 
 import numpy as np
 import pytest
 
 import ff_planner.optimize.planner as planner
+from ff_planner.core.errors import WarmStartUnavailable
 from ff_planner.model.params import PRESETS
 from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
-from ff_planner.optimize.planner import check_reachable, plan, reach
+from ff_planner.optimize.planner import CheckedRequest, Route, check, plan, reach
 
 
 @pytest.mark.parametrize("kw, code, needle", [
@@ -63,7 +66,7 @@ def test_scara2_reach_bound_is_sound_against_simulation():
     req = PlanRequest(model="scara2", q0=(0.0, 0.0), qf=(bound[0] + 1.0, 0.0), tf=tf,
                       uncertain=("pc1",))
     with pytest.raises(PlanningError) as ei:
-        check_reachable(req)
+        check(req)
     assert ei.value.code == "UNREACHABLE" and "joint 1" in str(ei.value)
 
 
@@ -80,8 +83,13 @@ def _fake_result(request, success):
                       uncertain=list(request.uncertain), objective=request.objective)
 
 
+def _route_to(monkeypatch, fn, warm_start=False):
+    """Send the default request (arm1dof, robust-derivative) to ``fn``."""
+    monkeypatch.setitem(planner.ROUTES, ("arm1dof", "robust-derivative"), Route(fn, warm_start))
+
+
 def test_failed_plans_are_labelled_best_effort(monkeypatch):
-    monkeypatch.setattr(planner, "_dispatch", lambda req: lambda r, p: _fake_result(r, False))
+    _route_to(monkeypatch, lambda r, p: _fake_result(r, False))
     r = plan(PlanRequest())
     assert not r.success and r.best_effort and r.error_code == "NO_ROBUST_PLAN"
     assert "best plan found" in r.message
@@ -92,7 +100,7 @@ def test_late_results_are_labelled(monkeypatch):
         time.sleep(0.05)
         return _fake_result(req, False)
 
-    monkeypatch.setattr(planner, "_dispatch", lambda req: slow)
+    _route_to(monkeypatch, slow)
     r = plan(PlanRequest(time_budget=0.01))
     assert r.error_code == "TIME_BUDGET_EXHAUSTED" and r.extra["over_time_budget"]
     assert r.best_effort
@@ -105,16 +113,16 @@ def test_progress_is_passed_through(monkeypatch):
         progress({"starts_done": 1})
         return _fake_result(req, True)
 
-    monkeypatch.setattr(planner, "_dispatch", lambda req: fn)
+    _route_to(monkeypatch, fn)
     r = plan(PlanRequest(), progress=seen.append)
     assert r.success and not r.best_effort and seen == [{"starts_done": 1}]
 
 
-def test_robust_k3_plan_through_the_facade_meets_issue_3():
+def test_robust_k3_plan_through_the_facade_is_truly_robust(robust_plan_1dof):
     """1-DOF, k = 3, 0 -> 1 rad in 1 s: true derivatives <= 1e-6, on target, at rest."""
     from ff_planner.model.sensitivity import sensitivities
 
-    r = plan(PlanRequest(uncertain=("pv", "pc", "pt"), steps=5, starts=100, seed=0))
+    r = robust_plan_1dof
     assert r.success and r.robust and not r.best_effort and r.error_code == "OK"
     p = r.params
     cen = sensitivities(p, r.profile, [0.0], ["pv", "pc", "pt"], method="central", rel_step=1e-6)
@@ -123,3 +131,44 @@ def test_robust_k3_plan_through_the_facade_meets_issue_3():
         assert abs(cen[n]) <= 1e-6 and abs(ex[n]) <= 1e-6 and abs(r.sensitivities[n]) <= 1e-6
     assert abs(r.q_final[0] - 1.0) <= 1e-6 and r.qd_final[0] == 0.0
     assert np.max(np.abs(r.profile.currents)) <= p.i_max
+
+
+def test_check_once_then_plan_without_checking_again(monkeypatch):
+    """A CheckedRequest pickles (it travels to worker processes) and is planned as it is."""
+    checked = check(PlanRequest(objective="time-optimal"))
+    assert isinstance(checked, CheckedRequest) and checked.params == PRESETS["table2"]
+    assert len(checked.reach) == 1 and checked.reach[0] > 1.0
+    again = pickle.loads(pickle.dumps(checked))
+    assert again == checked
+
+    def no_check(request):
+        raise AssertionError("checked twice")
+
+    monkeypatch.setattr(planner, "check", no_check)
+    r = plan(again)
+    assert r.success and r.extra["reach_bound"] == list(checked.reach)
+
+
+def test_no_planner_for_the_objective_is_an_invalid_request():
+    with pytest.raises(PlanningError) as ei:
+        check(PlanRequest(model="scara2", q0=(0.0, 0.0), qf=(1.0, 0.0), objective="time-optimal",
+                          uncertain=("pc1",)))
+    assert ei.value.code == "INVALID_REQUEST" and "arm1dof only" in str(ei.value)
+
+
+def test_warm_starts_follow_the_dispatch_table(monkeypatch):
+    seen = {}
+
+    def fn(req, progress, initial_currents=None):
+        seen["init"] = initial_currents
+        return _fake_result(req, True)
+
+    init = np.ones((5, 1))
+    _route_to(monkeypatch, fn, warm_start=True)
+    assert plan(PlanRequest(), initial_currents=init).success
+    assert np.array_equal(seen["init"], init)
+    _route_to(monkeypatch, fn, warm_start=False)
+    with pytest.raises(WarmStartUnavailable):
+        plan(PlanRequest(), initial_currents=init)
+    with pytest.raises(WarmStartUnavailable):
+        plan(PlanRequest(objective="time-optimal"), initial_currents=init)

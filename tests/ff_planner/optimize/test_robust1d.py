@@ -4,21 +4,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ff_planner.model.arm1dof import FRICTION
 from ff_planner.model.params import preset
 from ff_planner.model.profile import PlanningError, PlanRequest
 from ff_planner.model.simulate import rest_position, simulate
-from ff_planner.optimize.robust1d import plan_robust_1dof, sample_scales, stop_speed_bound
+from ff_planner.optimize.planner import plan
+from ff_planner.optimize.robust1d import plan_robust_1dof, stop_speed_bound
+from ff_planner.optimize.sample_box import sample_scales
 
 T2 = preset("table2")
 
 
-@pytest.fixture(scope="module")
-def k3_plan():
-    return plan_robust_1dof(PlanRequest(starts=3000, seed=0))
-
-
-def test_k3_plan_is_truly_robust(k3_plan):
-    r = k3_plan
+def test_k3_plan_is_truly_robust(robust_plan_1dof):
+    r = robust_plan_1dof
     assert r.success and r.robust and not r.best_effort and r.error_code == "OK"
     assert r.profile.n_steps == 5
     assert np.all(np.abs(r.profile.currents) <= T2.i_max)
@@ -30,9 +28,9 @@ def test_k3_plan_is_truly_robust(k3_plan):
     assert ver["kink_radius"] >= 1e-3                    # not at a stiction/switch kink
 
 
-def test_k3_plan_holds_when_resimulated_with_perturbed_parameters(k3_plan):
+def test_k3_plan_holds_when_resimulated_with_perturbed_parameters(robust_plan_1dof):
     """Independent check through simulate(): the final position moves only to second order."""
-    prof = k3_plan.profile
+    prof = robust_plan_1dof.profile
     q_nom = simulate(T2, prof, [0.0]).q_f[0]
     for k in ("pv", "pc", "pt"):
         p0 = getattr(T2, k)
@@ -43,7 +41,7 @@ def test_k3_plan_holds_when_resimulated_with_perturbed_parameters(k3_plan):
             assert abs(qp - q_nom) < 1e-4 * rel ** 0.5 + 1e-9, (k, rel, qp - q_nom)
             assert abs(qm - q_nom) < 1e-4 * rel ** 0.5 + 1e-9, (k, rel, qm - q_nom)
     assert rest_position(T2, prof, [0.0])[0] == pytest.approx(1.0, abs=1e-6)
-    fc = k3_plan.extra["finite_change"]
+    fc = robust_plan_1dof.extra["finite_change"]
     assert set(fc) == {"pv", "pc", "pt", "all"} and "+40%" in fc["pc"]
 
 
@@ -69,8 +67,8 @@ def test_robust_sampled_improves_finite_change_error():
     assert r.extra["sampled_rms"] < 0.1
 
 
-def test_warm_start_from_a_plan_takes_one_start(k3_plan):
-    init = k3_plan.profile.currents[:, 0] + 0.01
+def test_warm_start_from_a_plan_takes_one_start(robust_plan_1dof):
+    init = robust_plan_1dof.profile.currents[:, 0] + 0.01
     r = plan_robust_1dof(PlanRequest(starts=10, seed=5), initial_currents=init)
     assert r.success and r.warm_start and r.starts_tried == 1
 
@@ -88,9 +86,9 @@ def test_bad_requests_are_clear_errors():
     with pytest.raises(PlanningError, match="initial_currents"):
         plan_robust_1dof(PlanRequest(), initial_currents=[1.0, 2.0])
     with pytest.raises(ValueError, match="tf"):
-        plan_robust_1dof(PlanRequest(tf=0.04))
+        plan(PlanRequest(tf=0.04))
     with pytest.raises(ValueError):
-        plan_robust_1dof(PlanRequest(uncertain=("mu",)))
+        plan(PlanRequest(uncertain=("mu",)))
     with pytest.raises(PlanningError, match="robust-derivative"):
         plan_robust_1dof(PlanRequest(objective="time-optimal"))
 
@@ -98,7 +96,7 @@ def test_bad_requests_are_clear_errors():
 def test_helpers():
     vb = stop_speed_bound(T2, 0.05)
     assert 0.05 < vb < 0.06
-    s = sample_scales(["pc", "pt"])
+    s = sample_scales(["pc", "pt"], FRICTION)
     assert s.shape == (4 * 2 + 4, 3) and np.all(s[:, 0] == 1.0)
 
 

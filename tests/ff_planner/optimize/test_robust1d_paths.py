@@ -9,27 +9,21 @@ from ff_planner.model.arm1dof import derivatives
 from ff_planner.model.params import preset
 from ff_planner.model.profile import PlanningError, PlanRequest
 from ff_planner.model.simulate import rest_position, simulate
-from ff_planner.optimize.robust1d import CHANGES, plan_robust_1dof, solve_block, verify
+from ff_planner.optimize.robust1d import plan_robust_1dof, solve_block, verify
+from ff_planner.optimize.sample_box import FINITE_CHANGES
 
 T2 = preset("table2")
-
-
-@pytest.fixture(scope="module")
-def k3():
-    r = plan_robust_1dof(PlanRequest(starts=3000, seed=3))
-    assert r.success and r.robust
-    return r
 
 
 def _q(params, prof):
     return simulate(params, prof, [0.0]).q_f[0]
 
 
-def test_hot_path_verification_matches_the_reference_simulator(k3):
+def test_hot_path_verification_matches_the_reference_simulator(robust_plan_1dof):
     """The verification computed inside the compiled search = one recomputed from simulate(),
     rest_position() and derivatives() (the suite's reference entry points)."""
-    prof = k3.profile
-    ver, fc = k3.extra["verification"], k3.extra["finite_change"]
+    prof = robust_plan_1dof.profile
+    ver, fc = robust_plan_1dof.extra["verification"], robust_plan_1dof.extra["finite_change"]
     d = derivatives(T2, prof, 0.0)
     for k in ("pv", "pc", "pt"):
         p0 = getattr(T2, k)
@@ -40,7 +34,7 @@ def test_hot_path_verification_matches_the_reference_simulator(k3):
         assert abs(cen) <= 1e-6
         fwd = (_q(T2.replace(**{k: p0 + 1e-3 * abs(p0)}), prof) - _q(T2, prof)) / (1e-3 * abs(p0))
         assert ver["forward_0.1%"][k] == pytest.approx(fwd, rel=1e-9, abs=1e-12)
-        for ch in CHANGES:
+        for ch in FINITE_CHANGES:
             pp = T2.replace(**{k: p0 * (1 + ch)})
             row = fc[k][f"{ch * 100:+.0f}%"]
             assert row["tf_error"] == pytest.approx(_q(pp, prof) - 1.0, abs=1e-12)
@@ -64,8 +58,8 @@ def test_verify_refuses_what_is_not_robust():
         verify(T2, prof, 0.0, 1.0, ["mu"])
 
 
-def test_warm_only_runs_exactly_the_given_starts(k3):
-    good = k3.profile.currents          # (N, 1) as stored in a profile / motion file
+def test_warm_only_runs_exactly_the_given_starts(robust_plan_1dof):
+    good = robust_plan_1dof.profile.currents          # (N, 1) as stored in a profile / motion file
     r = plan_robust_1dof(PlanRequest(starts=50, seed=1), initial_currents=good, warm_only=True)
     assert r.success and r.robust and r.warm_start and r.starts_tried == 1
     assert r.extra["warm_starts"] == 1 and r.extra["warm_starts_ok"] == 1

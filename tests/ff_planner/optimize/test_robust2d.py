@@ -7,6 +7,7 @@ import pytest
 from ff_planner.model import scara2
 from ff_planner.model.params import Scara2Params
 from ff_planner.model.profile import PlanRequest
+from ff_planner.model.simulate import simulate
 from ff_planner.optimize.robust2d import plan_robust_scara2, verify_plan
 
 P = Scara2Params()
@@ -41,7 +42,7 @@ def test_plan_independently_resimulated(plan):
     for k, v in fd.items():
         if k.startswith("q") and not k.startswith("qd"):
             assert abs(v) <= 1e-6, (k, v)
-    fine = scara2._simulate_raw(P, res.profile, np.array(req.q0), np.zeros(2), h=2.5e-4)
+    fine = simulate(P, res.profile, req.q0, h=2.5e-4)
     assert np.max(np.abs(fine.q_f - np.array(req.qf))) <= 1e-6
     # finite parameter changes: first-order robustness means the rest-position error grows
     # quadratically; at ±1 % one at a time it stays below 1 mrad (±10 %, ±40 %: see benchmark)
@@ -67,8 +68,8 @@ def test_tiny_budget_reports_clearly():
 
 
 def test_robust_sampled_keeps_true_robustness_and_reduces_sampled_error(plan):
-    from ff_planner.optimize.robust2d import _Joint1Problem, joint1_params
-    from ff_planner.optimize.robust2d_refine import rest_errors, sample_scales
+    from ff_planner.optimize.hold_joint import Joint1Problem, joint1_params
+    from ff_planner.optimize.robust2d_refine import joint1_scales, rest_errors
 
     req0, res0, _ = plan
     req = PlanRequest(model="scara2", q0=(-0.5, 0.0), qf=(0.5, 0.0), tf=1.0,
@@ -78,8 +79,8 @@ def test_robust_sampled_keeps_true_robustness_and_reduces_sampled_error(plan):
     assert res.success and res.robust
     assert max(abs(v) for v in res.sensitivities.values()) <= 1e-6
     if res.extra.get("sampled_refinement"):
-        hp = _Joint1Problem(joint1_params(P), -0.5, 0.5, 1.0, 0.05, 8, ("pv", "pc", "pt"))
-        sc = sample_scales(("pv", "pc", "pt"))
+        hp = Joint1Problem(joint1_params(P), -0.5, 0.5, 1.0, 0.05, 8, ("pv", "pc", "pt"))
+        sc = joint1_scales(("pv", "pc", "pt"))
         e_new = rest_errors(hp, res.profile.currents[:, 0].copy(), sc)
         e_old = rest_errors(hp, res0.profile.currents[:, 0].copy(), sc)
         assert e_new @ e_new < e_old @ e_old

@@ -8,7 +8,7 @@ import pytest
 
 from ff_planner.model.params import PRESETS
 from ff_planner.model.simulate import simulate
-from ff_planner.report.reproduce import PAPER, coulomb_example, main, run
+from ff_planner.report.reproduce import PAPER, coulomb_example, run
 
 
 def test_coulomb_example_has_the_quarter_half_quarter_sign_pattern():
@@ -47,14 +47,6 @@ def test_report_sections_fig3_and_table4(tmp_path):
     for n in ("pc", "pv"):
         assert e[n]["rel_dq"] == pytest.approx(PAPER["table4"]["energy-optimal"]["dq"][n], rel=0.05)
     assert data["table4"]["time-optimal"]["energy_J"] > 10 * e["energy_J"]
-
-
-def test_main_reports_unwritable_output(tmp_path, capsys):
-    blocker = tmp_path / "file"
-    blocker.write_text("x")
-    assert main(["--out", str(blocker / "sub"), "--only", "fig3"]) == 2
-    err = capsys.readouterr().err
-    assert err.startswith("ff-reproduce: error") and "Traceback" not in err
 
 
 def test_single_parameter_section_and_sweep_thresholds(tmp_path):

@@ -1,48 +1,20 @@
 """The ff_planner node served from ANOTHER process (started with ff_msgs_py.launch.start_module), called
-over DDS on loopback with good and bad requests; plus its logic (PlannerService) without ROS.
+over DDS on loopback with good and bad requests.
 
-The node runs the real planner facade for 1-DOF requests. For scara2 requests it runs
-``slow_plan`` below (a stand-in that takes ``SLOW_S`` seconds, or ignores its budget when asked) so
-that the concurrency and time-budget checks do not depend on how long a real 2-DOF plan takes.
+The node runs ``tests.support.stand_in_planners.slow_plan``: the real planner facade for 1-DOF
+requests, and for scara2 a stand-in that takes ``SLOW_S`` seconds (or ignores its budget when
+asked), so that the concurrency and time-budget checks do not depend on how long a real 2-DOF plan
+takes.
 """
 from __future__ import annotations
 
 import json
 import math
-import os
 import time
 
-import numpy as np
 import pytest
 
-from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult
-
-SLOW_S = 2.0   # s, how long the stand-in 2-DOF planner works
-
-
-def slow_plan(request: PlanRequest, progress=None, initial_currents=None) -> PlanResult:
-    """Planner entry for the node under test: the real planner (with warm starts) for arm1dof, a slow
-    stand-in for scara2.
-
-    scara2 with seed 666 ignores its time budget (sleeps 60 s) to test that the node enforces it;
-    with seed 777 it works until the file $FF_TEST_RELEASE exists (or its budget is spent).
-    """
-    from ff_planner.library.build import plan_for_library
-
-    if request.model != "scara2":
-        return plan_for_library(request, progress, initial_currents=initial_currents)
-    if request.seed == 777:
-        end = time.monotonic() + request.time_budget
-        while not os.path.exists(os.environ["FF_TEST_RELEASE"]) and time.monotonic() < end:
-            time.sleep(0.01)
-    else:
-        time.sleep(60.0 if request.seed == 666 else min(SLOW_S, request.time_budget))
-    prof = CurrentProfile.uniform(np.zeros((request.n_steps(), 2)), request.tf, request.coast)
-    return PlanResult(success=True, message="stand-in 2-DOF plan", profile=prof, model="scara2",
-                      params=request.resolved_params(), q0=np.asarray(request.q0, float),
-                      qf=np.asarray(request.qf, float), uncertain=list(request.uncertain),
-                      objective=request.objective, q_final=np.asarray(request.q0, float),
-                      qd_final=np.zeros(2), robust=False, starts_tried=1)
+pytestmark = pytest.mark.integration
 
 
 # --- the node in another process --------------------------------------------------------------
@@ -56,7 +28,6 @@ def planner_node(ros_env, tmp_path_factory):
   ros__parameters:
     library_path: "{folder / 'motions.sqlite'}"
     motion_dir: "{folder / 'motions'}"
-    plan_entry: "tests.ff_planner.ros.test_planner_node:slow_plan"
     workers: 2
     max_pending: 4
     default_time_budget: 150.0
@@ -65,8 +36,8 @@ def planner_node(ros_env, tmp_path_factory):
     diagnostics_period: 0.5
 """)
     env = dict(ros_env, FF_TEST_RELEASE=str(folder / "release"))
-    proc = start_module("ff_planner_node", "ff_planner.ros.planner_node", ["--ros-args", "--params-file", str(params)],
-                        env)
+    proc = start_module("ff_planner_node", "tests.support.stand_in_planners",
+                        ["--ros-args", "--params-file", str(params)], env)
     try:
         assert wait_for_line(proc, "ff_planner ready", 240), proc.output()
         yield proc, folder
@@ -267,102 +238,3 @@ def test_diagnostics_report_solve_statistics(client):
     values = {kv.key: kv.value for kv in status[-1].values}
     assert int(values["requests"]) >= 1
     assert "latency_cold_p50" in values and "library_solved" in values
-
-
-# --- the same logic in-process, without ROS ----------------------------------------------------
-def test_service_config_refuses_unknown_names():
-    from ff_planner.service.planner_service import ServiceConfigError, config_from_mapping
-
-    cfg = config_from_mapping({"workers": 3, "arm1dof.params.pc": 0.25, "scara2.preset": "table3"})
-    assert cfg.workers == 3 and cfg.model_params("arm1dof").pc == 0.25
-    with pytest.raises(ServiceConfigError, match="unknown model parameter"):
-        config_from_mapping({"arm1dof.params.friction": 1.0})
-    with pytest.raises(ServiceConfigError, match="unknown planner parameter"):
-        config_from_mapping({"wokers": 3})
-    with pytest.raises(ServiceConfigError, match="preset"):
-        config_from_mapping({"arm1dof.preset": "table3"})
-    with pytest.raises(ServiceConfigError, match=">= 1"):
-        config_from_mapping({"workers": 0})
-
-
-def test_configured_parameters_reach_the_plan(tmp_path):
-    from ff_planner.service.planner_service import (
-        PlannerService,
-        RequestFields,
-        ServiceConfigError,
-        config_from_mapping,
-    )
-
-    cfg = config_from_mapping({"arm1dof.params.pc": 0.25, "library_path": str(tmp_path / "l.sqlite")})
-    svc = PlannerService(cfg)
-    req = svc.make_request(RequestFields(model="arm1dof", q0=[0.0], qf=[1.0], move_time=1.0,
-                                         override_names=["pv"], override_values=[-0.04]))
-    p = req.resolved_params()
-    assert (p.pc, p.pv) == (0.25, -0.04)
-    assert req.starts == cfg.default_starts and req.time_budget == cfg.default_time_budget
-    assert list(req.uncertain) == ["pv", "pc", "pt"] and req.n_steps() == 5
-    # a request while no workers run is answered, not raised
-    res = svc.handle(req)
-    assert not res.success and res.error_code == "INTERNAL_ERROR"
-    svc.close()
-    (tmp_path / "file").write_text("")
-    with pytest.raises(ServiceConfigError, match="library_path"):
-        PlannerService(config_from_mapping({"library_path": str(tmp_path / "file" / "lib.sqlite")}))
-
-
-def stub_plan(request: PlanRequest, progress=None, initial_currents=None) -> PlanResult:
-    """A planner stand-in for the warm/cold logic: echoes the warm-start currents it was given."""
-    cur = (np.asarray(initial_currents, float) if initial_currents is not None
-           else np.full((request.n_steps(), len(request.q0)), 0.5))
-    prof = CurrentProfile.uniform(cur, request.tf, request.coast)
-    return PlanResult(success=True, message="stub", profile=prof, model=request.model,
-                      params=request.resolved_params(), q0=np.asarray(request.q0, float),
-                      qf=np.asarray(request.qf, float), uncertain=list(request.uncertain),
-                      objective=request.objective, q_final=np.asarray(request.qf, float),
-                      qd_final=np.zeros(len(request.q0)), sensitivities={u: 0.0 for u in request.uncertain},
-                      robust=True, starts_tried=0 if initial_currents is not None else request.starts,
-                      extra={"got_initial": initial_currents is not None})
-
-
-def test_service_warm_starts_from_the_nearest_stored_plan(tmp_path):
-    from ff_planner.library.store import MotionLibrary, record_from_result
-    from ff_planner.service.planner_service import PlannerService, RequestFields, ServiceConfig
-
-    cfg = ServiceConfig(library_path=str(tmp_path / "lib.sqlite"), plan_entry="tests.ff_planner.ros.test_planner_node:stub_plan",
-                        workers=2, warmup=False, warm_max_distance=0.2)
-    svc = PlannerService(cfg)
-    svc.start()
-    try:
-        base = dict(model="arm1dof", q0=[0.0], move_time=1.0, uncertain=["pc"])
-        # a stored neighbour with recognisable currents (as ff-library build would leave it)
-        seed_req = svc.make_request(RequestFields(qf=[1.0], **base))
-        stored = stub_plan(seed_req, initial_currents=np.array([[3.0], [-1.0], [2.0]]))
-        with MotionLibrary(cfg.library_path) as lib:
-            assert lib.put(record_from_result(seed_req, stored), seed_req.resolved_params())
-        near = svc.handle_fields(RequestFields(qf=[1.1], **base))
-        assert near.success and near.warm_start and near.extra["source"] == "warm"
-        assert near.extra.get("got_initial") is True
-        np.testing.assert_array_equal(near.profile.currents, [[3.0], [-1.0], [2.0]])
-        far = svc.handle_fields(RequestFields(qf=[1.5], **base))
-        assert far.success and not far.warm_start and far.extra["source"] == "cold"
-        again = svc.handle_fields(RequestFields(qf=[1.1], **base))      # now stored: a hit
-        assert again.warm_start and again.extra["source"] == "hit"
-        stats = svc.stats()
-        assert stats["source_warm"] == 1 and stats["source_cold"] == 1 and stats["source_hit"] == 1
-        assert stats["library_solved"] == 3
-        # a stored "no robust plan here" answers at once when its search was as thorough as asked
-        hard_req = svc.make_request(RequestFields(qf=[-2.0], starts=100, **base))
-        none_found = stub_plan(hard_req)
-        none_found.success, none_found.robust, none_found.error_code = False, False, "NO_ROBUST_PLAN"
-        none_found.starts_tried = 100
-        with MotionLibrary(cfg.library_path) as lib:
-            assert lib.put(record_from_result(hard_req, none_found))
-        known = svc.handle_fields(RequestFields(qf=[-2.0], starts=100, **base))
-        assert not known.success and known.error_code == "NO_ROBUST_PLAN" and known.extra["source"] == "hit"
-        assert "known from the motion library" in known.message
-        deeper = svc.handle_fields(RequestFields(qf=[-2.0], starts=400, **base))   # more starts: solve
-        assert deeper.success and deeper.extra["source"] == "cold"
-        after = svc.handle_fields(RequestFields(qf=[-2.0], starts=100, **base))    # upgraded row
-        assert after.success and after.extra["source"] == "hit"
-    finally:
-        svc.close()
