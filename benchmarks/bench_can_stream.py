@@ -129,7 +129,7 @@ def main() -> int:
         tpdos, window = tpdo_count["n"] - sync0, time.monotonic() - tw0
         sent_stats = player.stats().as_dict()
         sent_at = {stamp: sent for stamp, sent in player.records()}
-        rt_active = player.rt_active
+        rt_active = bool(player.diagnostics()["scheduler_realtime"])
         player.close()
         latched = master.fault_reason
         master.disable()

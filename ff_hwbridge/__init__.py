@@ -4,21 +4,9 @@ Layers: ``protocol`` (CiA 402, object dictionary, units) < ``drive`` (the real m
 guard, setpoint player) < ``sim`` (CAN hub, simulated EPOS and arm) < ``cli`` < ``ros`` (the
 nodes; only they import rclpy). This package exports the master's API (drive + protocol).
 """
-from ff_hwbridge.drive import (
-    AppliedSetpoint,
-    BridgeConfig,
-    CanConfigError,
-    ConfigError,
-    EposError,
-    EposMaster,
-    JointFeedback,
-    PlayerConfig,
-    SafetyGuard,
-    SetpointPlayer,
-    SetpointRejected,
-    load_config,
-    open_bus,
-)
+from ff_hwbridge.drive import (AppliedSetpoint, BridgeConfig, CanConfigError, ConfigError, EposError,
+                               EposMaster, JointFeedback, PlayerConfig, SafetyGuard, SetpointPlayer,
+                               SetpointRejected, load_config, open_bus)
 from ff_hwbridge.protocol import DriveUnits, State
 
 __all__ = [

@@ -10,15 +10,8 @@ The interfaces themselves (``ff_msgs.msg``, ``ff_msgs.srv``, ``ff_msgs.action``)
 rosidl from ``msg/``, ``srv/`` and ``action/`` beside this file when the suite is pip-installed.
 Importing this package stays cheap (standard library only).
 """
-from ff_msgs_py.launch import (
-    NodeProcess,
-    apply_ros_environment,
-    domain_in_use,
-    free_domain_id,
-    ros_environment,
-    start_module,
-    wait_for_line,
-)
+from ff_msgs_py.launch import (NodeProcess, apply_ros_environment, domain_in_use, free_domain_id,
+                               ros_environment, start_module, wait_for_line)
 from ff_msgs_py.threads import in_thread
 
 __all__ = [

@@ -47,23 +47,9 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 
-from ff_executor.engine import (
-    NS,
-    EngineConfig,
-    Motion,
-    ProfileRejected,
-    Setpoint,
-    SettleDetector,
-    Stream,
-    StreamRunner,
-    TimingStats,
-    build_setpoints,
-    check_profile,
-    check_start_state,
-    estimate_applied_times,
-    resolve_start,
-    timing_stats,
-)
+from ff_executor.engine import (NS, EngineConfig, Motion, ProfileRejected, Setpoint, SettleDetector, Stream,
+                                StreamRunner, TimingStats, build_setpoints, check_profile, check_start_state,
+                                estimate_applied_times, resolve_start, timing_stats)
 from ff_msgs.action import ExecuteProfile
 from ff_msgs.msg import CurrentSetpoint
 from ff_msgs_py.convert import msg_to_profile, setpoint_msg, time_to_ns

@@ -3,15 +3,8 @@
 (``safety``), the stamp scheduler (``scheduler``) and the setpoint player that composes them
 (``player``: stamped setpoint → guard → units → RPDO at its stamp)."""
 from ff_hwbridge.drive.bus import CanConfigError, normalise_bus_config, open_bus, open_network
-from ff_hwbridge.drive.config import (
-    BridgeConfig,
-    BusConfig,
-    ConfigError,
-    JointConfig,
-    config_from_mapping,
-    load_config,
-    with_bus,
-)
+from ff_hwbridge.drive.config import (BridgeConfig, BusConfig, ConfigError, JointConfig, config_from_mapping,
+                                      load_config, with_bus)
 from ff_hwbridge.drive.epos import EposError, EposMaster, JointFeedback, PreparedCommand
 from ff_hwbridge.drive.player import AppliedSetpoint, PlayerConfig, SetpointPlayer, SetpointRejected
 from ff_hwbridge.drive.safety import SafeCommand, SafetyConfigError, SafetyGuard

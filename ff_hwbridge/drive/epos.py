@@ -50,16 +50,8 @@ from ff_hwbridge.drive.config import BridgeConfig, JointConfig
 from ff_hwbridge.drive.safety import SafeCommand, SafetyGuard
 from ff_hwbridge.protocol import cia402
 from ff_hwbridge.protocol.cia402 import State
-from ff_hwbridge.protocol.epos_od import (
-    RPDO_SETPOINT,
-    TPDO_MOTION,
-    TPDO_STATUS,
-    build_object_dictionary,
-    rpdo_layout,
-    struct_format,
-    tpdo1_layout,
-    tpdo2_layout,
-)
+from ff_hwbridge.protocol.epos_od import (RPDO_SETPOINT, TPDO_MOTION, TPDO_STATUS, build_object_dictionary,
+                                          rpdo_layout, struct_format, tpdo1_layout, tpdo2_layout)
 from ff_hwbridge.protocol.units import DriveUnits
 
 log = logging.getLogger(__name__)

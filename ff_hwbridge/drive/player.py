@@ -36,24 +36,23 @@ class SetpointRejected(ValueError):
     """A setpoint the player does not queue (wrong number of currents, safe state latched)."""
 
 
+LATE_THRESHOLD = 0.0005   # s: a setpoint sent more than this after its stamp counts as late
+MAX_RECORDS = 200_000     # (stamp, sent) pairs the statistics keep
+MAX_REPORTS = 10_000      # applied setpoints waiting for ``take_applied()`` (oldest dropped)
+
+
 @dataclass(frozen=True)
 class PlayerConfig:
     """Timing of the player's scheduler thread.
 
     spin_margin:    s, the thread sleeps until this long before a stamp, then spins.
     rt_priority:    1..99: SCHED_FIFO for the thread (needs CAP_SYS_NICE); 0 = normal.
-    late_threshold: s, a setpoint sent more than this after its stamp counts as late.
-    max_records:    how many (stamp, sent) pairs the statistics keep.
-    max_reports:    how many applied setpoints wait for ``take_applied()`` (oldest dropped).
     prepare_ahead:  guard + unit conversion before the stamp (True) or at it, together with the
                     send (False: a little later, for measuring what the early step gains).
     """
 
     spin_margin: float = 0.0003
     rt_priority: int = 0
-    late_threshold: float = 0.0005
-    max_records: int = 200_000
-    max_reports: int = 10_000
     prepare_ahead: bool = True
 
     @classmethod
@@ -101,11 +100,11 @@ class SetpointPlayer:
         self.config = config if config is not None else PlayerConfig.from_bridge(master.config)
         self._clock_ns = clock_ns
         self._n_joints = len(master.joint_names)
-        self._reports: deque[AppliedSetpoint] = deque(maxlen=self.config.max_reports)
+        self._reports: deque[AppliedSetpoint] = deque(maxlen=MAX_REPORTS)
         self._scheduler = StampScheduler(self._apply, clock_ns=clock_ns,
                                          spin_margin=self.config.spin_margin,
-                                         max_records=self.config.max_records,
-                                         late_threshold=self.config.late_threshold, name=name,
+                                         max_records=MAX_RECORDS,
+                                         late_threshold=LATE_THRESHOLD, name=name,
                                          rt_priority=self.config.rt_priority,
                                          prepare=self._prepare if self.config.prepare_ahead else None)
         master.pending_fn = lambda: self._scheduler.pending > 0
@@ -161,17 +160,12 @@ class SetpointPlayer:
         """Setpoints queued and not yet applied."""
         return self._scheduler.pending
 
-    @property
-    def rt_active(self) -> bool:
-        """Whether the thread runs under SCHED_FIFO."""
-        return self._scheduler.rt_active
-
     def stats(self) -> SwitchStats:
         """Switch-time error sent − stamp (µs) over the applied setpoints, late and stale counts."""
         return self._scheduler.stats()
 
     def records(self) -> list[tuple[int, int]]:
-        """(stamp ns, sent ns) of each applied setpoint, oldest first (up to ``max_records``)."""
+        """(stamp ns, sent ns) of each applied setpoint, oldest first (up to ``MAX_RECORDS``)."""
         return list(self._scheduler.records)
 
     def reset_stats(self) -> None:
@@ -187,11 +181,11 @@ class SetpointPlayer:
 
     def diagnostics(self) -> dict[str, float]:
         """Flat timing summary: switch count, late count, p50 / p99 / max of sent − stamp (µs),
-        pending setpoints."""
+        pending setpoints, and 1 when the thread runs under SCHED_FIFO (else 0)."""
         s = self.stats()
         return {"switch_count": s.count, "switch_late": s.late, "switch_p50_us": s.p50_us,
                 "switch_p99_us": s.p99_us, "switch_max_us": s.max_us,
-                "pending_setpoints": self.pending}
+                "pending_setpoints": self.pending, "scheduler_realtime": int(self._scheduler.rt_active)}
 
     # --- the scheduler thread ---------------------------------------------------------------
     def _prepare(self, queued: _Queued) -> _Prepared:

@@ -23,19 +23,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable, Optional, Union
 
-from canopen.objectdictionary import (
-    INTEGER8,
-    INTEGER16,
-    INTEGER32,
-    UNSIGNED8,
-    UNSIGNED16,
-    UNSIGNED32,
-    VISIBLE_STRING,
-    ObjectDictionary,
-    ODArray,
-    ODRecord,
-    ODVariable,
-)
+from canopen.objectdictionary import (INTEGER8, INTEGER16, INTEGER32, UNSIGNED8, UNSIGNED16, UNSIGNED32,
+                                      VISIBLE_STRING, ObjectDictionary, ODArray, ODRecord, ODVariable)
 
 from ff_hwbridge.protocol.units import FAMILIES, DriveUnits
 

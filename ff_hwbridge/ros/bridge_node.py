@@ -243,20 +243,21 @@ class BridgeNode(LifecycleNode):
             logging.getLogger(name).removeHandler(self._log_handler)
         super().destroy_node()
 
+    def _best_effort(self, what: str, step: Callable[[], object]) -> None:
+        """Run one step of a teardown; log its failure and go on (the rest must still run)."""
+        try:
+            step()
+        except Exception as exc:  # noqa: BLE001 - best effort on the way out
+            self.get_logger().error(f"{what}: {exc}")
+
     def teardown(self) -> None:
         """Stop the player (zero current), close the bus, remove topics and timers (idempotent)."""
         self._active = False
         if self.player is not None:
-            try:
-                self.player.close()
-            except Exception as exc:  # noqa: BLE001 - best effort on the way out
-                self.get_logger().error(f"stopping the setpoint player: {exc}")
+            self._best_effort("stopping the setpoint player", self.player.close)
             self.player = None
         if self.master is not None:
-            try:
-                self.master.disconnect()
-            except Exception as exc:  # noqa: BLE001 - best effort on the way out
-                self.get_logger().error(f"disconnect: {exc}")
+            self._best_effort("disconnect", self.master.disconnect)
             self.master = None
         for t in self._timers:
             self.destroy_timer(t)

@@ -8,26 +8,10 @@ models (``registry``: ``MODELS``, ``ModelSpec``, ``model_spec``). Imported on th
 ``friction`` (the friction law, Eq. 9), ``arm1dof`` (with ``arm1dof_derivatives``, ``series1d``,
 ``taylor``) and ``scara2``. Units: rad, rad/s, A, Nm, s.
 """
-from ff_planner.model.params import (
-    DEFAULT_PRESET,
-    PRESETS,
-    Arm1DofParams,
-    Params,
-    Scara2Params,
-    check_model,
-    default_params,
-    friction_scaled,
-    load_params,
-    n_joints,
-    preset,
-)
-from ff_planner.model.profile import (
-    DEFAULT_COAST,
-    OBJECTIVES,
-    CurrentProfile,
-    PlanRequest,
-    PlanResult,
-)
+from ff_planner.model.params import (DEFAULT_PRESET, PRESETS, Arm1DofParams, Params, Scara2Params,
+                                     check_model, default_params, friction_scaled, load_params, n_joints,
+                                     preset)
+from ff_planner.model.profile import (DEFAULT_COAST, OBJECTIVES, CurrentProfile, PlanRequest, PlanResult)
 from ff_planner.model.registry import MODELS, ModelSpec, model_spec
 
 __all__ = [

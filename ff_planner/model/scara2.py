@@ -42,13 +42,8 @@ from numba import njit
 from numpy.typing import ArrayLike
 
 from ff_planner.core.results import SimResult
-from ff_planner.model.friction import (
-    exceeds_stiction,
-    friction_torque,
-    sliding_friction,
-    sliding_level,
-    stiction_margin,
-)
+from ff_planner.model.friction import (exceeds_stiction, friction_torque, sliding_friction, sliding_level,
+                                       stiction_margin)
 from ff_planner.model.params import ParameterError, Scara2Params
 from ff_planner.model.profile import CurrentProfile, PlanningError
 

@@ -6,14 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from ff_executor.engine import (
-    NS,
-    EngineConfig,
-    ProfileRejected,
-    check_profile,
-    check_start_state,
-    resolve_start,
-)
+from ff_executor.engine import (NS, EngineConfig, ProfileRejected, check_profile, check_start_state,
+                                resolve_start)
 from ff_planner.model.profile import CurrentProfile
 from tests.ff_executor.engine.common import motion
 

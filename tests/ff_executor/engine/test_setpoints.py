@@ -3,10 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ff_executor.engine import (
-    NS,
-    build_setpoints,
-)
+from ff_executor.engine import (NS, build_setpoints)
 from tests.ff_executor.engine.common import CUR, motion
 
 

@@ -1,10 +1,7 @@
 """Engine: settle detection."""
 from __future__ import annotations
 
-from ff_executor.engine import (
-    NS,
-    SettleDetector,
-)
+from ff_executor.engine import (NS, SettleDetector)
 
 
 def test_settle_detector():

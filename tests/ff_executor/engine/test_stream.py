@@ -4,13 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ff_executor.engine import (
-    NS,
-    Setpoint,
-    Stream,
-    StreamRunner,
-    build_setpoints,
-)
+from ff_executor.engine import (NS, Setpoint, Stream, StreamRunner, build_setpoints)
 from tests.ff_executor.engine.common import CUR, FakeClock, motion
 
 

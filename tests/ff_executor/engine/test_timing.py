@@ -6,13 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from ff_executor.engine import (
-    NS,
-    Stream,
-    build_setpoints,
-    estimate_applied_times,
-    timing_stats,
-)
+from ff_executor.engine import (NS, Stream, build_setpoints, estimate_applied_times, timing_stats)
 from tests.ff_executor.engine.common import motion
 
 

@@ -3,21 +3,10 @@ from __future__ import annotations
 
 import pytest
 
-from ff_hwbridge.protocol.cia402 import (
-    CONTROLWORD,
-    HOLD_CONTROLWORD,
-    STATUSWORD_PATTERNS,
-    TRANSITIONS,
-    Command,
-    State,
-    StatuswordError,
-    TransitionError,
-    apply_command,
-    decode_controlword,
-    decode_statusword,
-    encode_statusword,
-    next_controlword,
-)
+from ff_hwbridge.protocol.cia402 import (CONTROLWORD, HOLD_CONTROLWORD, STATUSWORD_PATTERNS, TRANSITIONS,
+                                         Command, State, StatuswordError, TransitionError, apply_command,
+                                         decode_controlword, decode_statusword, encode_statusword,
+                                         next_controlword)
 
 # Statuswords as drives report them (EPOS-style, with voltage enabled / remote bits).
 SAMPLES = {

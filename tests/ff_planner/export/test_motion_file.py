@@ -7,16 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from ff_planner.export.motion_file import (
-    FORMAT,
-    REQUIRED_KEYS,
-    MotionFileError,
-    motion_to_dict,
-    read_motion,
-    validate_motion_dict,
-    verify_motion,
-    write_motion,
-)
+from ff_planner.export.motion_file import (FORMAT, REQUIRED_KEYS, MotionFileError, motion_to_dict,
+                                           read_motion, validate_motion_dict, verify_motion, write_motion)
 from ff_planner.model.params import Arm1DofParams, Scara2Params
 from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult
 from ff_planner.model.simulate import simulate

@@ -8,14 +8,8 @@ import sqlite3
 import numpy as np
 import pytest
 
-from ff_planner.library.store import (
-    LibraryError,
-    MotionLibrary,
-    canonical_coords,
-    params_hash,
-    record_from_result,
-    task_key,
-)
+from ff_planner.library.store import (LibraryError, MotionLibrary, canonical_coords, params_hash,
+                                      record_from_result, task_key)
 from ff_planner.model.params import default_params
 from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult
 

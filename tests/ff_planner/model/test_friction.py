@@ -8,21 +8,10 @@ import numpy as np
 import pytest
 
 from ff_planner.model import arm1dof, scara2
-from ff_planner.model.friction import (
-    breakaway_excess,
-    breaks_away,
-    exceeds_stiction,
-    friction_torque,
-    friction_torque_array,
-    net_torque,
-    net_torque_array,
-    sliding_friction,
-    sliding_level,
-    sliding_level_array,
-    sliding_level_series,
-    stiction_margin,
-    stop_speed,
-)
+from ff_planner.model.friction import (breakaway_excess, breaks_away, exceeds_stiction, friction_torque,
+                                       friction_torque_array, net_torque, net_torque_array, sliding_friction,
+                                       sliding_level, sliding_level_array, sliding_level_series,
+                                       stiction_margin, stop_speed)
 from ff_planner.model.params import Arm1DofParams, Scara2Params, preset
 from ff_planner.model.taylor import row_const, row_len
 

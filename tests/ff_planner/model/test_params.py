@@ -6,16 +6,8 @@ import math
 import pytest
 
 from ff_planner.model.friction import breakaway_torque, breaks_away, friction_torque
-from ff_planner.model.params import (
-    Arm1DofParams,
-    ParameterError,
-    Scara2Params,
-    default_params,
-    friction_scaled,
-    load_params,
-    n_joints,
-    preset,
-)
+from ff_planner.model.params import (Arm1DofParams, ParameterError, Scara2Params, default_params,
+                                     friction_scaled, load_params, n_joints, preset)
 
 
 def test_presets_are_the_papers_tables():

@@ -7,14 +7,8 @@ import pytest
 from ff_planner.model.params import PRESETS
 from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest
 from ff_planner.model.simulate import simulate
-from ff_planner.optimize.baselines import (
-    R_TERMINAL,
-    bang_bang_times,
-    energy_optimal_1dof,
-    plan_baseline,
-    reach_1dof,
-    time_optimal_1dof,
-)
+from ff_planner.optimize.baselines import (R_TERMINAL, bang_bang_times, energy_optimal_1dof, plan_baseline,
+                                           reach_1dof, time_optimal_1dof)
 
 P2 = PRESETS["table2"]
 

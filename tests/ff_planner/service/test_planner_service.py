@@ -6,13 +6,8 @@ import numpy as np
 import pytest
 
 from ff_planner.library.store import MotionLibrary, record_from_result
-from ff_planner.service.planner_service import (
-    PlannerService,
-    RequestFields,
-    ServiceConfig,
-    ServiceConfigError,
-    config_from_mapping,
-)
+from ff_planner.service.planner_service import (PlannerService, RequestFields, ServiceConfig,
+                                                ServiceConfigError, config_from_mapping)
 from tests.support.stand_in_planners import stub_plan
 
 
