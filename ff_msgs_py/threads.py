@@ -13,11 +13,12 @@ from __future__ import annotations
 import threading
 from typing import Any, Callable, Optional
 
+from rclpy.task import Future
+
 
 async def in_thread(fn: Callable[..., Any], *args: Any, wake: Optional[Any] = None,
                     name: str = "ff_blocking") -> Any:
     """Run ``fn(*args)`` on a new daemon thread; await and return its result (or raise its error)."""
-    from rclpy.task import Future
 
     done = Future()
 

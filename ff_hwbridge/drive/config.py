@@ -25,10 +25,13 @@ Times are in s unless the name ends in ``_ms``; currents in A.
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Mapping, Optional, Sequence, Union
+
+import yaml
 
 from ff_hwbridge.protocol.epos_od import CURRENT_MODE
 from ff_hwbridge.protocol.units import FAMILIES, DriveUnits, UnitsError
@@ -250,7 +253,6 @@ def load_config(source: Union[str, Path, Mapping[str, Any]]) -> BridgeConfig:
     """A BridgeConfig from a YAML file path or an already parsed mapping."""
     if isinstance(source, Mapping):
         return config_from_mapping(source)
-    import yaml
 
     path = Path(source)
     try:
@@ -269,7 +271,6 @@ def load_config(source: Union[str, Path, Mapping[str, Any]]) -> BridgeConfig:
 
 def with_bus(config: BridgeConfig, bus: Mapping[str, Any]) -> BridgeConfig:
     """A copy of ``config`` on another bus (e.g. a CAN hub URL given on the command line)."""
-    import dataclasses
 
     data = dict(bus)
     iface = str(data.pop("interface"))

@@ -38,15 +38,21 @@ import threading
 from typing import Any, Callable, Optional, Sequence
 
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.signals import SignalHandlerOptions
+from rclpy.utilities import remove_ros_args
+from sensor_msgs.msg import JointState
+from std_srvs.srv import Trigger
 
 from ff_hwbridge.drive.config import BridgeConfig, ConfigError, config_from_mapping, load_config, with_bus
 from ff_hwbridge.drive.epos import EposError, EposMaster
 from ff_hwbridge.drive.player import AppliedSetpoint, SetpointPlayer, SetpointRejected
 from ff_hwbridge.protocol.cia402 import State
+from ff_msgs.msg import CurrentSetpoint
+from ff_msgs_py.threads import in_thread
 
 READY_LINE = "ff_hwbridge ready"
 NODE_NAME = "ff_hwbridge"
@@ -273,11 +279,7 @@ class BridgeNode(LifecycleNode):
 
     # --- interfaces -------------------------------------------------------------------------------
     def _make_interfaces(self) -> None:
-        from diagnostic_msgs.msg import DiagnosticArray
-        from sensor_msgs.msg import JointState
-        from std_srvs.srv import Trigger
 
-        from ff_msgs.msg import CurrentSetpoint
 
         self._pub_js = self.create_publisher(JointState, "~/joint_states", 10)
         self._pub_applied = self.create_publisher(CurrentSetpoint, "~/applied", 100)
@@ -322,7 +324,6 @@ class BridgeNode(LifecycleNode):
 
     async def _on_fault_reset(self, request: Any, response: Any) -> Any:
         """Service ~/fault_reset: waits for the drive on its own thread (ff_msgs_py.threads)."""
-        from ff_msgs_py.threads import in_thread
 
         return await in_thread(self._fault_reset, response, wake=self._wake, name="ff_fault_reset")
 
@@ -342,7 +343,6 @@ class BridgeNode(LifecycleNode):
         return response
 
     def _fast_tick(self) -> None:
-        from ff_msgs.msg import CurrentSetpoint
 
         reports: list[AppliedSetpoint] = self.player.take_applied() if self.player else []
         for a in reports:
@@ -357,7 +357,6 @@ class BridgeNode(LifecycleNode):
             self._publish_diagnostics()
 
     def _publish_joint_states(self) -> None:
-        from sensor_msgs.msg import JointState
 
         if self.master is None:
             return
@@ -371,7 +370,6 @@ class BridgeNode(LifecycleNode):
         self._pub_js.publish(msg)
 
     def _publish_diagnostics(self) -> None:
-        from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
         if self.master is None:
             return
@@ -397,7 +395,6 @@ class BridgeNode(LifecycleNode):
 
 def main(argv: Optional[Sequence[str]] = None) -> None:
     """Console script ``ff-hwbridge [--autostart] [--config PATH] [--channel URL] [--ros-args ...]``."""
-    from rclpy.utilities import remove_ros_args
 
     argv = list(sys.argv if argv is None else ["ff-hwbridge", *argv])
     ap = argparse.ArgumentParser(prog="ff-hwbridge", description="CANopen bridge to Maxon EPOS drives "

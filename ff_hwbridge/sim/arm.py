@@ -21,6 +21,7 @@ from typing import Callable, Optional, Sequence
 import numpy as np
 
 from ff_planner.model.params import ParameterError, Params
+from ff_planner.model.registry import model_spec
 
 __all__ = ["AdvanceFn", "ArmState", "JointPort", "Params", "SimArm", "joint_param", "planner_advance"]
 
@@ -32,7 +33,6 @@ AdvanceFn = Callable[..., tuple[np.ndarray, np.ndarray]]
 def planner_advance(params: Params) -> AdvanceFn:
     """The planner's one-step model for the parameters' model (``model_spec(params.model)``)."""
     # the models compile with numba: imported when a plant is built, not with this module
-    from ff_planner.model.registry import model_spec
 
     return model_spec(params.model).advance
 

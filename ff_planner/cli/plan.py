@@ -10,6 +10,7 @@ import argparse
 import json
 import math
 import sys
+import time
 from pathlib import Path
 from typing import NoReturn, Optional, Sequence
 
@@ -117,7 +118,6 @@ class ProgressPrinter:
     at most every ``every`` s (elapsed time, starts done, best residual, stage)."""
 
     def __init__(self, delay: float = 1.0, every: float = 1.0, stream=None) -> None:
-        import time
 
         self._clock = time.monotonic
         self._t0 = self._clock()

@@ -11,11 +11,12 @@ import argparse
 import sys
 import time
 
+from ff_planner.model import scara2
+from ff_planner.optimize import robust1d, robust2d
+
 
 def warm_all(log=print) -> dict[str, float]:
     """Warm the 1-DOF and 2-DOF kernels; returns seconds per part."""
-    from ff_planner.model import scara2
-    from ff_planner.optimize import robust1d, robust2d
 
     times: dict[str, float] = {}
     for name, fn in (("arm1dof", robust1d.warmup), ("scara2", scara2.warm_up),

@@ -42,6 +42,11 @@ from pathlib import Path
 from typing import Any, Mapping, Optional, Sequence, Union
 
 import numpy as np
+import yaml
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
+from scipy.spatial import cKDTree
+from scipy.spatial.distance import cdist
 
 from ff_planner.library.store import canonical_coords, task_key
 from ff_planner.model.params import MODELS, ParameterError, Params, default_params, n_joints, preset
@@ -245,7 +250,6 @@ def parse_grid(data: Mapping[str, Any]) -> GridSpec:
 def load_grid(source: Union[str, Path, Mapping[str, Any]]) -> GridSpec:
     """A GridSpec from a YAML file or a mapping; raises GridError naming what to change."""
     if isinstance(source, (str, Path)):
-        import yaml
 
         p = Path(source)
         if not p.is_file():
@@ -316,9 +320,6 @@ def continuation_tree(grid: Grid, n_roots: int = 1) -> None:
 
     ``n_roots`` > 1 cuts each connected part into that many subtrees (more parallel cold starts).
     """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
-    from scipy.spatial import cKDTree
 
     reps = grid.reps
     n = len(reps)
@@ -339,7 +340,6 @@ def continuation_tree(grid: Grid, n_roots: int = 1) -> None:
     g.eliminate_zeros()
     ncomp, _ = connected_components(g, directed=False)
     if ncomp > 1:   # k-NN graph split: join the parts through the full distance matrix (small grids)
-        from scipy.spatial.distance import cdist
 
         g = coo_matrix(cdist(pts, pts) + 1e-9).tocsr()
         g.setdiag(0)

@@ -35,6 +35,7 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
+from ff_planner.export.motion_file import motion_to_dict
 from ff_planner.model.params import MODELS, Params, default_params
 from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult
 
@@ -183,7 +184,6 @@ def motion_dict(result: PlanResult, request: PlanRequest) -> Optional[dict]:
     """The ff-motion/1 dict of a result via ff_planner.export.motion_file (None without a profile)."""
     if result.profile is None:
         return None
-    from ff_planner.export.motion_file import motion_to_dict
 
     if result.params is None:
         result.params = request.resolved_params()

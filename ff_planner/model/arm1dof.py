@@ -23,6 +23,7 @@ from numba import njit
 
 from ff_planner.core.errors import ParameterError, PlanningError
 from ff_planner.core.results import SimResult
+from ff_planner.model.arm1dof_derivatives import NP, Q_, TSTOP_, V_, hd_sim, workspace
 from ff_planner.model.friction import breakaway_excess, exceeds_stiction, sliding_level
 from ff_planner.model.params import Arm1DofParams
 from ff_planner.model.profile import CurrentProfile
@@ -363,7 +364,6 @@ def derivatives(params: Arm1DofParams, profile: CurrentProfile, q0: float, *,
                 min_radius: float = 1e-3) -> Derivatives1D:
     """Exact (forward-mode) derivatives of q(tf), q̇(tf) — or of the rest position with
     ``to_rest`` — w.r.t. the friction parameters and the step currents."""
-    from ff_planner.model.arm1dof_derivatives import NP, Q_, TSTOP_, V_, hd_sim, workspace
 
     bad = [u for u in uncertain if u not in FRICTION]
     if bad:

@@ -12,6 +12,8 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, ClassVar, Mapping, Union
 
+import yaml
+
 from ff_planner.core.errors import ParameterError
 
 
@@ -203,7 +205,6 @@ def load_params(source: Union[str, Path, Mapping[str, Any]]) -> Params:
     the model's paper table, ``params`` overrides individual keys (SI units).
     """
     if isinstance(source, (str, Path)):
-        import yaml
 
         with open(source, "r", encoding="utf-8") as fh:
             data = yaml.safe_load(fh) or {}

@@ -34,6 +34,7 @@ Units: rad, rad/s, A, Nm, s. No rclpy here.
 from __future__ import annotations
 
 import math
+import time as _time
 from dataclasses import dataclass
 from typing import Optional, Sequence
 
@@ -741,7 +742,6 @@ def forward_dynamics(params: Scara2Params, q: Sequence[float], qd: Sequence[floa
 def warm_up() -> float:
     """Compile (or load from numba's on-disk cache) every kernel of this module; returns the
     seconds it took. Call at install time or node start so no user request pays for it."""
-    import time as _time
 
     t = _time.perf_counter()
     p = Scara2Params()

@@ -20,9 +20,19 @@ from pathlib import Path
 from typing import Any, Optional, Sequence, TypedDict
 
 import numpy as np
+import scipy
+from matplotlib.figure import Figure
 
+from ff_planner.export.motion_file import jsonable, verify_motion, write_motion
+from ff_planner.export.plotting import plot_curves, plot_motion, save_figure, step_xy
 from ff_planner.model.params import PRESETS, Arm1DofParams, friction_scaled
 from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
+from ff_planner.model.sensitivity import sensitivities
+from ff_planner.model.simulate import rest_position, simulate
+from ff_planner.optimize import robust1d
+from ff_planner.optimize.baselines import R_TERMINAL, finite_differences
+from ff_planner.optimize.planner import plan
+from ff_planner.optimize.sample_box import FINITE_FRACTIONS, one_at_a_time, sample_scales
 
 
 class Table4Row(TypedDict):
@@ -105,8 +115,6 @@ def _fmt(x: Any) -> str:
 def judge(params: Arm1DofParams, profile: CurrentProfile, q0: float, qf: float,
           names: Sequence[str]) -> dict[str, Any]:
     """True and quoted derivatives and finite-change errors of a 1-DOF plan."""
-    from ff_planner.model.sensitivity import sensitivities
-    from ff_planner.model.simulate import rest_position, simulate
 
     ex = sensitivities(params, profile, [q0], names, method="exact")
     ce = sensitivities(params, profile, [q0], names, method="central", rel_step=1e-6)
@@ -131,13 +139,10 @@ def judge(params: Arm1DofParams, profile: CurrentProfile, q0: float, qf: float,
                           max(abs(v) for v in out["central"].values()))
     out["max_quoted"] = max(abs(v) for v in out["forward_0.1pct"].values())
     errs: dict[str, Any] = {}
-    for rel in (0.1, 0.4):
-        for n in names:
-            for s in (-rel, rel):
-                p = friction_scaled(params, {n: 1.0 + s})
-                errs[f"{n} {s:+.0%}"] = {
-                    "q_tf": float(simulate(p, profile, [q0]).q_f[0] - qf),
-                    "rest": float(rest_position(p, profile, [q0])[0] - qf)}
+    for n, s in one_at_a_time(names, FINITE_FRACTIONS):
+        p = friction_scaled(params, {n: 1.0 + s})
+        errs[f"{n} {s:+.0%}"] = {"q_tf": float(simulate(p, profile, [q0]).q_f[0] - qf),
+                                 "rest": float(rest_position(p, profile, [q0])[0] - qf)}
     for s in (-0.2, 0.2):
         p = friction_scaled(params, {n: 1.0 + s for n in FRICTION})
         errs[f"pv, pc, pt all {s:+.0%}"] = {"q_tf": float(simulate(p, profile, [q0]).q_f[0] - qf),
@@ -147,7 +152,6 @@ def judge(params: Arm1DofParams, profile: CurrentProfile, q0: float, qf: float,
 
 
 def _plan(req: PlanRequest) -> tuple[Optional[PlanResult], Optional[str]]:
-    from ff_planner.optimize.planner import plan
 
     try:
         return plan(req), None
@@ -203,7 +207,6 @@ def _joint0(samples: Optional[np.ndarray]) -> np.ndarray:
 
 
 def _sign_integrals(params, profile, q0):
-    from ff_planner.model.simulate import simulate
 
     tr = simulate(params, profile, [q0], trajectory=True, dt=1e-4)
     s = np.sign(tr.qd[:, 0])
@@ -215,10 +218,7 @@ def _sign_integrals(params, profile, q0):
 
 
 def _fig3(params, profile, q0, qf, path):
-    from matplotlib.figure import Figure
 
-    from ff_planner.export.plotting import save_figure, step_xy
-    from ff_planner.model.simulate import simulate
 
     tr, i1, i2 = _sign_integrals(params, profile, q0)
     fig = Figure(figsize=(11, 9))
@@ -251,7 +251,6 @@ def _fig3(params, profile, q0, qf, path):
 
 
 def section_fig3(rep: Report) -> None:
-    from ff_planner.model.sensitivity import sensitivities
 
     p = _arm("table1")
     rep.add("## 1. Coulomb friction only: section 3.2, Fig. 3 (table 1 arm)", "")
@@ -309,7 +308,6 @@ def _plan_row(name: str, res: Optional[PlanResult], err: Optional[str], j: Optio
 
 
 def section_single(rep: Report, starts: int, seed: int) -> None:
-    from ff_planner.export.plotting import plot_motion
 
     p = _arm("table2")
     rep.add("## 2. One uncertain parameter at a time, N = 3 (section 4.1.2, Fig. 5)", "",
@@ -360,7 +358,6 @@ def _result_record(res: Optional[PlanResult], err: Optional[str]) -> dict:
 
 
 def section_three(rep: Report, starts: int, seed: int, repeats: int) -> None:
-    from ff_planner.export.plotting import plot_motion
 
     p = _arm("table2")
     rep.add("## 3. Three uncertain parameters, N = 5 (section 4.1.2, Fig. 7)", "",
@@ -402,18 +399,12 @@ def section_three(rep: Report, starts: int, seed: int, repeats: int) -> None:
 
 
 def _sample_points() -> list[dict[str, float]]:
-    """Each of pv, pc, pt at ±10 % and ±20 % alone, and the 8 corners of the ±20 % box."""
-    import itertools
-
-    pts = [{n: 1.0 + s} for n in FRICTION for s in (-0.2, -0.1, 0.1, 0.2)]
-    pts += [dict(zip(FRICTION, (1.0 + a, 1.0 + b, 1.0 + c)))
-            for a, b, c in itertools.product((-0.2, 0.2), repeat=3)]
-    return pts
+    """Scale factors of pv, pc, pt over the robust-sampled objective's box (``sample_box``)."""
+    return [dict(zip(FRICTION, map(float, row))) for row in sample_scales(FRICTION, FRICTION)]
 
 
 def _sampled_errors(params, profile, q0: float, qf: float) -> tuple[float, float]:
     """(RMS, worst) of the rest-position error (rad) over ``_sample_points``."""
-    from ff_planner.model.simulate import rest_position
 
     e = np.array([rest_position(friction_scaled(params, sc), profile, [q0])[0] - qf
                   for sc in _sample_points()])
@@ -453,7 +444,6 @@ def _sampled_comparison(rep: Report, res_derivative: PlanResult, starts: int, se
 
 def _motion_file_check(rep: Report, res: PlanResult) -> None:
     """Write the plan as ff-motion/1 and re-simulate the file independently, perturbed."""
-    from ff_planner.export.motion_file import verify_motion, write_motion
 
     path = write_motion(rep.out / "motion_k3.json", res)
     rows: list[list[Any]] = []
@@ -512,7 +502,6 @@ class _WideStarts:
     def __enter__(self):
         self.saved = None
         try:
-            from ff_planner.optimize import robust1d
 
             self.settings = robust1d.LM_SETTINGS[1]
             self.saved = self.settings["spread"]
@@ -528,7 +517,6 @@ class _WideStarts:
 
 
 def section_sweep(rep: Report, distances: np.ndarray, starts: int, seed: int) -> None:
-    from ff_planner.export.plotting import plot_curves
 
     rep.add("## 4. Goal-distance sweep, N = 3 (Fig. 6)", "",
             f"For each single uncertain parameter and goal distance (0 → qf, tf = 1 s, {starts} "
@@ -582,11 +570,7 @@ def _fmt_opt(x) -> str:
 
 # --- table 4 / Fig. 11 ----------------------------------------------------------------------
 def section_table4(rep: Report) -> None:
-    from matplotlib.figure import Figure
 
-    from ff_planner.export.plotting import save_figure, step_xy
-    from ff_planner.model.simulate import simulate
-    from ff_planner.optimize.baselines import R_TERMINAL, finite_differences
 
     p = _arm("table2")
     rep.add("## 5. Time- and energy-optimal motions: section 6.5, table 4, Fig. 11", "",
@@ -668,7 +652,6 @@ def section_table4(rep: Report) -> None:
 
 # --- section 4.2: the 2-DOF SCARA arm --------------------------------------------------------
 def section_scara2(rep: Report, starts: int, seed: int) -> None:
-    from ff_planner.export.plotting import plot_motion
 
     names = ("pv1", "pc1", "pt1", "pv2", "pc2", "pt2")
     rep.add("## 6. Two-DOF SCARA arm, N = 8 per joint (section 4.2, Fig. 9)", "",
@@ -705,14 +688,12 @@ def run(out: Path, quick: bool = False, seed: int = 0,
     out.mkdir(parents=True, exist_ok=True)
     rep = Report(out)
     t0 = time.perf_counter()
-    import numpy
-    import scipy
 
     rep.add("# Reproduction of Plooij, Wolfslag & Wisse, *Robust feedforward control of robotic "
             "arms with friction model uncertainty*", "",
             f"Generated by `ff-reproduce{' --quick' if quick else ''}` on "
             f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; {platform.machine()}, "
-            f"{os.cpu_count()} CPUs, Python {platform.python_version()}, numpy {numpy.__version__}, "
+            f"{os.cpu_count()} CPUs, Python {platform.python_version()}, numpy {np.__version__}, "
             f"scipy {scipy.__version__}. Paper values beside ours; every number is also in "
             "`results.json`. Robust means: every true |∂q(tf)/∂p| (exact derivative, confirmed by "
             "central differences with a 1e-6 relative step) ≤ 1e-6 and |q(tf) − qf| ≤ 1e-6 rad — "
@@ -804,6 +785,5 @@ def _not_reproduced(data: dict) -> list[str]:
 
 
 def _clean(x):
-    from ff_planner.export.motion_file import jsonable
 
     return jsonable(x)

@@ -22,6 +22,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from ff_msgs.srv import PlanTrajectory
 from ff_msgs_py.convert import error_response, result_to_response
+from ff_msgs_py.threads import in_thread
 from ff_planner.library.warm import PlanFn
 from ff_planner.optimize.planner import plan
 from ff_planner.service.planner_service import PlannerService, RequestFields, ServiceConfigError, config_from_mapping
@@ -63,7 +64,6 @@ class PlannerNode(Node):
 
     async def _on_plan(self, req: PlanTrajectory.Request, res: PlanTrajectory.Response) -> PlanTrajectory.Response:
         """Service ~/plan: the (blocking) handling runs on its own thread (ff_msgs_py.threads)."""
-        from ff_msgs_py.threads import in_thread
 
         return await in_thread(self._plan_blocking, req, res, wake=self._wake, name="ff_plan_request")
 

@@ -42,6 +42,7 @@ import numpy as np
 from pebble import ProcessPool
 
 from ff_planner.core.errors import ParameterError, PlanningError, WarmStartUnavailable, error_code_of
+from ff_planner.export.motion_file import write_motion
 from ff_planner.library.refusal import as_vector, failure
 from ff_planner.library.store import LibraryError, MotionLibrary, MotionRecord, record_from_result, task_key
 from ff_planner.library.warm import PlanFn, warm_plan
@@ -453,7 +454,6 @@ class PlannerService:
 
     def _write_motion(self, request: PlanRequest, result: PlanResult) -> None:
         try:
-            from ff_planner.export.motion_file import write_motion
 
             path = Path(self.config.motion_dir).expanduser() / f"{task_key(request)}.json"
             write_motion(path, result)
