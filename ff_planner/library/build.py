@@ -52,7 +52,7 @@ from ff_planner.library.store import MotionLibrary, MotionRecord, record_from_re
 from ff_planner.library.warm import PlanFn, warm_plan
 from ff_planner.model.params import Params
 from ff_planner.model.profile import PlanRequest, PlanResult
-from ff_planner.optimize.planner import plan
+from ff_planner.optimize.planner import CheckedRequest, check, plan
 
 DONE = ("solved", "infeasible")
 
@@ -84,15 +84,18 @@ def current_limits(params: Params) -> np.ndarray:
     return np.array([float(getattr(params, k)) for k in params.keys() if k.startswith("i_max")])
 
 
-def _continue(req: PlanRequest, nb: MotionRecord, fn: PlanFn, local_starts: int, sigma: float
+def _continue(checked: CheckedRequest, nb: MotionRecord, fn: PlanFn, local_starts: int, sigma: float
               ) -> tuple[Optional[PlanResult], int]:
     """Continuation from a solved neighbour: its currents as the single start, then up to
     ``local_starts`` − 1 seeded perturbations of them (σ·√k A, clipped to the limits), each a
     single start. ``plan_robust_1dof`` adds one seeded random start after the given one: for
     robust-derivative (stop at the first plan) a plan counts only if the given start found it
     (starts_tried = 1); robust-sampled always runs both starts and keeps the better, so there a
-    success counts (noted in the record's reason). Returns (result or None, starts used)."""
-    one = replace(req, starts=1)
+    success counts (noted in the record's reason). Returns (result or None, starts used).
+    ``checked`` passed the facade's ``check``; the single-start copies share it (the start count
+    does not change what ``check`` decides), so the task is validated once."""
+    req = checked.request
+    one = replace(checked, request=replace(req, starts=1))
     limit = 1 if req.objective == "robust-derivative" else 2
 
     def counts(r: PlanResult) -> bool:
@@ -104,7 +107,7 @@ def _continue(req: PlanRequest, nb: MotionRecord, fn: PlanFn, local_starts: int,
     r = warm_plan(one, base, fn, warm_from=nb.task_key)   # checks the shapes
     if counts(r):
         return r, 1
-    i_max = current_limits(req.resolved_params())
+    i_max = current_limits(checked.params)
     rng = np.random.default_rng([int(req.seed), 0x1B])
     for k in range(1, max(1, int(local_starts))):
         init = np.clip(base + rng.normal(0.0, sigma * math.sqrt(k), base.shape), -i_max, i_max)
@@ -127,11 +130,13 @@ def solve_task(payload: TaskPayload) -> MotionRecord:
     note = ""
     how, warm_from = "cold", None
     result: Optional[PlanResult] = None
+    checked: Optional[CheckedRequest] = None    # checked once when continuation tries many starts
     try:
         nb = payload.neighbour
         if nb is not None:
             try:
-                result, tries = _continue(req, nb, fn, payload.local_starts, payload.local_sigma)
+                checked = check(req)
+                result, tries = _continue(checked, nb, fn, payload.local_starts, payload.local_sigma)
                 if result is not None:
                     result.starts_tried = tries
                     how, warm_from = "continuation", nb.task_key
@@ -146,7 +151,7 @@ def solve_task(payload: TaskPayload) -> MotionRecord:
             except (PlanningError, ParameterError) as exc:
                 result = failure(req, exc.code, str(exc))
         if result is None and (nb is None or payload.fallback_cold):
-            result = fn(req)
+            result = fn(checked if checked is not None else req)
         elif result is None:
             result = failure(req, "NO_ROBUST_PLAN", note.rstrip("; "))
             note = ""
