@@ -1,0 +1,1 @@
+"""Friction identification from the arm's own motions (no ROS)."""
