@@ -162,3 +162,24 @@ def error_response(response: Any, code: str, message: str):
     response.error_code = ERROR_CODES.get(code, ERROR_CODES["INTERNAL_ERROR"])
     response.message = message
     return response
+
+
+def response_to_result(response: Any, request: PlanRequest) -> PlanResult:
+    """PlanTrajectory.Response (+ the request it answers) -> PlanResult, e.g. to write a motion file.
+
+    The inverse of :func:`result_to_response`; ``params`` and ``coast`` come from ``request`` (the
+    response carries the profile's coast), the error name from the interface constant.
+    """
+    names = {code: name for name, code in ERROR_CODES.items()}
+    prof = msg_to_profile(response.profile) if int(response.profile.n_steps) > 0 else None
+    return PlanResult(
+        success=bool(response.success), message=str(response.message), profile=prof,
+        model=request.model, params=request.resolved_params(), q0=np.asarray(request.q0, dtype=float),
+        qf=np.asarray(request.qf, dtype=float), uncertain=list(request.uncertain),
+        objective=request.objective, q_final=np.asarray(response.q_final, dtype=float),
+        qd_final=np.asarray(response.qd_final, dtype=float),
+        sensitivities=dict(zip(response.sensitivity_names, map(float, response.sensitivity_values))),
+        robust=bool(response.robust), error_code=names.get(int(response.error_code), "INTERNAL_ERROR"),
+        best_effort=prof is not None and not bool(response.success),
+        starts_tried=int(response.starts_tried), iterations=int(response.iterations),
+        solve_time=float(response.solve_time), warm_start=bool(response.warm_start))

@@ -61,6 +61,26 @@ def ros_environment(domain_id: Optional[int] = None, log_dir: Optional[str] = No
     return env
 
 
+def client_ros_settings(domain_id: Optional[int] = None,
+                        base: Optional[Mapping[str, str]] = None) -> tuple[int, dict[str, str]]:
+    """(domain id, variables to set) for a tool that joins a running system, e.g. ``ff-ctl``.
+
+    The domain: ``domain_id``, else ``ROS_DOMAIN_ID`` of ``base`` (default os.environ), else 0 (ROS's
+    default). Discovery stays on loopback (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``) unless
+    ``base`` sets ``ROS_AUTOMATIC_DISCOVERY_RANGE`` itself. ValueError on a bad domain id.
+    """
+    env = os.environ if base is None else base
+    raw = str(domain_id) if domain_id is not None else env.get("ROS_DOMAIN_ID", "").strip() or "0"
+    try:
+        dom = int(raw)
+    except ValueError:
+        raise ValueError(f"ROS_DOMAIN_ID must be a whole number, got {raw!r}") from None
+    if not 0 <= dom <= 232:
+        raise ValueError(f"ROS domain id must be 0..232, got {dom}")
+    return dom, {"ROS_AUTOMATIC_DISCOVERY_RANGE": env.get("ROS_AUTOMATIC_DISCOVERY_RANGE") or "LOCALHOST",
+                 "ROS_DOMAIN_ID": str(dom)}
+
+
 def apply_ros_environment(env: Mapping[str, str]) -> None:
     """Put the ROS settings of ``env`` into this process (call before rclpy.init())."""
     for k in ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_DOMAIN_ID", "ROS_LOG_DIR"):

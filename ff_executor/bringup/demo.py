@@ -2,9 +2,11 @@
 
     ff-demo                         # Coulomb friction of the simulated arm 20 % above the model
     ff-demo --true-scale pc=0.8 --plot docs/demo/demo.png --json out.json
+    ff-demo --domain-id 42 --record demo_bag   # a fixed domain (else ROS_DOMAIN_ID, else a free one); a bag
+    ff-demo --print-config                     # the effective configuration, nothing started
 
 1. Brings up the simulated stack (``ff_executor.bringup.stack.Stack``: sim driver hosting the CAN hub on
-   127.0.0.1, bridge, planner, executor; loopback-only ROS with a per-run domain).
+   127.0.0.1, bridge, planner, executor; loopback-only ROS on a free domain, or ROS_DOMAIN_ID when set).
 2. Asks the planner SERVICE for a robust 1-DOF motion 0 → 1 rad in 1 s (robust-derivative,
    uncertain pv, pc, pt) and for a non-robust baseline (energy-optimal, paper section 6.5).
 3. Executes both through the executor ACTION on the simulated arm, whose true friction differs from
@@ -27,7 +29,8 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ff_executor.bringup.stack import BringupError, Stack, StackOptions, parse_key_values
+from ff_executor.bringup.stack import (BringupError, Stack, StackOptions, add_environment_arguments,
+                                      environment_options, parse_key_values, print_config)
 from ff_executor.ros.client import StackCallError, StackClient
 from ff_msgs.srv import PlanTrajectory
 from ff_planner.model.params import ParameterError
@@ -117,8 +120,9 @@ def plot(summary: dict, path: str, title: str) -> None:
         cur = np.asarray(prof.currents)
         ax2.step(np.append(st, prof.move_time), np.append(np.append(cur, 0.0), 0.0)[: st.size + 1],
                  where="post", color=c, label=f"{label}: commanded")
-        if tj.size and np.isfinite(eff).any():
-            ax2.plot(tj - t_start, eff[:, 0], color=c, alpha=0.4, lw=0.8, label=f"{label}: measured")
+        if tj.size and np.isfinite(eff).any():   # 100 Hz samples, each held until the next one
+            ax2.step(tj - t_start, eff[:, 0], where="post", color=c, alpha=0.4, lw=0.8,
+                     label=f"{label}: measured")
     ax1.axhline(1.0, color="k", lw=0.6, ls="--")
     ax1.set_ylabel("position (rad), ground truth")
     ends = [s["_outcome"].truth.t[-1] - (s["_outcome"].profile_start or 0.0)
@@ -157,7 +161,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="the baseline must miss at least this many times more than the robust move")
     ap.add_argument("--plot", default="ff-demo.png", help="PNG to write")
     ap.add_argument("--json", default=None, help="also write the summary as JSON here")
-    ap.add_argument("--run-dir", default=None, help="logs and generated files (default temp)")
+    add_environment_arguments(ap)
     ap.add_argument("--max-spread", type=float, default=300.0,
                     help="us; a move whose switch timing at the bridge spreads more than this was "
                          "disturbed by the machine and is repeated (0 = accept every run)")
@@ -175,7 +179,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         if not 0 <= a.rt_priority <= 99:
             raise ValueError(f"--rt-priority must be 0..99, got {a.rt_priority}")
         opts = StackOptions(true_scale=scale, true_params=parse_key_values(a.true_param, "--true-param"),
-                            run_dir=a.run_dir, rt_priority=a.rt_priority)
+                            rt_priority=a.rt_priority, **environment_options(a))
         true = opts.true_friction()
     except (ParameterError, ValueError) as exc:
         print(f"ff-demo: {exc}", file=sys.stderr)
@@ -183,6 +187,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if not (math.isfinite(a.qf) and math.isfinite(a.tf) and a.tf > 0.05):
         print("ff-demo: --qf must be finite and --tf > 0.05 s", file=sys.stderr)
         return 2
+    if a.print_config:
+        print_config(Stack(opts, log=lambda _m: None))
+        return 0
     print(f"ff-demo: robust vs baseline, 0 -> {a.qf} rad in {a.tf} s; the simulated arm's true "
           f"friction: {true} (the planner's model: paper table 2)", flush=True)
     try:

@@ -3,10 +3,13 @@
     ff-bringup                              # table 2 arm, true friction = the planner's model
     ff-bringup --true-scale pc=1.2          # the simulated arm's Coulomb friction 20 % higher
     ff-bringup --true-param pc=0.25 --no-planner --hub-port 54701
+    ff-bringup --print-config               # the effective configuration, nothing started
+    ff-bringup --record run_bag             # also record the topics (ff-record, rosbag2/MCAP)
 
 Safe defaults, always: ROS traffic on loopback only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``),
-a per-run ``ROS_DOMAIN_ID`` and log folder (``ff_msgs_py.launch.ros_environment``), and the CAN
-hub on 127.0.0.1, hosted by the simulated driver. Start order and readiness (each waits for the
+the CAN hub on 127.0.0.1, hosted by the simulated driver. The domain: ``--domain-id``, else
+``ROS_DOMAIN_ID`` when set, else a free one per run; ROS logs: ``ROS_LOG_DIR`` when set, else the run
+folder (``ff_msgs_py.launch.ros_environment``). Start order and readiness (each waits for the
 previous one, checked in the ROS graph, not by sleeping):
 
 1. ``ff_sim_driver`` (ff_hwbridge.ros.sim_driver_node) hosting the CAN hub → service ``~/reset``;
@@ -22,10 +25,18 @@ Timing (the end nearest the bus decides when a current switches; 1 ms ≈ 0.04 r
 driver, the bridge and the executor run through ``ff_executor.bringup.timed`` (0.1 ms GIL switch
 interval) at nice −10 where permitted; ``--rt-priority N`` puts the simulated drive under
 SCHED_FIFO N and asks the bridge for a SCHED_FIFO scheduler thread (root / CAP_SYS_NICE; off by
-default here, the demo, tests and benchmarks use 10 where permitted). Generated for each run in
-the run folder: the sim driver's and bridge's parameter files and the bridge config (remote bus on
-the hub, 10 ms SYNC, 50 ms heartbeat with a 1 s timeout: lenient for shared machines; a bridge
-that fails its enable sequence is restarted once).
+default here, the demo, tests and benchmarks use 10 where permitted).
+
+Configuration (``--print-config`` shows every value): the executor reads ``config/executor.yaml``
+then ``config/executor_sim.yaml`` (lead time 0.3 s, start margin 0.5 s for a shared machine), the
+planner ``config/planner.yaml`` (its motion library moved into the run folder); the simulated
+drive's encoder resolution and nominal current come from ``config/sim_arm1dof.yaml``. Generated
+for each run in the run folder: the sim driver's and bridge's parameter files and the bridge
+config (remote bus on the hub). Its timing differs from ``config/bridge_*.yaml`` (1 ms SYNC, 10 ms
+heartbeats, 40-100 ms timeouts: for a real bus on a dedicated machine) on purpose: 10 ms SYNC
+(setpoints are applied at their stamps; SYNC only paces feedback), 50 ms drive heartbeats with a
+1 s timeout on both sides (lenient for shared machines); a bridge that fails its enable sequence
+is restarted once.
 """
 from __future__ import annotations
 
@@ -56,9 +67,30 @@ from ff_planner.model.registry import MODELS, model_spec
 
 REPO = Path(__file__).resolve().parents[2]
 CONFIG_DIR = REPO / "config"
-COUNTS_PER_REV = 4096      # encoder increments per motor revolution, simulated drive = bridge
-NOMINAL_CURRENT = 3.0      # A, motor nominal current (EPOS4 per-mille scale), drive = bridge
-SYNC_PERIOD = 0.01         # s; setpoints are asynchronous RPDOs (applied on arrival), SYNC only paces feedback
+
+
+def config_parameters(name: str, node: str) -> dict:
+    """``ros__parameters`` of ``node`` in ``config/<name>`` ({} if the file or node is missing)."""
+    try:
+        data = yaml.safe_load((CONFIG_DIR / name).read_text()) or {}
+    except (OSError, yaml.YAMLError):
+        return {}
+    return dict(((data.get(node) or {}).get("ros__parameters") or {}))
+
+
+_SIM = config_parameters("sim_arm1dof.yaml", "ff_sim_driver")
+# From config/sim_arm1dof.yaml (the simulated drive; the bridge gets the same numbers):
+COUNTS_PER_REV = int(_SIM.get("counts_per_rev", 2048))        # encoder increments per motor revolution
+NOMINAL_CURRENT = float(_SIM.get("nominal_current", 3.0))     # A, motor nominal current (EPOS4 per mille)
+# Deliberately more lenient than config/bridge_*.yaml (1 ms SYNC, 10 ms heartbeat with a 40-100 ms
+# timeout, for a real bus on a dedicated machine): the simulated stack shares a possibly busy
+# machine. Setpoints are asynchronous RPDOs (applied at their stamps), so SYNC only paces feedback.
+SYNC_PERIOD = 0.01         # s
+HEARTBEAT_PRODUCER_MS = 50  # ms, the drives' heartbeat
+HEARTBEAT_TIMEOUT = 1.0    # s, the bridge's timeout on the drives' heartbeat; the drives' on the
+MASTER_HEARTBEAT_TIMEOUT_MS = 1000   # bridge's (100 ms) heartbeat: 1 s too (the default 3 x 100 ms
+                                     # tripped on a loaded 2-core machine)
+EXECUTOR_FILES = ("executor.yaml", "executor_sim.yaml")   # config/ files layered for the executor
 
 
 class BringupError(RuntimeError):
@@ -77,11 +109,11 @@ class StackOptions:
     hub_port: int = 0                          # 0 = a free port on 127.0.0.1
     domain_id: Optional[int] = None            # None = random per run
     run_dir: Optional[str] = None              # logs, generated parameter files, motion library
-    executor_params: Optional[str] = None      # default config/executor.yaml + the model's joints
+    log_dir: Optional[str] = None              # ROS_LOG_DIR; None = <run_dir>/ros-log
+    executor_params: Optional[str] = None      # default config/executor.yaml + executor_sim.yaml
+                                               # (lead time 0.3 s, start margin 0.5 s) + the model's joints
     planner_params: Optional[str] = None       # default config/planner.yaml
-    # the simulated stack runs on shared machines: hand setpoints to the bridge 0.3 s ahead
-    executor_overrides: Mapping[str, object] = field(
-        default_factory=lambda: {"lead_time": 0.3, "start_margin": 0.5})
+    executor_overrides: Mapping[str, object] = field(default_factory=dict)
     planner_overrides: Mapping[str, object] = field(default_factory=dict)
     sim_overrides: Mapping[str, object] = field(default_factory=dict)
     bridge_overrides: Mapping[str, object] = field(default_factory=dict)
@@ -94,6 +126,7 @@ class StackOptions:
                                                # bridge's scheduler thread (root/CAP_SYS_NICE); 0 = off
     timing_nice: Optional[int] = -10           # nice value for the sim driver and the bridge (the
                                                # timing-critical end); None = leave as is
+    record: Optional[str] = None               # bag folder: record the run with ff-record (MCAP)
 
     def true_friction(self) -> dict[str, float]:
         """The simulated arm's true parameters that differ from the planner's model."""
@@ -134,7 +167,8 @@ def bridge_config(model: str, hub_url: str) -> dict:
                                  "torque_constant": float(getattr(p, "kt" + sfx)),
                                  "counts_per_rev": COUNTS_PER_REV, "gear_ratio": float(getattr(p, "n" + sfx))}})
     return {"bus": {"interface": "remote", "channel": hub_url, "bitrate": 1_000_000},
-            "sync_period": SYNC_PERIOD, "heartbeat_producer_ms": 50, "heartbeat_timeout": 1.0,
+            "sync_period": SYNC_PERIOD, "heartbeat_producer_ms": HEARTBEAT_PRODUCER_MS,
+            "heartbeat_timeout": HEARTBEAT_TIMEOUT, "master_heartbeat_timeout_ms": MASTER_HEARTBEAT_TIMEOUT_MS,
             "setpoint_timeout": 0.5, "joints": joints}
 
 
@@ -151,7 +185,7 @@ class Stack:
         self.log = log
         self.run_dir = Path(self.options.run_dir or tempfile.mkdtemp(prefix="ff-bringup-"))
         self.run_dir.mkdir(parents=True, exist_ok=True)
-        self.env = ros_environment(self.options.domain_id, str(self.run_dir / "ros-log"))
+        self.env = ros_environment(self.options.domain_id, self.options.log_dir or str(self.run_dir / "ros-log"))
         self.env["PYTHONPATH"] = os.pathsep.join(
             p for p in (str(REPO), self.env.get("PYTHONPATH", "")) if p)
         self.hub_port = self.options.hub_port or free_port()
@@ -249,12 +283,76 @@ class Stack:
             except OSError:
                 continue
 
+    # --- what each process gets (start() and --print-config) ---------------------------------
+    def sim_parameters(self) -> dict[str, object]:
+        """The simulated driver's parameters (written to <run_dir>/sim_driver.yaml)."""
+        o = self.options
+        nj = model_spec(o.model).n_joints
+        sim: dict[str, object] = {
+            "model": o.model, "host_hub": not o.separate_hub, "hub_port": self.hub_port,
+            "bus.interface": "remote", "bus.channel": self.hub_url, "node_ids": list(range(1, nj + 1)),
+            "q0": [float(x) for x in (o.q0 or [0.0] * nj)], "counts_per_rev": COUNTS_PER_REV,
+            "nominal_current": NOMINAL_CURRENT, "ground_truth_rate": 100.0,
+            "physics_step": default_params(o.model).plant_step}
+        sim.update({f"true_params.{k}": v for k, v in o.true_friction().items()})
+        sim.update(o.sim_overrides)
+        return sim
+
+    def bridge_data(self) -> dict:
+        """The bridge's config file (ff_hwbridge.drive.config), written to <run_dir>/bridge.yaml."""
+        bdata = bridge_config(self.options.model, self.hub_url)
+        if self.options.rt_priority:
+            bdata["scheduler_rt_priority"] = int(self.options.rt_priority)
+        return bdata
+
+    def planner_files(self) -> tuple[list[str], dict[str, object]]:
+        """(parameter files in order, overrides written after them) for the planner."""
+        pp: dict[str, object] = {"library_path": str(self.run_dir / "motions.sqlite")}
+        pp.update(self.options.planner_overrides)
+        return [self.options.planner_params or str(CONFIG_DIR / "planner.yaml")], pp
+
+    def executor_files(self) -> tuple[list[str], dict[str, object]]:
+        """(parameter files in order, overrides written after them) for the executor: by default
+        config/executor.yaml, then config/executor_sim.yaml, then the model's joint names."""
+        o = self.options
+        ep: dict[str, object] = {}
+        if o.executor_params is None:   # the default file's joints are the 1-DOF arm's
+            files = [str(CONFIG_DIR / f) for f in EXECUTOR_FILES if (CONFIG_DIR / f).is_file()]
+            ep["joint_names"] = [j["name"] for j in bridge_config(o.model, self.hub_url)["joints"]]
+        else:
+            files = [o.executor_params]
+        ep.update(o.executor_overrides)
+        return files, ep
+
+    def effective_config(self) -> dict:
+        """Everything start() would use, with the value each process ends up with (for --print-config)."""
+        def merged(files: list[str], node: str, over: Mapping[str, object]) -> dict:
+            out: dict[str, object] = {}
+            for f in files:
+                data = yaml.safe_load(Path(f).read_text()) or {}
+                out.update((data.get(node) or {}).get("ros__parameters") or {})
+            out.update(over)
+            return out
+
+        o = self.options
+        pf, pov = self.planner_files()
+        ef, eov = self.executor_files()
+        return {
+            "ros": {k: self.env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR")},
+            "run_dir": str(self.run_dir), "can_hub": self.hub_url, "record": o.record,
+            "ff_sim_driver": {"source": "generated (counts_per_rev, nominal_current from config/sim_arm1dof.yaml)",
+                              "parameters": self.sim_parameters()},
+            "ff_hwbridge": {"source": "generated: lenient timing for a shared machine (config/bridge_*.yaml "
+                                      "are for real hardware)", "config": self.bridge_data(),
+                            "parameters": dict(o.bridge_overrides)},
+            **({"ff_planner": {"files": pf, "parameters": merged(pf, "ff_planner", pov)}} if o.planner else {}),
+            **({"ff_executor": {"files": ef, "parameters": merged(ef, "ff_executor", eov)}} if o.executor else {}),
+        }
+
     def start(self) -> "Stack":
         o = self.options
         model = o.model
         true = o.true_friction()
-        nj = model_spec(model).n_joints
-        q0 = [float(x) for x in (o.q0 or [0.0] * nj)]
         self.log(f"ff-bringup: run folder {self.run_dir}, ROS_DOMAIN_ID={self.env['ROS_DOMAIN_ID']} "
                  f"(loopback only), CAN hub {self.hub_url}")
         self.log(f"  simulated arm: {model}, true friction differs from the model by {true or 'nothing'}")
@@ -263,22 +361,14 @@ class Stack:
                 p = self._start("ff_can_hub", "ff_hwbridge.cli.can_hub", ["--port", str(self.hub_port)],
                                 timing=True)
                 self._wait(p, lambda: "CAN hub on" in p.output(), "serving on 127.0.0.1")
-            sim = {"model": model, "host_hub": not o.separate_hub, "hub_port": self.hub_port,
-                   "bus.interface": "remote", "bus.channel": self.hub_url,
-                   "node_ids": list(range(1, nj + 1)), "q0": q0, "counts_per_rev": COUNTS_PER_REV,
-                   "nominal_current": NOMINAL_CURRENT, "ground_truth_rate": 100.0,
-                   "physics_step": default_params(model).plant_step}
-            sim.update({f"true_params.{k}": v for k, v in true.items()})
-            sim.update(o.sim_overrides)
+            sim = self.sim_parameters()
             pf = _params_file(self.run_dir / "sim_driver.yaml", "ff_sim_driver", sim)
             p = self._start("ff_sim_driver", "ff_hwbridge.ros.sim_driver_node",
                             ["--ros-args", "--params-file", str(pf)], timing=True)
             self._wait(p, lambda: self.has_service("/ff_sim_driver/reset"), "service ~/reset")
 
             bcfg = self.run_dir / "bridge.yaml"
-            bdata = bridge_config(model, self.hub_url)
-            if o.rt_priority:
-                bdata["scheduler_rt_priority"] = int(o.rt_priority)
+            bdata = self.bridge_data()
             bcfg.write_text(yaml.safe_dump(bdata, sort_keys=False))
             bp: dict[str, object] = {"config_file": str(bcfg)}
             bp.update(o.bridge_overrides)
@@ -298,27 +388,24 @@ class Stack:
                     p.stop()
 
             if o.planner:
-                pp: dict[str, object] = {"library_path": str(self.run_dir / "motions.sqlite")}
-                pp.update(o.planner_overrides)
-                base = o.planner_params or str(CONFIG_DIR / "planner.yaml")
+                files, pp = self.planner_files()
                 over = _params_file(self.run_dir / "planner_overrides.yaml", "ff_planner", pp)
-                p = self._start("ff_planner", "ff_planner.ros.planner_node",
-                                ["--ros-args", "--params-file", base, "--params-file", str(over)])
+                args = ["--ros-args"] + [x for f in files for x in ("--params-file", f)]
+                p = self._start("ff_planner", "ff_planner.ros.planner_node", args + ["--params-file", str(over)])
                 self._wait(p, lambda: self.has_service("/ff_planner/plan"), "service ~/plan")
 
             if o.executor:
-                base = o.executor_params or str(CONFIG_DIR / "executor.yaml")
-                ep: dict[str, object] = {}
-                if o.executor_params is None:   # the default file's joints are the 1-DOF arm's
-                    ep["joint_names"] = [j["name"] for j in bdata["joints"]]
-                ep.update(o.executor_overrides)
-                args = ["--ros-args", "--params-file", base]
+                files, ep = self.executor_files()
+                args = ["--ros-args"] + [x for f in files for x in ("--params-file", f)]
                 if ep:
                     over = _params_file(self.run_dir / "executor_overrides.yaml", "ff_executor", ep)
                     args += ["--params-file", str(over)]
                 p = self._start("ff_executor", "ff_executor.ros.executor_node", args, timing=True)
                 self._wait(p, lambda: self.has_service("/ff_executor/execute/_action/send_goal"),
                            "action ~/execute")
+            if o.record:
+                p = self._start("ff_record", "ff_executor.ros.record", ["-o", str(o.record)])
+                self._wait(p, lambda: "ff-record: recording" in p.output(), f"recording into {o.record}")
         except BaseException:
             self.stop()
             raise
@@ -389,6 +476,41 @@ def parse_key_values(items: Sequence[str], what: str) -> dict[str, float]:
     return out
 
 
+def add_environment_arguments(ap: argparse.ArgumentParser) -> None:
+    """--domain-id, --run-dir, --record, --print-config (ff-bringup and ff-demo)."""
+    ap.add_argument("--domain-id", type=int, default=None,
+                    help="ROS_DOMAIN_ID (default: ROS_DOMAIN_ID if set, else a free one in 1..100)")
+    ap.add_argument("--run-dir", default=None, help="logs + generated files (default: a temp folder); "
+                                                    "ROS logs go to ROS_LOG_DIR if set, else <run-dir>/ros-log")
+    ap.add_argument("--record", default=None, metavar="DIR",
+                    help="record the run's topics into this rosbag2 folder (MCAP; ff-record)")
+    ap.add_argument("--print-config", action="store_true",
+                    help="print the effective configuration (YAML) and exit without starting anything")
+
+
+def environment_options(a: argparse.Namespace, environ: Optional[Mapping[str, str]] = None) -> dict:
+    """StackOptions fields from --domain-id / --run-dir / --record and the environment: the domain
+    from --domain-id, else ROS_DOMAIN_ID, else None (a free one); the log folder from ROS_LOG_DIR."""
+    env = os.environ if environ is None else environ
+    domain = a.domain_id
+    if domain is None and env.get("ROS_DOMAIN_ID", "").strip():
+        try:
+            domain = int(env["ROS_DOMAIN_ID"])
+        except ValueError:
+            raise ValueError(f"ROS_DOMAIN_ID must be a whole number, got {env['ROS_DOMAIN_ID']!r}") from None
+    if domain is not None and not 0 <= domain <= 232:
+        raise ValueError(f"the ROS domain id must be 0..232, got {domain}")
+    if a.record and Path(a.record).exists():
+        raise ValueError(f"--record: {a.record} exists already (ff-record makes a new folder)")
+    return {"domain_id": domain, "run_dir": a.run_dir, "log_dir": env.get("ROS_LOG_DIR") or None,
+            "record": a.record}
+
+
+def print_config(stack: "Stack") -> None:
+    """The effective configuration as YAML on stdout."""
+    print(yaml.safe_dump(stack.effective_config(), sort_keys=False), end="", flush=True)
+
+
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="ff-bringup", description=__doc__.splitlines()[0],
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -400,8 +522,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="set a true parameter of the simulated arm (SI units), e.g. pc=0.25")
     ap.add_argument("--no-planner", action="store_true", help="do not start the planner node")
     ap.add_argument("--hub-port", type=int, default=0, help="CAN hub port on 127.0.0.1 (0 = free)")
-    ap.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID (default random 1..100)")
-    ap.add_argument("--run-dir", default=None, help="logs + generated files (default: a temp folder)")
+    add_environment_arguments(ap)
     ap.add_argument("--start-timeout", type=float, default=90.0, help="s per process")
     ap.add_argument("--rt-priority", type=int, default=0, metavar="N",
                     help="SCHED_FIFO priority 1..99 for the simulated driver and the bridge's "
@@ -415,17 +536,20 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     try:
         opts = StackOptions(model=a.model, true_scale=parse_key_values(a.true_scale, "--true-scale"),
                             true_params=parse_key_values(a.true_param, "--true-param"), planner=not a.no_planner,
-                            hub_port=a.hub_port, domain_id=a.domain_id, run_dir=a.run_dir,
-                            start_timeout=a.start_timeout, rt_priority=a.rt_priority)
+                            hub_port=a.hub_port, start_timeout=a.start_timeout, rt_priority=a.rt_priority,
+                            **environment_options(a))
         opts.true_friction()
         if not 0 <= a.rt_priority <= 99:
             raise ValueError(f"--rt-priority must be 0..99, got {a.rt_priority}")
     except (ParameterError, ValueError) as exc:
         print(f"ff-bringup: {exc}", file=sys.stderr)
         return 2
+    stack = Stack(opts)
+    if a.print_config:
+        print_config(stack)
+        return 0
     stop = threading.Event()
     signal.signal(signal.SIGTERM, lambda *_: stop.set())
-    stack = Stack(opts)
     code = 0
     try:
         stack.start()

@@ -1,7 +1,7 @@
 """The executor's streaming engine (no ROS): profile checks, stamped setpoints, streaming, timing.
 
 A feedforward profile only works if every current switch happens at the right moment *relative to
-the others* (DESIGN.md: 1 ms at 10 A moves the paper's arm by ~0.04 rad). So the executor never
+the others* (at 10 A, a switch 1 ms off moves the paper's arm by ~0.04 rad). So the executor never
 decides *when* a current takes effect: it turns the profile into setpoints that carry the time
 they must take effect (``stamp``, ROS clock, ns) and hands each to the bridge ``lead_time``
 seconds early; the bridge, nearest the bus, applies each at its stamp.

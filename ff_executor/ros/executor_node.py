@@ -39,8 +39,10 @@ from typing import Any, Callable, Optional
 import numpy as np
 import rclpy
 from lifecycle_msgs.srv import GetState
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -57,31 +59,54 @@ from ff_msgs_py.threads import in_thread
 
 READY_LINE = "ff_executor ready"
 
-PARAMETERS = {
-    # name: (default, description)
-    "joint_names": (["joint1"], "joints of the drive group, in the bridge's order"),
-    "current_limits": ([10.0], "A, per joint (one value = all joints)"),
-    "lead_time": (0.1, "s, publish each setpoint this long before its stamp"),
-    "start_margin": (0.25, "s, start this long after the goal when no start time is given"),
-    "max_start_wait": (60.0, "s, refuse start times further ahead"),
-    "max_steps": (10000, "most current steps per joint"),
-    "min_step": (1e-4, "s, shortest current step accepted"),
-    "max_move_time": (600.0, "s, longest move accepted"),
-    "keepalive": (0.0, "s, repeat the present current at this period (0 = switches only)"),
-    "start_tolerance": (0.02, "rad, arm must be this close to q0 (inf = no check)"),
-    "rest_velocity": (1e-3, "rad/s, at rest below this"),
-    "settle_hold": (0.05, "s, at rest this long = settled"),
-    "settle_timeout": (3.0, "s after tf, give up waiting for rest"),
-    "feedback_rate": (20.0, "Hz, action feedback rate"),
-    "bridge_node": ("ff_hwbridge", "name of the bridge lifecycle node"),
-    "require_bridge_active": (True, "refuse unless the bridge reports lifecycle state active"),
-    "bridge_timeout": (5.0, "s, wait this long for the bridge's get_state service"),
-    "setpoint_topic": ("/ff_hwbridge/setpoints", "where setpoints go"),
-    "joint_state_topic": ("/ff_hwbridge/joint_states", "measured joint states"),
-    "applied_topic": ("/ff_hwbridge/applied", "bridge reports of applied setpoints (optional)"),
-    "joint_state_timeout": (1.0, "s, stop the move if joint states stop for this long"),
-    "refuse_mode": ("abort", "'abort': accept then abort with the reason; 'reject': reject"),
+INF = float("inf")
+#: name: (default, description with units, (from, to) range or None, read_only). Read-only ones go
+#: into the engine's configuration (or a subscription) when the node starts; the others are read
+#: for each goal, so ``ff-ctl param set`` changes them at once.
+PARAMETERS: dict[str, tuple[Any, str, Optional[tuple[float, float]], bool]] = {
+    "joint_names": (["joint1"], "joints of the drive group, in the bridge's order", None, True),
+    "current_limits": ([10.0], "A, per joint (one value = all joints); profiles above are refused", None, True),
+    "lead_time": (0.1, "s, publish each setpoint this long before its stamp", (0.0, 10.0), True),
+    "start_margin": (0.25, "s, start this long after the goal when no start time is given", (0.0, 60.0), True),
+    "max_start_wait": (60.0, "s, refuse start times further ahead", (0.0, 86400.0), True),
+    "max_steps": (10000, "most current steps per joint", (1, 10_000_000), True),
+    "min_step": (1e-4, "s, shortest current step accepted", (0.0, 10.0), True),
+    "max_move_time": (600.0, "s, longest move accepted", (0.0, 86400.0), True),
+    "keepalive": (0.0, "s, repeat the present current at this period (0 = switches only)", (0.0, 60.0), True),
+    "start_tolerance": (0.02, "rad, the arm must be at rest this close to the profile's q0 (inf = no check)",
+                        (0.0, INF), True),
+    "rest_velocity": (1e-3, "rad/s, at rest below this", (0.0, 100.0), True),
+    "settle_hold": (0.05, "s, at rest this long = settled", (0.0, 60.0), False),
+    "settle_timeout": (3.0, "s after tf, give up waiting for rest", (0.0, 3600.0), False),
+    "feedback_rate": (20.0, "Hz, action feedback rate (at least 10 Hz is sent)", (0.0, 1000.0), False),
+    "bridge_node": ("ff_hwbridge", "name of the bridge lifecycle node", None, True),
+    "require_bridge_active": (True, "refuse goals unless the bridge reports lifecycle state active", None, False),
+    "bridge_timeout": (5.0, "s, wait this long for the bridge's get_state service", (0.0, 600.0), False),
+    "setpoint_topic": ("/ff_hwbridge/setpoints", "where setpoints go (ff_msgs/msg/CurrentSetpoint)", None, True),
+    "joint_state_topic": ("/ff_hwbridge/joint_states", "measured joint states (sensor_msgs/msg/JointState)",
+                          None, True),
+    "applied_topic": ("/ff_hwbridge/applied", "the bridge's reports of applied setpoints (optional)", None, True),
+    "joint_state_timeout": (1.0, "s, stop the move (zero current, abort) if joint states stop this long",
+                            (0.0, 600.0), False),
+    "refuse_mode": ("abort", "'abort': accept, then abort with the reason; 'reject': reject the goal", None, False),
 }
+
+
+def descriptor(name: str) -> ParameterDescriptor:
+    """The ParameterDescriptor of executor parameter ``name`` (description, range, read-only)."""
+    default, text, rng, read_only = PARAMETERS[name]
+    d = ParameterDescriptor(name=name, description=text, read_only=read_only)
+    if name == "refuse_mode":
+        d.additional_constraints = "one of: abort, reject"
+    if rng is not None and isinstance(default, bool):
+        pass
+    elif rng is not None and isinstance(default, int):
+        d.integer_range = [IntegerRange(from_value=int(rng[0]), to_value=int(rng[1]), step=0)]
+    elif rng is not None:
+        d.floating_point_range = [FloatingPointRange(from_value=float(rng[0]), to_value=float(rng[1]), step=0.0)]
+    if read_only:
+        d.description += " (read at start)"
+    return d
 
 
 class ExecutorNode(Node):
@@ -89,8 +114,8 @@ class ExecutorNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("ff_executor", **kwargs)
-        for name, (default, _desc) in PARAMETERS.items():
-            self.declare_parameter(name, default)
+        for name, (default, *_rest) in PARAMETERS.items():
+            self.declare_parameter(name, default, descriptor(name))
         g = self._p
         self.config = EngineConfig(
             joint_names=tuple(g("joint_names")), current_limits=tuple(g("current_limits")),
@@ -192,8 +217,10 @@ class ExecutorNode(Node):
         return future.result().current_state.label
 
     def _busy_reason(self) -> str:
-        return (f"another goal is running (profile {self._running_id!r}); this executor runs one "
-                "motion at a time and does not queue: wait for its result or cancel it")
+        rid = self._running_id
+        what = f"profile {rid!r}" if rid else "a profile"
+        return (f"another goal is running ({what}); this executor runs one motion at a time and does not "
+                "queue: wait for its result or cancel it")
 
     def _refusal(self, goal: ExecuteProfile.Goal, check_busy: bool) -> tuple[Optional[Motion], str]:
         """(motion, "") if the goal may run, else (None, reason)."""
@@ -270,12 +297,14 @@ class ExecutorNode(Node):
     def _execute(self, goal_handle: Any) -> ExecuteProfile.Result:
         if not self._busy.acquire(blocking=False):
             return self._finish(goal_handle, False, f"refused: {self._busy_reason()}", how="abort")
+        # the running goal's id from the moment it holds the executor (its checks may take up to
+        # bridge_timeout s), so that a goal refused meanwhile is told which profile runs
+        self._running_id = goal_handle.request.profile.profile_id or "(no id)"
         try:
             goal = goal_handle.request
             motion, reason = self._refusal(goal, check_busy=False)
             if motion is None:
                 return self._finish(goal_handle, False, f"refused: {reason}", how="abort")
-            self._running_id = motion.profile_id
             return self._run(goal_handle, motion)
         finally:
             self._running_id = None
@@ -394,8 +423,8 @@ def main(argv: Optional[list[str]] = None) -> None:
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
-    except ValueError as exc:   # bad parameters: one clear line, no traceback
-        print(f"ff_executor: {exc}", flush=True)
+    except (ValueError, ParameterException) as exc:   # bad parameters: one clear line, no traceback
+        print(f"ff_executor: {' '.join(str(exc).split())}", flush=True)
         raise SystemExit(2) from None
     finally:
         if node is not None:

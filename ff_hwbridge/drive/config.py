@@ -6,9 +6,30 @@ Example (``config/bridge_epos4_1dof.yaml``)::
     sync_period: 0.001            # s, SYNC producer period (TPDOs come on every SYNC)
     heartbeat_producer_ms: 10     # ms, written to each drive's 0x1017
     heartbeat_timeout: 0.04       # s, no heartbeat this long -> safe state
-    master_heartbeat_ms: 0        # ms, > 0: the master produces a heartbeat (id master_node_id,
-                                  #   default 127) and each drive consumes it (0x1016:01, timeout
-                                  #   3x): if the bridge process dies, the drives stop by themselves
+    master_heartbeat_ms: 100      # ms, > 0: the master produces a heartbeat (id master_node_id,
+                                  #   default 127) and each drive consumes it (0x1016:01): if the
+                                  #   bridge process dies, the drives fault by themselves (0x8130)
+    master_heartbeat_timeout_ms: 0  # ms, the drives' consumer time (0 = max(3 x master_heartbeat_ms,
+                                  #   heartbeat_timeout): as patient with the master as it is with them)
+    rpdo_timeout_ms: 500          # ms, RxPDO1 event timer 0x1400:05 (deadline monitoring): no
+                                  #   RPDO this long -> the drive faults (0x8250); stops the drive
+                                  #   when the master hangs but its heartbeat goes on; 0 = off;
+                                  #   absent: max(500, 2 x heartbeat_timeout)
+    quick_stop_option: 2          # 0x605A: 0 disable drive at once; 1/2 stop on the profile /
+                                  #   quick stop ramp, then Switch on disabled; 5/6 same, then
+                                  #   stay in Quick stop active (maxon default 6)
+    fault_reaction_option: 2      # 0x605E: 0 disable drive (motor free); 1 slow down ramp;
+                                  #   2 quick stop ramp (maxon default)
+    abort_connection_option: 1    # 0x6007 on a communication error (heartbeat, RPDO timeout):
+                                  #   0 none; 1 fault; 2 disable voltage; 3 quick stop (maxon 3)
+    communication_error_behaviour: 0  # 0x1029:01 NMT state after a communication error:
+                                  #   0 pre-operational (maxon default); 1 unchanged; 2 stopped
+    scaling_source: check         # motor data: 'check' (read from the drive, refuse configure on
+                                  #   disagreement > scaling_tolerance), 'drive' (use the drive's),
+                                  #   'config' (write this file's to the drive)
+    scaling_tolerance: 0.01       # relative
+    boot_wait: 10.0               # s, keep resetting (every boot_timeout) until the drive boots
+    check_identity: true          # 0x1000 device profile 402, 0x1018:01 vendor maxon (0xFB)
     setpoint_timeout: 0.5         # s, no fresh setpoint this long during a motion -> safe state
     spin_margin: 0.0003           # s, the setpoint scheduler sleeps until this long before a stamp
     scheduler_rt_priority: 0      # 1..99: SCHED_FIFO for the scheduler thread (needs CAP_SYS_NICE)
@@ -20,6 +41,8 @@ Example (``config/bridge_epos4_1dof.yaml``)::
         family: epos4
         current_limit: 10.0       # A, every command is clamped to this
         units: {nominal_current: 3.0, torque_constant: 0.0267, counts_per_rev: 2048, gear_ratio: 54}
+        position_limits: [-3.2, 3.2]  # rad, optional: outside -> safe state
+        velocity_limit: 20.0          # rad/s, optional: |velocity| above -> safe state
 
 Times are in s unless the name ends in ``_ms``; currents in A.
 """
@@ -74,7 +97,10 @@ class JointConfig:
     current_limit:         A, every command is clamped to +-this.
     units:                 conversions (DriveUnits); family is taken from here.
     read_motor_data:       on configure, read nominal current / torque constant from the drive
-                           (EPOS4 0x3001:01/:05, EPOS2 0x6410:01) instead of trusting the YAML.
+                           (EPOS4 0x3001:01/:05, EPOS2 0x6410:01) instead of trusting the YAML
+                           (the same as ``scaling_source: drive`` for this joint).
+    position_limits:       (low, high) rad joint envelope, None = none: outside -> safe state.
+    velocity_limit:        rad/s, None = none: |joint velocity| above it -> safe state.
     write_current_limit:   on configure, also write the drive's own output current limit
                            (EPOS4 0x3001:02, EPOS2 0x6410:02) = current_limit.
     """
@@ -85,6 +111,8 @@ class JointConfig:
     units: DriveUnits
     read_motor_data: bool = False
     write_current_limit: bool = True
+    position_limits: Optional[tuple[float, float]] = None
+    velocity_limit: Optional[float] = None
 
     @property
     def family(self) -> str:
@@ -95,6 +123,13 @@ class JointConfig:
         return MODE_OF_OPERATION[self.units.family]
 
 
+#: (key, lowest, highest) of the integer drive settings (objects: see the module docstring)
+OPTION_RANGES = (("rpdo_timeout_ms", 0, 65535), ("quick_stop_option", 0, 8),
+                 ("fault_reaction_option", 0, 4), ("abort_connection_option", 0, 3),
+                 ("communication_error_behaviour", 0, 2))
+SCALING_SOURCES = ("check", "drive", "config")
+
+
 @dataclass(frozen=True)
 class BridgeConfig:
     """Everything the master needs. See the module docstring for the YAML form."""
@@ -103,7 +138,17 @@ class BridgeConfig:
     joints: tuple[JointConfig, ...]
     sync_period: float = 0.001
     heartbeat_producer_ms: int = 10
-    master_heartbeat_ms: int = 0
+    master_heartbeat_ms: int = 100
+    master_heartbeat_timeout_ms: int = 0
+    rpdo_timeout_ms: Optional[int] = None      # None: max(500, 2 x heartbeat_timeout) ms
+    quick_stop_option: int = 2
+    fault_reaction_option: int = 2
+    abort_connection_option: int = 1
+    communication_error_behaviour: int = 0
+    scaling_source: str = "check"
+    scaling_tolerance: float = 0.01
+    boot_wait: float = 10.0
+    check_identity: bool = True
     master_node_id: int = 127
     heartbeat_timeout: float = 0.1
     setpoint_timeout: float = 0.5
@@ -146,6 +191,31 @@ class BridgeConfig:
         if self.master_heartbeat_ms and self.master_node_id in [j.node_id for j in self.joints]:
             raise ConfigError(f"master_node_id {self.master_node_id} is also a drive's node id; "
                               "choose an unused id for the master's heartbeat")
+        if self.master_heartbeat_timeout_ms == 0 and self.master_heartbeat_ms:
+            object.__setattr__(self, "master_heartbeat_timeout_ms",
+                               min(65535, max(3 * self.master_heartbeat_ms,
+                                              int(round(self.heartbeat_timeout * 1000.0)))))
+        if self.rpdo_timeout_ms is None:
+            object.__setattr__(self, "rpdo_timeout_ms",
+                               min(65535, max(500, int(round(2000.0 * self.heartbeat_timeout)))))
+        if not (isinstance(self.master_heartbeat_timeout_ms, int)
+                and 0 <= self.master_heartbeat_timeout_ms <= 65535
+                and (self.master_heartbeat_timeout_ms > self.master_heartbeat_ms
+                     or not self.master_heartbeat_ms)):
+            raise ConfigError("master_heartbeat_timeout_ms must be an integer ms above "
+                              f"master_heartbeat_ms ({self.master_heartbeat_ms}) and <= 65535, "
+                              f"got {self.master_heartbeat_timeout_ms!r}")
+        for key, lo, hi in OPTION_RANGES:
+            v = getattr(self, key)
+            if not (isinstance(v, int) and not isinstance(v, bool) and lo <= v <= hi):
+                raise ConfigError(f"{key} must be an integer {lo}..{hi}, got {v!r}")
+        if self.scaling_source not in SCALING_SOURCES:
+            raise ConfigError(f"scaling_source must be one of {SCALING_SOURCES}, got "
+                              f"{self.scaling_source!r}")
+        if not 0.0 <= self.scaling_tolerance < 1.0:
+            raise ConfigError(f"scaling_tolerance must be in [0, 1), got {self.scaling_tolerance!r}")
+        if not (math.isfinite(self.boot_wait) and self.boot_wait >= 0.0):
+            raise ConfigError(f"boot_wait must be a number of seconds >= 0, got {self.boot_wait!r}")
         if self.heartbeat_timeout * 1000.0 <= self.heartbeat_producer_ms:
             raise ConfigError(f"heartbeat_timeout ({self.heartbeat_timeout} s) must exceed the "
                               f"producer time ({self.heartbeat_producer_ms} ms); use 2-4x of it")
@@ -159,12 +229,16 @@ class BridgeConfig:
         return tuple(j.current_limit for j in self.joints)
 
 
+INTEGER_KEYS = frozenset({"heartbeat_producer_ms", "master_heartbeat_ms", "master_node_id",
+                          "master_heartbeat_timeout_ms"} | {k for k, _, _ in OPTION_RANGES})
+
+
 def _joint(i: int, data: Any) -> JointConfig:
     where = f"joints[{i}]"
     if not isinstance(data, Mapping):
         raise ConfigError(f"{where} must be a mapping with name, node_id, family, current_limit, units")
     known = {"name", "node_id", "family", "current_limit", "units", "read_motor_data",
-             "write_current_limit"}
+             "write_current_limit", "position_limits", "velocity_limit"}
     unknown = sorted(set(data) - known)
     if unknown:
         raise ConfigError(f"{where}: unknown key(s) {unknown}; known: {sorted(known)}")
@@ -189,10 +263,28 @@ def _joint(i: int, data: Any) -> JointConfig:
         units = DriveUnits.from_mapping(units_data)
     except UnitsError as exc:
         raise ConfigError(f"{where}.units: {exc}") from None
+    pos = data.get("position_limits")
+    if pos is not None:
+        try:
+            lo, hi = (float(x) for x in pos)
+        except (TypeError, ValueError):
+            raise ConfigError(f"{where}.position_limits must be [low, high] rad, got {pos!r}") from None
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            raise ConfigError(f"{where}.position_limits must be finite with low < high, got {pos!r}")
+        pos = (lo, hi)
+    vel = data.get("velocity_limit")
+    if vel is not None:
+        try:
+            vel = float(vel)
+        except (TypeError, ValueError):
+            raise ConfigError(f"{where}.velocity_limit must be a number of rad/s, got {vel!r}") from None
+        if not (math.isfinite(vel) and vel > 0.0):
+            raise ConfigError(f"{where}.velocity_limit must be finite and > 0 rad/s, got {vel!r}")
     return JointConfig(name=str(data.get("name", f"joint{i + 1}")), node_id=node_id,
                        current_limit=limit, units=units,
                        read_motor_data=bool(data.get("read_motor_data", False)),
-                       write_current_limit=bool(data.get("write_current_limit", True)))
+                       write_current_limit=bool(data.get("write_current_limit", True)),
+                       position_limits=pos, velocity_limit=vel)
 
 
 def config_from_mapping(data: Mapping[str, Any]) -> BridgeConfig:
@@ -231,13 +323,15 @@ def config_from_mapping(data: Mapping[str, Any]) -> BridgeConfig:
         if f.name in ("bus", "joints") or f.name not in data:
             continue
         v = data[f.name]
-        if f.name == "reset_communication":
+        if f.name in ("reset_communication", "check_identity"):
             kw[f.name] = bool(v)
+        elif f.name == "scaling_source":
+            kw[f.name] = str(v).lower()
         elif f.name == "scheduler_rt_priority":
             if not isinstance(v, int) or isinstance(v, bool) or not 0 <= v <= 99:
                 raise ConfigError(f"scheduler_rt_priority must be an integer 0..99 (0 = off), got {v!r}")
             kw[f.name] = v
-        elif f.name in ("heartbeat_producer_ms", "master_heartbeat_ms", "master_node_id"):
+        elif f.name in INTEGER_KEYS:
             if isinstance(v, float) and v.is_integer():
                 v = int(v)
             kw[f.name] = v

@@ -49,22 +49,18 @@ from ff_hwbridge.drive.bus import open_bus
 from ff_hwbridge.drive.config import BridgeConfig, JointConfig
 from ff_hwbridge.drive.safety import SafeCommand, SafetyGuard
 from ff_hwbridge.protocol import cia402
-from ff_hwbridge.protocol.cia402 import State
-from ff_hwbridge.protocol.epos_od import (RPDO_SETPOINT, TPDO_MOTION, TPDO_STATUS, build_object_dictionary,
+from ff_hwbridge.protocol.cia402 import SW_INTERNAL_LIMIT, SW_WARNING, State
+from ff_hwbridge.protocol.epos_errors import EMCY_CLASSES, describe  # noqa: F401  (EMCY_CLASSES re-exported)
+from ff_hwbridge.protocol.epos_od import (DEVICE_PROFILE_402, MAXON_VENDOR_ID, RPDO_SETPOINT, TPDO_MOTION,
+                                          TPDO_STATUS, VELOCITY_UNIT_RPM, build_object_dictionary,
                                           rpdo_layout, struct_format, tpdo1_layout, tpdo2_layout)
 from ff_hwbridge.protocol.units import DriveUnits
 
 log = logging.getLogger(__name__)
 
 NMT_STATES = {0x00: "BOOTUP", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
-# A few CiA 301/402 / maxon emergency code classes, for readable reasons.
-EMCY_CLASSES = {0x00: "error reset / no error", 0x10: "generic error", 0x20: "current",
-                0x23: "current, device output side", 0x30: "voltage", 0x32: "voltage inside device",
-                0x40: "temperature", 0x42: "device temperature", 0x50: "device hardware",
-                0x60: "device software", 0x70: "additional modules", 0x73: "sensor",
-                0x80: "monitoring / communication", 0x81: "communication", 0x82: "protocol error",
-                0x84: "velocity/following", 0x86: "position", 0x90: "external error",
-                0xF0: "additional functions", 0xFF: "device specific"}
+# SDO abort codes meaning "this drive has no such object" (CiA 301)
+ABORT_NO_OBJECT = (0x06020000, 0x06090011)
 
 
 # s: repeat the controlword while the drive's state differs from the target; refresh any RPDO
@@ -124,6 +120,11 @@ class _Drive:
     tpdo_seen: bool = False
     last_tx: float = 0.0          # monotonic s of the latest RPDO
     emcy: deque = field(default_factory=lambda: deque(maxlen=20))   # recent EMCY texts
+    warnings: deque = field(default_factory=lambda: deque(maxlen=20))  # recent warning EMCYs
+    history_wanted: bool = False  # read 0x1003 / 0x603F (monitor thread) after a fault
+    error_history: str = ""       # decoded 0x1003 / 0x603F, newest first
+    notes: list = field(default_factory=list)   # drive settings that could not be applied
+    envelope_armed: bool = True   # False after a fault reset outside the envelope
 
     @property
     def node_id(self) -> int:
@@ -148,6 +149,7 @@ class EposMaster:
         self._sync_running = False
         self._master_hb: Any = None
         self._configured = False
+        self._sdo_lock = threading.RLock()     # one SDO user at a time (configure, error history)
         self.events: deque[tuple[float, str]] = deque(maxlen=200)   # (monotonic s, text)
         self.tx_errors = 0
 
@@ -197,6 +199,13 @@ class EposMaster:
                                            if d.last_heartbeat is not None else -1.0)
             out[p + "setpoint_raw"] = d.setpoint
             out[p + "last_emcy"] = d.emcy[-1] if d.emcy else ""
+            sw = d.feedback.statusword
+            out[p + "warning"] = bool(sw & SW_WARNING)                # statusword bit 7
+            out[p + "internal_limit_active"] = bool(sw & SW_INTERNAL_LIMIT)   # bit 11
+            out[p + "last_warning"] = d.warnings[-1] if d.warnings else ""
+            out[p + "error_history"] = d.error_history
+            if d.notes:
+                out[p + "drive_notes"] = "; ".join(d.notes)
         return out
 
     # --- connection -----------------------------------------------------------------------------
@@ -267,20 +276,43 @@ class EposMaster:
         self._configured = True
 
     def _configure_drive(self, d: _Drive) -> None:
+        with self._sdo_lock:
+            self._configure_drive_locked(d)
+
+    def _await_boot(self, d: _Drive) -> None:
+        """NMT reset communication until a boot-up frame arrives (one every ``boot_timeout`` s,
+        ``boot_wait`` s in all): a drive powered late is waited for. EposError when none came."""
+        node, nid = d.node, d.node_id
+        t0 = self.clock()
+        total = max(self.config.boot_wait, self.config.boot_timeout)
+        attempt = 0
+        while True:
+            attempt += 1
+            boots = d.boot_count
+            node.nmt.send_command(0x82)     # reset communication
+            deadline = min(self.clock() + self.config.boot_timeout, t0 + total)
+            while d.boot_count == boots and self.clock() < deadline:
+                time.sleep(0.002)
+            if d.boot_count != boots:
+                if attempt > 1:
+                    log.warning("node %d (%s) booted after %.1f s (%d NMT resets)", nid,
+                                d.cfg.name, self.clock() - t0, attempt)
+                return
+            if self.clock() >= t0 + total:
+                raise EposError(f"node {nid} ({d.cfg.name}): no boot-up frame within {total:g} s "
+                                f"({attempt} NMT reset communication(s), one every "
+                                f"{self.config.boot_timeout:g} s); check the node id, bitrate, "
+                                "wiring / the drive is powered")
+            log.warning("node %d (%s): no boot-up frame yet; waiting for the drive (%.1f of %.1f s, "
+                        "NMT reset %d)", nid, d.cfg.name, self.clock() - t0, total, attempt)
+
+    def _configure_drive_locked(self, d: _Drive) -> None:
         node, nid, fam = d.node, d.node_id, d.units.family
         d.operational = False
         d.last_heartbeat = None
+        d.notes = []
         if self.config.reset_communication:
-            t0 = self.clock()
-            boots = d.boot_count
-            node.nmt.send_command(0x82)     # reset communication
-            deadline = t0 + self.config.boot_timeout
-            while d.boot_count == boots and self.clock() < deadline:
-                time.sleep(0.002)
-            if d.boot_count == boots:
-                raise EposError(f"node {nid} ({d.cfg.name}): no boot-up frame within "
-                                f"{self.config.boot_timeout} s after NMT reset communication; "
-                                "check the node id, bitrate, wiring / the drive is powered")
+            self._await_boot(d)
 
         def sdo_write(index: int, sub: Optional[int], value: int, what: str) -> None:
             try:
@@ -297,6 +329,34 @@ class EposMaster:
             except Exception as exc:  # noqa: BLE001
                 raise EposError(f"node {nid} ({d.cfg.name}): SDO read {what} failed: {exc}") from exc
 
+        def optional(index: int, sub: Optional[int], value: Optional[int], what: str) -> Optional[int]:
+            """Write ``value`` (or read, when None); None when the drive has no such object
+            (noted in the diagnostics), EposError on any other failure."""
+            try:
+                obj = node.sdo[index] if sub is None else node.sdo[index][sub]
+                if value is None:
+                    return int(obj.raw)
+                obj.raw = value
+                return value
+            except canopen.SdoAbortedError as exc:
+                if exc.code not in ABORT_NO_OBJECT:
+                    raise EposError(f"node {nid} ({d.cfg.name}): SDO {what} failed: {exc}") from exc
+            note = f"{what}: not on this drive"
+            d.notes.append(note)
+            log.warning("node %d (%s): %s", nid, d.cfg.name, note)
+            return None
+
+        if self.config.check_identity:
+            dev = sdo_read(0x1000, None, "0x1000 device type")
+            if dev & 0xFFFF != DEVICE_PROFILE_402:
+                raise EposError(f"node {nid} ({d.cfg.name}): device type 0x1000 = 0x{dev:08X} is not "
+                                f"a CiA 402 drive (profile {dev & 0xFFFF}, expected 402); check the "
+                                "node id")
+            vendor = sdo_read(0x1018, 1, "0x1018:01 vendor id")
+            if vendor != MAXON_VENDOR_ID:
+                raise EposError(f"node {nid} ({d.cfg.name}): vendor id 0x1018:01 = 0x{vendor:08X}, "
+                                f"not maxon (0x{MAXON_VENDOR_ID:08X}); check the node id, or set "
+                                "check_identity: false for another CiA 402 drive")
         # whatever state a previous master left it in: no current (disable voltage, transition
         # 7/9/10/12), before anything else is changed
         sdo_write(0x6040, None, 0x0000, "0x6040 controlword (disable voltage)")
@@ -307,34 +367,32 @@ class EposMaster:
             raise EposError(f"node {nid}: drive shows mode {shown} after 0x6060 = {mode}; "
                             f"is it an {fam.upper()} in a state that accepts the mode?")
         sdo_write(0x1017, None, self.config.heartbeat_producer_ms, "0x1017 producer heartbeat (ms)")
-        if self.config.master_heartbeat_ms:
-            consumer = (self.config.master_node_id << 16) | (3 * self.config.master_heartbeat_ms)
-            sdo_write(0x1016, 1, consumer, "0x1016:01 consumer heartbeat time (master)")
-        if d.cfg.read_motor_data:
-            if fam == "epos4":
-                nom = sdo_read(0x3001, 1, "0x3001:01 nominal current (mA)")
-                kt = sdo_read(0x3001, 5, "0x3001:05 torque constant (µNm/A)")
-            else:
-                nom = sdo_read(0x6410, 1, "0x6410:01 continuous current limit (mA)")
-                kt = d.units.torque_constant_raw
-            try:
-                d.units = DriveUnits.from_drive_objects(fam, nom, kt, d.units.counts_per_rev,
-                                                        d.units.gear_ratio, d.units.direction)
-            except ValueError as exc:
-                raise EposError(f"node {nid}: motor data read from the drive is unusable: {exc}") from exc
-            d.raw_limit = d.units.setpoint_limit(d.cfg.current_limit)
-        if d.cfg.write_current_limit:
-            lim_ma = int(math.floor(d.cfg.current_limit * 1000.0))
-            if fam == "epos4":
-                sdo_write(0x3001, 2, lim_ma, "0x3001:02 output current limit (mA)")
-            else:
-                sdo_write(0x6410, 2, lim_ma, "0x6410:02 output current limit (mA)")
+        consumer = ((self.config.master_node_id << 16) | self.config.master_heartbeat_timeout_ms
+                    if self.config.master_heartbeat_ms else 0)
+        sdo_write(0x1016, 1, consumer, "0x1016:01 consumer heartbeat time (master)")
+        # the drive's own reactions, explicitly (never the factory settings by accident)
+        c = self.config
+        for index, sub, value, what in ((0x605A, None, c.quick_stop_option, "0x605A quick stop option"),
+                                        (0x605E, None, c.fault_reaction_option, "0x605E fault reaction option"),
+                                        (0x6007, None, c.abort_connection_option,
+                                         "0x6007 abort connection option"),
+                                        (0x1029, 1, c.communication_error_behaviour,
+                                         "0x1029:01 communication error behaviour")):
+            optional(index, sub, value, what)
+        self._apply_scaling(d, sdo_read, sdo_write, optional)
         try:
             self._map_pdo(node.rpdo[RPDO_SETPOINT], 0x200 + nid, 255, rpdo_layout(fam))
             self._map_pdo(node.tpdo[TPDO_STATUS], 0x180 + nid, 1, tpdo1_layout(fam))
             self._map_pdo(node.tpdo[TPDO_MOTION], 0x280 + nid, 1, tpdo2_layout(fam))
         except Exception as exc:  # noqa: BLE001
             raise EposError(f"node {nid} ({d.cfg.name}): PDO mapping failed: {exc}") from exc
+        # drive-side deadline for the setpoint stream (a hung master whose heartbeat goes on)
+        if c.rpdo_timeout_ms:
+            optional(0x1400, 5, c.rpdo_timeout_ms, "0x1400:05 RxPDO1 event timer (RPDO timeout)")
+        period_ms = c.sync_period * 1000.0
+        if abs(period_ms - round(period_ms)) < 1e-9 and 1 <= round(period_ms) <= 255:
+            if optional(0x60C2, 1, int(round(period_ms)), "0x60C2:01 interpolation time period") is not None:
+                optional(0x60C2, 2, -3, "0x60C2:02 interpolation time index")
         # our own fast decoders instead of canopen's per-variable ones
         net = self._connected_network()
         for cob in (0x180 + nid, 0x280 + nid, 0x200 + nid):
@@ -351,6 +409,73 @@ class EposMaster:
         d.operational = True
         d.last_heartbeat = self.clock()      # the heartbeat timeout counts from here
         d.feedback.stamp = self.clock()
+
+    def _apply_scaling(self, d: _Drive, sdo_read: Callable[..., int], sdo_write: Callable[..., None],
+                       optional: Callable[..., Optional[int]]) -> None:
+        """Motor data: read from the drive and checked against the config (``scaling_source``
+        check), taken from the drive (drive, or ``read_motor_data``) or written to it (config);
+        then the output current limit. EposError naming both values on disagreement."""
+        nid, fam, u = d.node_id, d.units.family, d.units
+        src = "drive" if d.cfg.read_motor_data else self.config.scaling_source
+        who = f"node {nid} ({d.cfg.name})"
+        if fam == "epos2":
+            # EPOS2 setpoints are mA: no per-mille base to check
+            if src == "drive":
+                nom = sdo_read(0x6410, 1, "0x6410:01 continuous current limit (mA)")
+                d.units = self._units_from_drive(d, nom, u.torque_constant_raw, u.counts_per_rev)
+        else:
+            if src == "config":
+                sdo_write(0x3001, 1, u.nominal_current_ma, "0x3001:01 nominal current (mA)")
+                sdo_write(0x3001, 5, u.torque_constant_raw, "0x3001:05 torque constant (µNm/A)")
+                optional(0x6076, None, u.rated_torque_raw, "0x6076 motor rated torque (µNm)")
+                optional(0x60A9, None, VELOCITY_UNIT_RPM, "0x60A9 SI unit velocity")
+            nom = sdo_read(0x3001, 1, "0x3001:01 nominal current (mA)")
+            kt = sdo_read(0x3001, 5, "0x3001:05 torque constant (µNm/A)")
+            rated = optional(0x6076, None, None, "0x6076 motor rated torque (µNm)")
+            res = optional(0x3000, 5, None, "0x3000:05 main sensor resolution (inc/rev)")
+            vel = optional(0x60A9, None, None, "0x60A9 SI unit velocity")
+            if vel is not None and vel != VELOCITY_UNIT_RPM:
+                raise EposError(f"{who}: velocity unit 0x60A9 = 0x{vel:08X}, the bridge reads 0x606C "
+                                f"in rpm (0x{VELOCITY_UNIT_RPM:08X}); set it on the drive or use "
+                                "scaling_source: config")
+            # the drive's per-mille base: I = ‰/1000 · 0x6076 / 0x3001:05
+            base_ma = rated * 1000.0 / kt if rated and kt else float(nom)
+            if src == "drive":
+                d.units = self._units_from_drive(d, base_ma, kt, res or u.counts_per_rev)
+            else:
+                tol = self.config.scaling_tolerance
+                checks = [("nominal current 0x3001:01", nom / 1000.0, u.nominal_current,
+                           "units.nominal_current", "A"),
+                          ("torque constant 0x3001:05", kt * 1e-6, u.torque_constant,
+                           "units.torque_constant", "Nm/A"),
+                          ("per-mille base 0x6076/0x3001:05", base_ma / 1000.0, u.nominal_current,
+                           "units.nominal_current", "A")]
+                if res:
+                    checks.append(("encoder resolution 0x3000:05", float(res), u.counts_per_rev,
+                                   "units.counts_per_rev", "inc/rev"))
+                bad = [f"{what}: drive {dv:.6g} {unit}, config {key} {cv:.6g} {unit} "
+                       f"({(dv - cv) / cv * 100.0:+.1f} %)"
+                       for what, dv, cv, key, unit in checks if abs(dv - cv) > tol * abs(cv)]
+                if bad:
+                    raise EposError(f"{who}: motor data on the drive disagree with the config "
+                                    f"(tolerance {tol * 100.0:g} %): " + "; ".join(bad)
+                                    + "; fix the config or the drive, or set scaling_source: drive "
+                                    "(use the drive's) or config (write the config's)")
+        d.raw_limit = d.units.setpoint_limit(d.cfg.current_limit)
+        if d.cfg.write_current_limit:
+            lim_ma = int(math.floor(d.cfg.current_limit * 1000.0))
+            if fam == "epos4":
+                sdo_write(0x3001, 2, lim_ma, "0x3001:02 output current limit (mA)")
+            else:
+                sdo_write(0x6410, 2, lim_ma, "0x6410:02 output current limit (mA)")
+
+    @staticmethod
+    def _units_from_drive(d: _Drive, nominal_ma: float, kt: int, counts: float) -> DriveUnits:
+        try:
+            return DriveUnits.from_drive_objects(d.units.family, nominal_ma, kt, counts,  # type: ignore[arg-type]
+                                                 d.units.gear_ratio, d.units.direction)
+        except ValueError as exc:
+            raise EposError(f"node {d.node_id}: motor data read from the drive is unusable: {exc}") from exc
 
     @staticmethod
     def _map_pdo(pdo_map: Any, cob_id: int, trans_type: int, layout: Sequence[tuple[int, int, str]]) -> None:
@@ -408,9 +533,39 @@ class EposMaster:
     def _monitor_loop(self) -> None:
         while not self._monitor_stop.wait(self.config.monitor_period):
             try:
-                self.check(self.clock())
+                now = self.clock()
+                self.check(now)
+                for d in self._drives:
+                    # keep the RPDO stream (and so the drive's RPDO deadline) fed even when no
+                    # TPDO arrives to step the state machine
+                    if d.operational and d.feedback.state is not None and now - d.last_tx >= REFRESH_PERIOD:
+                        with self._send_lock:
+                            self._send_rpdo(d, d.controlword, d.setpoint)
+                    if d.history_wanted and d.operational:
+                        d.history_wanted = False
+                        self.read_error_history(d.cfg.name)
             except Exception:  # noqa: BLE001 - the monitor must keep running
                 log.exception("monitor check failed")
+
+    def read_error_history(self, joint: str) -> str:
+        """Read a drive's error history (0x1003, newest first) and error code (0x603F) over SDO,
+        decoded with maxon's error table; kept for the diagnostics and listed in ``events``."""
+        d = next(x for x in self._drives if x.cfg.name == joint)
+        try:
+            with self._sdo_lock:
+                n = int(d.node.sdo[0x1003][0].raw)
+                codes = [int(d.node.sdo[0x1003][i].raw) for i in range(1, min(n, 8) + 1)]
+                now_code = int(d.node.sdo[0x603F].raw)
+        except Exception as exc:  # noqa: BLE001 - a report, never a reason to stop
+            text = f"error history of node {d.node_id} not readable: {exc}"
+        else:
+            hist = ", ".join(str(describe(c)) for c in codes) or "empty"
+            text = (f"node {d.node_id} ({d.cfg.name}) error code 0x603F: {describe(now_code)}; "
+                    f"error history 0x1003: {hist}")
+        d.error_history = text
+        self.events.append((self.clock(), text))
+        log.warning("%s", text)
+        return text
 
     def check(self, now: float) -> Optional[str]:
         """Heartbeat / feedback timeouts and the setpoint watchdog at ``now``; returns a new
@@ -432,10 +587,32 @@ class EposMaster:
                 return self.trip(f"feedback lost: no TPDO from node {d.node_id} ({d.cfg.name}) for "
                                  f"{(now - d.feedback.stamp) * 1000.0:.0f} ms (timeout "
                                  f"{fb_limit * 1000.0:.0f} ms)")
+            reason = self._envelope(d)
+            if reason:
+                return self.trip(reason)
         reason = self.guard.check(now, pending=self.pending_fn())
         if reason:
             self._react(reason)
             return reason
+        return None
+
+    def _envelope(self, d: _Drive) -> Optional[str]:
+        """The joint's position / velocity envelope (config), judged on the latest TPDOs."""
+        cfg, fb = d.cfg, d.feedback
+        if not d.tpdo_seen or (cfg.position_limits is None and cfg.velocity_limit is None):
+            return None
+        lo, hi = cfg.position_limits if cfg.position_limits is not None else (-math.inf, math.inf)
+        vmax = cfg.velocity_limit if cfg.velocity_limit is not None else math.inf
+        inside = lo <= fb.position <= hi and abs(fb.velocity) <= vmax
+        if not d.envelope_armed:
+            d.envelope_armed = inside       # re-armed once the joint is back inside
+            return None
+        if not lo <= fb.position <= hi:
+            return (f"position envelope: {cfg.name} at {fb.position:.4f} rad, outside "
+                    f"[{lo:g}, {hi:g}] rad")
+        if abs(fb.velocity) > vmax:
+            return (f"velocity envelope: {cfg.name} at {fb.velocity:.3f} rad/s, above "
+                    f"{vmax:g} rad/s")
         return None
 
     # --- faults ---------------------------------------------------------------------------------
@@ -484,10 +661,17 @@ class EposMaster:
             if code & 0xFF00 == 0:
                 d.emcy.append(f"0x{code:04X} error reset")
                 return
-            cls = EMCY_CLASSES.get(code >> 8, EMCY_CLASSES.get((code >> 12) << 4, "error"))
-            text = (f"EMCY from node {d.node_id} ({d.cfg.name}): code 0x{code:04X} ({cls}), "
-                    f"error register 0x{int(err.register):02X}")
+            info = describe(code)
+            text = (f"EMCY from node {d.node_id} ({d.cfg.name}): code 0x{code:04X} {info.text} "
+                    f"({'warning' if info.warning else 'error'}), error register "
+                    f"0x{int(err.register):02X}")
+            if info.warning:            # the drive keeps operating: report, do not latch
+                d.warnings.append(text)
+                self.events.append((self.clock(), text))
+                log.warning("%s", text)
+                return
             d.emcy.append(text)
+            d.history_wanted = True
             self.trip(text)
         return on_emcy
 
@@ -559,6 +743,7 @@ class EposMaster:
             return
         if state in (State.FAULT, State.FAULT_REACTION_ACTIVE):
             if now >= d.reset_until and not self.guard.latched:
+                d.history_wanted = True
                 self.trip(f"drive fault: node {d.node_id} ({d.cfg.name}) is in '{state.value}' "
                           f"(statusword 0x{d.feedback.statusword:04X})"
                           + (f"; last {d.emcy[-1]}" if d.emcy else ""))
@@ -631,6 +816,12 @@ class EposMaster:
         """Latch the safe state: zero current and quick stop."""
         self.trip(reason)
 
+    def estop(self, reason: str = "requested") -> str:
+        """Emergency stop: latch the safe state (zero current, quick stop) with ``reason``;
+        returns the reason in force (an earlier latch keeps its own)."""
+        self.trip(f"e-stop: {reason}")
+        return self.guard.reason or f"e-stop: {reason}"
+
     def fault_reset(self, reenable: bool = True) -> Optional[str]:
         """Clear the latch and reset drive faults (controlword bit 7 rising edge, transition 15);
         then request Operation enabled (``reenable``) or Switch on disabled. Returns the cleared
@@ -639,6 +830,7 @@ class EposMaster:
         for d in self._drives:
             d.reset_until = now + self.config.state_timeout
             d.setpoint = 0
+            d.envelope_armed = False     # armed again once back inside the envelope
             if d.operational and d.feedback.state in (State.FAULT, State.FAULT_REACTION_ACTIVE):
                 # make sure the reset bit rises even if it was left set
                 self._send_rpdo(d, 0x0000, 0)

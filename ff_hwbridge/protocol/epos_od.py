@@ -1,6 +1,6 @@
 """One definition of the Maxon EPOS4 / EPOS2 objects the suite uses, built in code.
 
-Written from the CiA 301/402 object definitions and maxon's documented object list (DESIGN.md);
+Written from the CiA 301/402 object definitions and maxon's documented object list (see docs/hardware.md);
 no EDS is copied. ``OBJECTS`` is the single table (index, subindex, type, access, default, unit,
 PDO-mappable) that both sides build from: the master (``epos.py``) for its RemoteNodes
 (``build_object_dictionary(family, node_id)``: the contract's objects), the simulated drive
@@ -12,6 +12,12 @@ Contract objects: 0x1000 device type, 0x1001 error register, 0x1016:01-04 consum
 time ((node id << 16) | ms), 0x1017 producer heartbeat (ms), 0x1400/0x1600 RPDO1,
 0x1800/0x1A00 TPDO1, 0x1801/0x1A01 TPDO2, 0x6040 controlword, 0x6041 statusword, 0x6060/0x6061
 modes of operation (+display), 0x6064 position actual (inc), 0x606C velocity actual (rpm),
+0x1003 pre-defined error field (error history, newest first), 0x1018 identity (:01 vendor id),
+0x1029:01 communication error behaviour, 0x6007 abort connection option, 0x603F error code,
+0x605A quick stop option, 0x605E fault reaction option, 0x6085 quick stop deceleration (rpm/s),
+0x60A9 SI unit velocity, 0x60C2 interpolation time period (:01 value, :02 index), 0x6502
+supported drive modes, 0x3000:05 main sensor resolution (EPOS4, increments/rev), RxPDO1 event
+timer 0x1400:05 (ms, deadline monitoring),
 0x6076 motor rated torque (µNm), 0x6071 target torque (per mille), 0x6077 torque actual (per
 mille), 0x3001 motor data (EPOS4, :01 nominal current mA, :02 output current limit mA, :05 torque
 constant µNm/A), 0x30D1 current actual values (EPOS4, :01 averaged, :02 actual, mA), 0x2030
@@ -36,6 +42,14 @@ TPDO_MOTION = 2
 #: 0x6060 modes of operation value of the contract's current mode: EPOS4 CST, EPOS2 current mode
 CURRENT_MODE = {"epos4": 10, "epos2": -3}
 MAXON_VENDOR_ID = 0x000000FB
+#: 0x1000 device type: low 16 bits = device profile number (402 = drives and motion control)
+DEVICE_PROFILE_402 = 402
+#: 0x60A9 SI unit velocity of the suite's conversions: motor rpm (maxon's default; CiA 402
+#: notation prefix 0x00, unit 0xB4 = revolutions, time 0x47 = minute)
+VELOCITY_UNIT_RPM = 0x00B44700
+#: 0x6502 supported drive modes (CiA 402 bits: 0 PPM, 2 PVM, 5 HMM, 7 CSP, 8 CSV, 9 CST)
+SUPPORTED_MODES = {"epos4": (1 << 0) | (1 << 2) | (1 << 5) | (1 << 7) | (1 << 8) | (1 << 9),
+                   "epos2": (1 << 0) | (1 << 2) | (1 << 5) | (1 << 6)}
 PDO_VALID_BIT = 1 << 31          # set = PDO disabled (CiA 301 "not valid")
 
 
@@ -47,12 +61,15 @@ class MotorData:
     output_current_limit_ma: int = 10000
     torque_constant_raw: int = 0
     rated_torque_raw: int = 0
+    encoder_resolution: int = 0           # increments per motor revolution (EPOS4 0x3000:05)
 
     @classmethod
     def from_units(cls, units: DriveUnits, output_current_limit_ma: int = 10000) -> "MotorData":
-        """The objects of ``units`` (nominal current, kt, rated torque = kt x I_nominal)."""
+        """The objects of ``units`` (nominal current, kt, rated torque = kt x I_nominal,
+        encoder increments per revolution)."""
         return cls(units.nominal_current_ma, int(output_current_limit_ma),
-                   units.torque_constant_raw, units.rated_torque_raw)
+                   units.torque_constant_raw, units.rated_torque_raw,
+                   int(round(units.counts_per_rev)))
 
 
 @dataclass(frozen=True)
@@ -127,7 +144,9 @@ def _pdo_objects() -> list[ObjectSpec]:
         out += [
             ObjectSpec(0x1400 + n, f"Receive PDO {n + 1} parameter", (
                 Entry(1, "COB-ID used by RxPDO", UNSIGNED32, "rw", rcob),
-                Entry(2, "Transmission type", UNSIGNED8, "rw", 255)), "record",
+                Entry(2, "Transmission type", UNSIGNED8, "rw", 255),
+                # CiA 301 RPDO deadline monitoring: no RPDO this long -> EMCY 0x8250
+                Entry(5, "Event timer", UNSIGNED16, "rw", 0, "ms")), "record",
                 drive_only=rx_only),
             ObjectSpec(0x1600 + n, f"Receive PDO {n + 1} mapping",
                        tuple(rmap + entries[len(rmap):]), "record", drive_only=rx_only),
@@ -152,7 +171,7 @@ OBJECTS: tuple[ObjectSpec, ...] = (
     _v(0x1001, "Error register", U8, "ro", 0, pdo=True),
     ObjectSpec(0x1003, "Pre-defined error field",
                tuple(Entry(i, f"Standard error field {i}", U32, "ro", 0) for i in range(1, 9)),
-               "array", drive_only=True, sub0=Entry(0, "Highest sub-index supported", U8, "rw", 0)),
+               "array", sub0=Entry(0, "Highest sub-index supported", U8, "rw", 0)),
     _v(0x1005, "COB-ID SYNC", U32, "rw", 0x80, drive_only=True),
     _v(0x1008, "Manufacturer device name", VISIBLE_STRING, "const", lambda c: c.device_name,
        drive_only=True),
@@ -161,18 +180,27 @@ OBJECTS: tuple[ObjectSpec, ...] = (
                tuple(Entry(i, f"Consumer heartbeat time {i}", U32, "rw", 0, "(id << 16) | ms")
                      for i in range(1, 5)), "array"),
     _v(0x1017, "Producer heartbeat time", U16, "rw", 0, "ms"),
+    ObjectSpec(0x1029, "Error behaviour", (         # CiA 301: 0 pre-operational, 1 none, 2 stopped
+        Entry(1, "Communication error", U8, "rw", 0),), "array"),
     ObjectSpec(0x1018, "Identity object", (
         Entry(1, "Vendor-ID", U32, "ro", MAXON_VENDOR_ID),
         Entry(2, "Product code", U32, "ro",
               lambda c: 0x6050_0000 if c.family == "epos4" else 0x2000_0000),
         Entry(3, "Revision number", U32, "ro", 0x0001_0000),
-        Entry(4, "Serial number", U32, "ro", lambda c: 0x5100_0000 + c.node_id)), "record",
-        drive_only=True),
+        Entry(4, "Serial number", U32, "ro", lambda c: 0x5100_0000 + c.node_id)), "record"),
     *_pdo_objects(),
     _v(0x6040, "Controlword", U16, "rw", 0, pdo=True),
     _v(0x6041, "Statusword", U16, "ro", 0, pdo=True),
-    _v(0x605A, "Quick stop option code", I16, "rw", lambda c: c.quick_stop_option,
-       drive_only=True),
+    _v(0x6007, "Abort connection option code", I16, "rw", 3),   # maxon default 3 = quick stop
+    _v(0x603F, "Error code", U16, "ro", 0, pdo=True),
+    _v(0x605A, "Quick stop option code", I16, "rw", lambda c: c.quick_stop_option),
+    _v(0x605E, "Fault reaction option code", I16, "rw", 2),      # 2 = quick stop ramp
+    _v(0x6085, "Quick stop deceleration", U32, "rw", 10000, "rpm/s"),
+    _v(0x60A9, "SI unit velocity", U32, "rw", VELOCITY_UNIT_RPM),
+    ObjectSpec(0x60C2, "Interpolation time period", (
+        Entry(1, "Interpolation time period value", U8, "rw", 0),
+        Entry(2, "Interpolation time index", I8, "rw", -3, "10^index s")), "record"),
+    _v(0x6502, "Supported drive modes", U32, "ro", lambda c: SUPPORTED_MODES[c.family]),
     _v(0x6060, "Modes of operation", I8, "rw", 0, pdo=True),
     _v(0x6061, "Modes of operation display", I8, "ro", 0, pdo=True),
     _v(0x6064, "Position actual value", I32, "ro", 0, "increments (motor encoder)", pdo=True),
@@ -183,6 +211,13 @@ OBJECTS: tuple[ObjectSpec, ...] = (
        families=E4),
     _v(0x6077, "Torque actual value", I16, "ro", 0, "per mille of 0x6076", pdo=True,
        families=E4),
+    ObjectSpec(0x3000, "Axis configuration", (
+        Entry(1, "Sensors configuration", U32, "rw", 0, drive_only=True),
+        Entry(2, "Control structure", U32, "rw", 0, drive_only=True),
+        Entry(3, "Commutation sensors", U32, "rw", 0, drive_only=True),
+        Entry(4, "Axis configuration miscellaneous", U32, "rw", 0, drive_only=True),
+        Entry(5, "Main sensor resolution", U32, "rw", lambda c: c.motor.encoder_resolution,
+              "increments/rev")), "record", families=E4),
     ObjectSpec(0x3001, "Motor data", (
         Entry(1, "Nominal current", U32, "rw", lambda c: c.motor.nominal_current_ma, "mA"),
         Entry(2, "Output current limit", U32, "rw",

@@ -23,6 +23,12 @@ Interfaces (relative to the node: /ff_hwbridge/...):
 - pub ``/diagnostics``  diagnostic_msgs/DiagnosticArray: drive states, safe-state reason, timing.
 - srv ``~/fault_reset`` std_srvs/Trigger: clear the safe state and reset drive faults (re-enables
   when active).
+- srv ``~/estop``       std_srvs/Trigger: emergency stop: latch the safe state (zero current, quick
+  stop) with the reason "e-stop: service ~/estop" until ``~/fault_reset``.
+
+After configure the flat parameters show the configuration in use (also when it came from
+``config_file``); while configured they cannot be changed (refused with the reason: cleanup,
+set, configure again).
 
 Parameters: ``config_file`` (bridge YAML, config/bridge_*.yaml) or the flat parameters below
 (``--ros-args --params-file``); ``bus_interface``/``bus_channel`` override the bus (e.g. the
@@ -74,8 +80,23 @@ PARAMS: dict[str, tuple[Any, str]] = {
     "sync_period": (0.001, "s, SYNC period"),
     "heartbeat_producer_ms": (10, "ms, written to each drive's 0x1017"),
     "heartbeat_timeout": (0.1, "s, heartbeat consumer timeout -> safe state"),
-    "master_heartbeat_ms": (0, "ms, > 0: produce a master heartbeat the drives consume (0x1016)"),
+    "master_heartbeat_ms": (100, "ms, > 0: produce a master heartbeat the drives consume (0x1016); 0 = off"),
+    "master_heartbeat_timeout_ms": (0, "ms, the drives' consumer time "
+                                       "(0 = max(3 x master_heartbeat_ms, heartbeat_timeout))"),
     "master_node_id": (127, "node id of the master's heartbeat"),
+    "rpdo_timeout_ms": (-1, "ms, RxPDO1 event timer 0x1400:05 (drive faults 0x8250 without RPDOs); 0 = off, "
+                            "-1 = max(500, 2 x heartbeat_timeout)"),
+    "quick_stop_option": (2, "0x605A quick stop option code (maxon: 0, 1, 2, 5, 6)"),
+    "fault_reaction_option": (2, "0x605E fault reaction option code (0 disable drive, 1/2 ramp)"),
+    "abort_connection_option": (1, "0x6007 on a communication error: 0 none, 1 fault, 2 disable voltage, 3 quick stop"),
+    "communication_error_behaviour": (0, "0x1029:01: 0 pre-operational, 1 unchanged, 2 stopped"),
+    "scaling_source": ("check", "motor data: 'check' against the drive, 'drive' (use its), 'config' (write ours)"),
+    "scaling_tolerance": (0.01, "relative tolerance of the motor data check"),
+    "boot_timeout": (2.0, "s per NMT reset communication waiting for the boot-up frame"),
+    "boot_wait": (10.0, "s in all waiting for a drive to boot (retries every boot_timeout)"),
+    "check_identity": (True, "0x1000 profile 402 and 0x1018:01 vendor maxon"),
+    "position_limits": ([0.0], "rad, [low1, high1, low2, high2, ...] per joint; [0.0] or [] = none"),
+    "velocity_limits": ([0.0], "rad/s per joint, 0 = none"),
     "setpoint_timeout": (0.5, "s, no fresh setpoint during a motion -> safe state"),
     "spin_margin": (0.0003, "s, the scheduler sleeps until this long before a stamp, then spins"),
     "scheduler_rt_priority": (0, "1..99: SCHED_FIFO for the scheduler thread (needs CAP_SYS_NICE); 0 = off"),
@@ -93,12 +114,13 @@ def _flat_config(get: Callable[[str], Any]) -> dict[str, Any]:
     for k, v in lists.items():
         if len(v) != n:
             raise ConfigError(f"parameter {k} has {len(v)} entries, joint_names has {n}; give one per joint")
+    env = _envelopes(get, n)
     joints = [{"name": names[i], "node_id": int(lists["node_ids"][i]), "family": lists["families"][i],
                "current_limit": lists["current_limits"][i],
                "units": {"nominal_current": lists["nominal_currents"][i],
                          "torque_constant": lists["torque_constants"][i],
                          "counts_per_rev": lists["counts_per_rev"][i],
-                         "gear_ratio": lists["gear_ratios"][i]}} for i in range(n)]
+                         "gear_ratio": lists["gear_ratios"][i]}, **env[i]} for i in range(n)]
     return {"bus": {"interface": get("bus_interface") or "virtual",
                     "channel": get("bus_channel") or "ff-bridge", "bitrate": int(get("bus_bitrate"))},
             "joints": joints, "sync_period": get("sync_period"),
@@ -106,7 +128,55 @@ def _flat_config(get: Callable[[str], Any]) -> dict[str, Any]:
             "heartbeat_timeout": get("heartbeat_timeout"),
             "master_heartbeat_ms": int(get("master_heartbeat_ms")),
             "master_node_id": int(get("master_node_id")), "setpoint_timeout": get("setpoint_timeout"),
-            "spin_margin": get("spin_margin"), "scheduler_rt_priority": int(get("scheduler_rt_priority"))}
+            "spin_margin": get("spin_margin"), "scheduler_rt_priority": int(get("scheduler_rt_priority")),
+            **{k: get(k) for k in FLAT_DRIVE_KEYS if not (k == "rpdo_timeout_ms" and get(k) == -1)}}
+
+
+#: flat parameters copied as they are into the config mapping
+FLAT_DRIVE_KEYS = ("master_heartbeat_timeout_ms", "rpdo_timeout_ms", "quick_stop_option",
+                   "fault_reaction_option", "abort_connection_option",
+                   "communication_error_behaviour", "scaling_source", "scaling_tolerance",
+                   "boot_timeout", "boot_wait", "check_identity")
+
+
+def _envelopes(get: Callable[[str], Any], n: int) -> list[dict[str, Any]]:
+    """Per joint ``position_limits`` / ``velocity_limit`` from the flat lists (zeros = none)."""
+    pos = [float(x) for x in get("position_limits")]
+    vel = [float(x) for x in get("velocity_limits")]
+    if any(pos) and len(pos) != 2 * n:
+        raise ConfigError(f"parameter position_limits needs 2 values per joint ({2 * n}), got {len(pos)}")
+    if any(vel) and len(vel) != n:
+        raise ConfigError(f"parameter velocity_limits needs one value per joint ({n}), got {len(vel)}")
+    out: list[dict[str, Any]] = [{} for _ in range(n)]
+    for i in range(n):
+        if any(pos) and (pos[2 * i] or pos[2 * i + 1]):
+            out[i]["position_limits"] = [pos[2 * i], pos[2 * i + 1]]
+        if any(vel) and vel[i]:
+            out[i]["velocity_limit"] = vel[i]
+    return out
+
+
+def config_parameters(cfg: BridgeConfig) -> dict[str, Any]:
+    """The flat parameter values of a configuration (what the node shows after configure)."""
+    js = cfg.joints
+    pos = [x for j in js for x in (j.position_limits or (0.0, 0.0))]
+    out: dict[str, Any] = {
+        "bus_interface": cfg.bus.interface, "bus_channel": cfg.bus.channel or "",
+        "bus_bitrate": int(cfg.bus.bitrate), "joint_names": [j.name for j in js],
+        "node_ids": [j.node_id for j in js], "families": [j.family for j in js],
+        "current_limits": [float(j.current_limit) for j in js],
+        "nominal_currents": [float(j.units.nominal_current) for j in js],
+        "torque_constants": [float(j.units.torque_constant) for j in js],
+        "counts_per_rev": [float(j.units.counts_per_rev) for j in js],
+        "gear_ratios": [float(j.units.gear_ratio) for j in js],
+        "position_limits": pos if any(pos) else [0.0],
+        "velocity_limits": [float(j.velocity_limit or 0.0) for j in js],
+    }
+    for k in ("sync_period", "heartbeat_producer_ms", "heartbeat_timeout", "master_heartbeat_ms",
+              "master_node_id", "setpoint_timeout", "spin_margin", "scheduler_rt_priority",
+              *FLAT_DRIVE_KEYS):
+        out[k] = getattr(cfg, k)
+    return out
 
 
 class _RosLogHandler(logging.Handler):
@@ -149,6 +219,8 @@ class BridgeNode(LifecycleNode):
         self._log_handler = _RosLogHandler(self.get_logger())
         for name in ("ff_hwbridge", "canopen"):
             logging.getLogger(name).addHandler(self._log_handler)
+        self._showing_config = False
+        self.add_on_set_parameters_callback(self._on_set_parameters)
 
     # --- public state -----------------------------------------------------------------------------
     @property
@@ -182,6 +254,31 @@ class BridgeNode(LifecycleNode):
             cfg = with_bus(cfg, bus)
         return cfg
 
+    def _show_config(self, cfg: BridgeConfig) -> None:
+        """Set the flat parameters to the configuration in use (they then read true)."""
+        from rclpy.parameter import Parameter
+
+        self._showing_config = True
+        try:
+            results = self.set_parameters([Parameter(k, value=v) for k, v in config_parameters(cfg).items()])
+        finally:
+            self._showing_config = False
+        for r in results:
+            if not r.successful:
+                self.get_logger().warning(f"parameters do not show the config in use: {r.reason}")
+
+    def _on_set_parameters(self, params: list) -> Any:
+        from rcl_interfaces.msg import SetParametersResult
+
+        if self._showing_config or self.master is None:
+            return SetParametersResult(successful=True)      # applied at the next configure
+        fixed = [p.name for p in params if p.name in PARAMS
+                 and p.name not in ("joint_state_rate", "diagnostics_rate")]
+        if fixed:
+            return SetParametersResult(successful=False, reason=(
+                f"{', '.join(fixed)}: applied at configure; cleanup the bridge, set them, configure again"))
+        return SetParametersResult(successful=True)
+
     # --- lifecycle --------------------------------------------------------------------------------
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Connect and set up the drives (NMT, SDO, PDO, SYNC, heartbeat/EMCY)."""
@@ -194,6 +291,7 @@ class BridgeNode(LifecycleNode):
             self.get_logger().error(f"configure failed: {exc}")
             return TransitionCallbackReturn.ERROR
         self.player = SetpointPlayer(self.master).start()
+        self._show_config(cfg)
         self._make_interfaces()
         self.get_logger().info(f"configured: joints {list(cfg.joint_names)} on "
                                f"{cfg.bus.interface}:{cfg.bus.channel}")
@@ -291,8 +389,10 @@ class BridgeNode(LifecycleNode):
         self._wake = self.create_guard_condition(lambda: None)   # resumes awaited work (ff_msgs_py.threads)
         srv = self.create_service(Trigger, "~/fault_reset", self._on_fault_reset,
                                   callback_group=MutuallyExclusiveCallbackGroup())
+        estop = self.create_service(Trigger, "~/estop", self._on_estop,
+                                    callback_group=MutuallyExclusiveCallbackGroup())
         self._entities += [("pub", self._pub_js), ("pub", self._pub_applied),
-                           ("pub", self._pub_diag), ("sub", sub), ("srv", srv)]
+                           ("pub", self._pub_diag), ("sub", sub), ("srv", srv), ("srv", estop)]
         self._timers.append(self.create_timer(1.0 / float(self._get("joint_state_rate")),
                                               self._publish_joint_states))
         self._timers.append(self.create_timer(1.0 / float(self._get("diagnostics_rate")),
@@ -321,6 +421,18 @@ class BridgeNode(LifecycleNode):
     def _on_fault(self, reason: str) -> None:
         """Master thread: safe state latched (the player drops its pending setpoints itself)."""
         self._diag_now.set()              # the reason is logged by the master (forwarded)
+
+    def _on_estop(self, request: Any, response: Any) -> Any:
+        """Service ~/estop: latch the safe state now (no waiting)."""
+        master = self.master
+        if master is None:
+            response.success, response.message = False, "bridge is not configured"
+            return response
+        reason = master.estop("service ~/estop")
+        response.success, response.message = True, f"safe state: {reason}"
+        self.get_logger().error(f"e-stop: {response.message}")
+        self._diag_now.set()
+        return response
 
     async def _on_fault_reset(self, request: Any, response: Any) -> Any:
         """Service ~/fault_reset: waits for the drive on its own thread (ff_msgs_py.threads)."""
@@ -384,6 +496,10 @@ class BridgeNode(LifecycleNode):
             status.level, status.message = DiagnosticStatus.ERROR, f"safe state: {self.master.fault_reason}"
         elif not self._active:
             status.level, status.message = DiagnosticStatus.WARN, "not active"
+        elif any(v is True for k, v in st.items() if k.endswith(".warning")):
+            warn = [str(v) for k, v in st.items() if k.endswith(".last_warning") and v]
+            status.level = DiagnosticStatus.WARN
+            status.message = "operation enabled; drive warning" + (f": {warn[-1]}" if warn else "")
         else:
             status.level, status.message = DiagnosticStatus.OK, "operation enabled"
         status.values = [KeyValue(key=str(k), value=str(v)) for k, v in st.items()]

@@ -13,7 +13,9 @@ Parameters (see ``PARAMETERS``; ``config/sim_*.yaml``):
   Fault injection, per drive, changeable at runtime (``fault.n<ID>.<name>``): heartbeat_stopped
   (bool), sdo_silent (bool), delay_ms (float) + delay_direction ('rx'|'tx'|'both'),
   drop_fraction (0..1) + drop_direction, drop_next (int: set N > 0 to drop the next N frames),
-  emcy_code (int: set a code 0x1000..0xFFFF to raise that EMCY; the drive goes to FAULT).
+  emcy_code (int: set a code 0x1000..0xFFFF to raise that EMCY; the drive goes to FAULT),
+  warning_code (int: set a code, e.g. 0xFF01 = 65281, to send a warning EMCY: statusword bit 7,
+  no fault; 0 clears the warning).
 Publishes ``~/ground_truth`` (sensor_msgs/JointState: rad, rad/s, effort = motor current A) and
 ``/diagnostics``. Service ``~/reset`` (std_srvs/Trigger): arm back to q0 at rest (the drives keep
 applying their present current: 0 A unless enabled with a non-zero setpoint).
@@ -62,6 +64,7 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
 FAULT_PARAMETERS: dict[str, Any] = {
     "heartbeat_stopped": False, "sdo_silent": False, "delay_ms": 0.0, "delay_direction": "both",
     "drop_fraction": 0.0, "drop_direction": "rx", "drop_next": 0, "emcy_code": 0,
+    "warning_code": 0,
 }
 
 
@@ -166,6 +169,11 @@ class SimDriverNode(Node):
         elif key == "emcy_code":
             if int(value):
                 d.raise_emcy(int(value))
+        elif key == "warning_code":
+            if int(value):
+                d.raise_warning(int(value))
+            elif not quiet:
+                d.clear_warning()
         elif key in ("delay_direction", "drop_direction"):
             SimEpos.directions(str(value))          # checks the name
         else:

@@ -5,10 +5,12 @@ model's ``ff_planner.model.registry.model_spec`` (``arm1dof``: 1-DOF arm, ``scar
 SCARA), but with its OWN parameters (the "true" friction), so tests can make the real arm
 differ from the model the planner believed.
 
-Time is ``time.monotonic_ns()`` unless a clock is given. The state is advanced lazily, whenever
-someone sets a current or asks for the state, exactly to that instant: a current change takes
-effect at the instant it is set (the drive calls ``set_current`` with the frame's arrival time),
-and between changes the model is stepped in sub-steps of at most ``step`` s (default 0.1 ms).
+Time is ``time.monotonic_ns()`` unless a clock is given. The state is advanced to the instant
+someone sets a current or asks for the state: a current change takes effect at the instant it is
+set (the drive calls ``set_current`` with the frame's arrival time), and between changes the
+model is stepped in sub-steps of at most ``step`` s (default 0.1 ms). ``start_clock(period)``
+runs the plant on its own thread, advancing it to a little before now every ``period`` s, so that
+a caller (a CAN callback) only ever integrates the last few ms, however long the rig was idle.
 Thread-safe (one lock). Units: rad, rad/s, A, s.
 """
 from __future__ import annotations
@@ -73,6 +75,39 @@ class SimArm:
         self._q, self._qd = self._vec(q0, "q0"), self._vec(0.0 if qd0 is None else qd0, "qd0")
         self._i = np.zeros(self.n_joints)
         self._t_ns = clock()
+        self._ticker: Optional[threading.Thread] = None
+        self._tick_stop = threading.Event()
+
+    # -- own clock -----------------------------------------------------------------------------
+    def start_clock(self, period: float = 0.002, lag: float = 0.01) -> None:
+        """Advance the plant to ``lag`` s before now every ``period`` s, on a thread of its own
+        (idempotent).
+
+        The lag keeps the clock behind the CAN frames still being handled: a current change
+        stamped with its frame's arrival time then still lands at that instant (the state can
+        only move forward). Without it, a tick between a frame's arrival and its handling would
+        apply the switch at the tick, tens of µs to ms late."""
+        if not period > 0.0 or not lag >= 0.0:
+            raise ParameterError(f"clock period must be > 0 s and lag >= 0 s, got {period}, {lag}")
+        lag_ns = int(lag * 1e9)
+        if self._ticker is not None and self._ticker.is_alive():
+            return
+        self._tick_stop.clear()
+
+        def run() -> None:
+            while not self._tick_stop.wait(period):
+                with self._lock:
+                    self._advance_to(self._clock() - lag_ns)
+
+        self._ticker = threading.Thread(target=run, name="sim-arm-clock", daemon=True)
+        self._ticker.start()
+
+    def stop_clock(self) -> None:
+        """Stop the plant's own thread (the state is then advanced on demand only)."""
+        self._tick_stop.set()
+        if self._ticker is not None:
+            self._ticker.join(timeout=2.0)
+            self._ticker = None
 
     # -- helpers -------------------------------------------------------------------------------
     def _vec(self, x: Sequence[float] | float, name: str) -> np.ndarray:

@@ -20,8 +20,16 @@ What it does, per the suite's CANopen contract (CiA 301/402):
   pre-defined error field 0x1003 on a fault; fault reset by a rising controlword bit 7
   (EMCY "error reset" 0x0000 sent).
 - Heartbeat consumer 0x1016:01-04 ((node id << 16) | ms): once a consumed heartbeat has been
-  seen, silence longer than its time is a fault (EMCY 0x8130 heartbeat error, FAULT, 0 A), so a
-  dead master stops the drive as on the real EPOS.
+  seen, silence longer than its time is a communication error (EMCY 0x8130 heartbeat error), so
+  a dead master stops the drive as on the real EPOS. RxPDO deadline monitoring (CiA 301 event
+  timer 0x1400+n:05, ms, armed by the first RPDO): no RPDO that long in OPERATIONAL is a
+  communication error too (EMCY 0x8250 RPDO timeout): a hung master whose heartbeat goes on.
+  The reaction to a communication error is 0x6007 abort connection option (0 none but the EMCY,
+  1 fault, 2 disable voltage, 3 quick stop; maxon default 3), then the NMT state per 0x1029:01
+  (0 pre-operational, 1 unchanged, 2 stopped). These watchdogs run on the drive's own thread.
+- Warnings (``raise_warning``, e.g. 0xFF01): EMCY sent, statusword bit 7 set, no state change.
+  Statusword bit 11 (internal limit active) while the setpoint is clamped to the current limit.
+  0x603F error code = the code of the present fault; 0x1003 the history, newest first.
 - Every received setpoint is recorded with its arrival time (``time.monotonic_ns`` and wall clock
   ``time.time_ns``), so benchmarks can compare the time a setpoint was due with when it applied.
 - Fault injection: stop heartbeat, raise EMCY, stop answering SDO, delay / drop frames.
@@ -426,6 +434,10 @@ class SimEpos:
         self._hb_tripped: set[int] = set()
         self._consumer_stop = threading.Event()
         self._consumer_thread: Optional[threading.Thread] = None
+        self._rpdo_seen: dict[int, float] = {}       # RPDO number -> monotonic s of the last one
+        self._rpdo_tripped: set[int] = set()
+        self._warning = False
+        self.last_error_time = 0.0       # time.monotonic() s of the latest error or communication error
         self._reset_application()
 
     # -- state ------------------------------------------------------------------------------
@@ -487,7 +499,10 @@ class SimEpos:
 
     def statusword(self) -> int:
         follows = self.state is State.OPERATION_ENABLED and self._in_current_mode()
-        return cia402.encode_statusword(self.state, extra=SW_FOLLOWS_COMMAND if follows else 0)
+        extra = SW_FOLLOWS_COMMAND if follows else 0
+        if follows and abs(self._commanded) > self._limit_c:
+            extra |= cia402.SW_INTERNAL_LIMIT
+        return cia402.encode_statusword(self.state, warning=self._warning, extra=extra)
 
     def _raw(self, index: int, sub: int = 0) -> Any:
         entry = self._dict[index]
@@ -503,6 +518,10 @@ class SimEpos:
         """Cache the drive settings the 1 kHz path needs (re-read after writes to them)."""
         self._mode_c = int(self._raw(0x6060))
         self._qs_c = int(self._raw(0x605A))
+        self._abort_c = int(self._raw(0x6007))
+        self._rpdo_timer_c = {n: self._raw(0x1400 + n - 1, 5) / 1000.0 for n in range(1, 5)
+                              if 0x1400 + n - 1 in self._dict}
+        self._comm_err_c = int(self._raw(0x1029, 1))
         self._limit_c = self._raw(0x3001 if self.family == "epos4" else 0x6410, 2) / 1000.0
         if self.family == "epos4":
             kt = self._raw(0x3001, 5)
@@ -510,7 +529,8 @@ class SimEpos:
         else:
             self._scale_c = 1.0 / 1000.0
 
-    _SETTINGS = frozenset({0x6060, 0x605A, 0x3001, 0x6410, 0x6076})
+    _SETTINGS = frozenset({0x6060, 0x605A, 0x6007, 0x1029, 0x3001, 0x6410, 0x6076,
+                           0x1400, 0x1401, 0x1402, 0x1403})
 
     def _mode(self) -> int:
         return self._mode_c
@@ -549,7 +569,11 @@ class SimEpos:
     def boot(self) -> None:
         """Power-on: boot-up frame, PRE-OPERATIONAL, heartbeat per 0x1017."""
         self._reload_pdos()
+        self._refresh_settings()
+        self._rpdo_seen.clear()
+        self._rpdo_tripped.clear()
         self._configure_consumers()
+        self._start_watch()
         self.node.nmt.send_command(0x81)     # INITIALISING -> boot-up frame
         self.node.nmt.send_command(0x80)     # PRE-OPERATIONAL, starts heartbeat if 0x1017 > 0
 
@@ -741,6 +765,9 @@ class SimEpos:
         if link is None or self.node.nmt.state != "OPERATIONAL":
             return
         t_ns, wall = link.rx_mono_ns, link.rx_wall_ns
+        no = (pdo_map.com_record.od.index & 0x1FF) + 1
+        self._rpdo_seen[no] = time.monotonic()
+        self._rpdo_tripped.discard(no)
         if pdo_map.trans_type is not None and pdo_map.trans_type <= 240:
             self._pending_sync_rpdo.append((pdo_map, bytes(pdo_map.data)))
             return
@@ -857,10 +884,12 @@ class SimEpos:
         for nid in list(self._hb_seen):
             if nid not in wanted:
                 del self._hb_seen[nid]
-        if wanted and (self._consumer_thread is None or not self._consumer_thread.is_alive()):
+
+    def _start_watch(self) -> None:
+        if self._consumer_thread is None or not self._consumer_thread.is_alive():
             self._consumer_stop.clear()
-            self._consumer_thread = threading.Thread(target=self._watch_consumers, daemon=True,
-                                                     name=f"epos{self.node_id}-hb-consumer")
+            self._consumer_thread = threading.Thread(target=self._watch, daemon=True,
+                                                     name=f"epos{self.node_id}-watchdogs")
             self._consumer_thread.start()
 
     def _on_consumed_heartbeat(self, can_id: int, data: bytearray, timestamp: float) -> None:
@@ -868,18 +897,63 @@ class SimEpos:
         self._hb_seen[nid] = time.monotonic()
         self._hb_tripped.discard(nid)
 
-    def _watch_consumers(self) -> None:
+    def _watch(self) -> None:
+        """The drive's watchdogs (every 2 ms): consumed heartbeats, RxPDO deadlines."""
         while not self._consumer_stop.wait(0.002):
-            if not self._consumers:
-                return
-            if self.node.nmt.state not in ("PRE-OPERATIONAL", "OPERATIONAL"):
+            nmt = self.node.nmt.state
+            if nmt not in ("PRE-OPERATIONAL", "OPERATIONAL"):
                 continue
             now = time.monotonic()
             for nid, limit in list(self._consumers.items()):
                 seen = self._hb_seen.get(nid)
                 if seen is not None and now - seen > limit and nid not in self._hb_tripped:
                     self._hb_tripped.add(nid)
-                    self.raise_emcy(0x8130, data=bytes([nid]))   # heartbeat error
+                    self.communication_error(0x8130, bytes([nid]))   # heartbeat error
+            if nmt != "OPERATIONAL":
+                continue
+            for no, seen in list(self._rpdo_seen.items()):
+                timer = self._rpdo_timer_c.get(no, 0.0)
+                if timer and now - seen > timer and no not in self._rpdo_tripped:
+                    self._rpdo_tripped.add(no)
+                    self.communication_error(0x8250, bytes([no]))    # RPDO timeout
+
+    def communication_error(self, code: int, data: bytes = b"") -> None:
+        """A communication error (heartbeat 0x8130, RPDO timeout 0x8250): the reaction of
+        0x6007 abort connection option, EMCY, then the NMT state of 0x1029:01."""
+        self.last_error_time = time.monotonic()
+        option = self._abort_c
+        if option == 1:
+            self.raise_emcy(code, data=data)                       # fault signal
+        else:
+            t = time.monotonic_ns()
+            with self._lock:
+                if option == 2 and self.state in (State.READY_TO_SWITCH_ON, State.SWITCHED_ON,
+                                                  State.OPERATION_ENABLED, State.QUICK_STOP_ACTIVE):
+                    self._apply_controlword(cia402.CONTROLWORD[Command.DISABLE_VOLTAGE], t)
+                elif option == 3 and self.state in (State.READY_TO_SWITCH_ON, State.SWITCHED_ON,
+                                                    State.OPERATION_ENABLED):
+                    self._apply_controlword(cia402.CONTROLWORD[Command.QUICK_STOP], t)
+            self._send_emcy(code, self.error_register_for(code), data)
+        if self._comm_err_c == 0 and self.node.nmt.state == "OPERATIONAL":
+            self.node.nmt.send_command(0x80)                       # -> PRE-OPERATIONAL
+        elif self._comm_err_c == 2:
+            self.node.nmt.send_command(0x02)                       # -> STOPPED
+
+    def raise_warning(self, code: int = 0xFF01, data: bytes = b"") -> None:
+        """A warning (e.g. 0xFF01): EMCY sent, statusword bit 7 set; the state stays."""
+        if not 0x1000 <= code <= 0xFFFF:
+            raise SimConfigError(f"EMCY code must be 0x1000..0xFFFF, got {code:#x}")
+        self._warning = True
+        self._send_emcy(code, 0x00, data)
+
+    def clear_warning(self) -> None:
+        """The warning condition is gone: statusword bit 7 cleared, EMCY error reset."""
+        self._warning = False
+        self._send_emcy(0x0000, self._error_register, b"")
+
+    def _send_emcy(self, code: int, register: int, data: bytes) -> None:
+        if self._link is not None and self.node.nmt.state in ("PRE-OPERATIONAL", "OPERATIONAL"):
+            self.node.emcy.send(code, register, bytes(data)[:5])
 
     # -- faults -------------------------------------------------------------------------------
     @staticmethod
@@ -899,11 +973,13 @@ class SimEpos:
             raise SimConfigError(f"EMCY code must be 0x1000..0xFFFF, got {code:#x}")
         t = time.monotonic_ns()
         reg = self.error_register_for(code) if register is None else int(register) & 0xFF
+        self.last_error_time = time.monotonic()
         with self._lock:
-            if self.state is not State.FAULT:
+            self._fault_code, self._error_register = code, reg     # before the state: readers
+            if self.state is not State.FAULT:                       # see the code with Fault
                 self._set_state(State.FAULT_REACTION_ACTIVE, 13, t)
                 self._set_state(State.FAULT, 14, t)
-            self._fault_code, self._error_register = code, reg
+            self.node.data_store.setdefault(0x603F, {})[0] = struct.pack("<H", code)
             hist = self.node.data_store.setdefault(0x1003, {})
             old = [struct.unpack("<L", hist[s])[0] for s in range(1, 9) if s in hist]
             new = ([code] + old)[:8]
@@ -915,6 +991,8 @@ class SimEpos:
 
     def _clear_fault(self) -> None:
         self._fault_code, self._error_register = 0, 0
+        self._warning = False
+        self.node.data_store.setdefault(0x603F, {})[0] = struct.pack("<H", 0)
         if self._link is not None:
             self.node.emcy.reset(0)
 

@@ -4,8 +4,10 @@ on one CAN bus. No ROS: the ``ff_sim_driver`` node, the ``ff-sim-rig`` command
 
 ``run_command`` executes one line of the rig's stdin command channel (for tests that inject
 faults into a running process). Commands:
-``emcy NODE CODE`` · ``heartbeat NODE on|off`` · ``sdo NODE on|off`` · ``delay NODE MS [rx|tx|both]``
-· ``drop NODE FRACTION [rx|tx|both]`` · ``dropnext NODE N [rx|tx|both]`` · ``clear NODE`` ·
+``emcy NODE CODE`` · ``resetnode NODE`` (NMT reset node: power-cycle the drive) ·
+``warn NODE [CODE]`` (warning EMCY, default 0xFF01) · ``warnclear NODE`` ·
+``heartbeat NODE on|off`` · ``sdo NODE on|off`` · ``delay NODE MS [rx|tx|both]`` ·
+``drop NODE FRACTION [rx|tx|both]`` · ``dropnext NODE N [rx|tx|both]`` · ``clear NODE`` ·
 ``reset Q0...`` · ``state`` (prints ``state q=... qd=... i=...``) · ``info NODE`` (drive state,
 faults, heartbeat consumer, frame counts) · ``quit``.
 """
@@ -39,8 +41,10 @@ class RigConfig:
     true_params: Optional[Params] = None          # default: the model's paper table
     q0: tuple[float, ...] = (0.0,)
     step: float = 1e-4                            # s, physics sub-step
+    clock_period: float = 0.002                   # s, the plant's own clock (0 = advance on demand)
     counts_per_rev: int = DriveConfig.counts_per_rev
     nominal_current: float = DriveConfig.nominal_current   # A (sets the ‰ scale on EPOS4)
+    nominal_currents: Optional[tuple[float, ...]] = None   # A per joint (default nominal_current)
 
     def params(self) -> Params:
         return self.true_params if self.true_params is not None else default_params(self.model)
@@ -53,11 +57,14 @@ class RigConfig:
                                  f"node id(s) were given: {list(self.node_ids)}")
         if len(set(self.node_ids)) != nj:
             raise SimConfigError(f"node ids must differ, got {list(self.node_ids)}")
+        noms = self.nominal_currents or (self.nominal_current,) * nj
+        if len(noms) != nj:
+            raise SimConfigError(f"nominal_currents needs {nj} value(s), got {list(noms)}")
         out = []
         for j, nid in enumerate(self.node_ids):
             n, kt, imax = (joint_param(p, k, j) for k in ("n", "kt", "i_max"))
             out.append(DriveConfig(node_id=int(nid), family=self.family,
-                                   nominal_current=self.nominal_current, current_limit=imax,
+                                   nominal_current=float(noms[j]), current_limit=imax,
                                    torque_constant=kt, counts_per_rev=self.counts_per_rev,
                                    gear_ratio=n))
         return out
@@ -77,6 +84,8 @@ class SimRig:
         self.network = open_network(config.bus) if network is None else network
         for d in self.drives:
             d.attach(self.network)
+        if config.clock_period > 0:
+            self.arm.start_clock(config.clock_period)   # physics never waits for a CAN frame
 
     def boot(self) -> None:
         """Power on every drive: boot-up frames, PRE-OPERATIONAL."""
@@ -98,6 +107,7 @@ class SimRig:
             d.reapply()
 
     def close(self) -> None:
+        self.arm.stop_clock()
         for d in self.drives:
             d.close()
         if self._own_network:
@@ -126,6 +136,12 @@ def run_command(rig: SimRig, line: str) -> str:
         d = rig.drive(int(args[0], 0))
         if cmd == "emcy":
             d.raise_emcy(int(args[1], 0))
+        elif cmd == "resetnode":
+            d.reset_node()
+        elif cmd == "warn":
+            d.raise_warning(int(args[1], 0) if len(args) > 1 else 0xFF01)
+        elif cmd == "warnclear":
+            d.clear_warning()
         elif cmd == "heartbeat":
             d.stop_heartbeat(args[1] == "off")
         elif cmd == "sdo":
@@ -143,7 +159,7 @@ def run_command(rig: SimRig, line: str) -> str:
             hb_age = {k: round(now - v, 4) for k, v in d.heartbeats_seen().items()}
             rx_by_id = {hex(k): v for k, v in d.frames_by_id().items()} if d.attached else None
             return (f"info node={d.node_id} nmt={d.nmt_state} state={d.state.value!r} "
-                    f"fault=0x{d.fault_code:04X} i={d.applied_current} "
+                    f"fault=0x{d.fault_code:04X} error_t={d.last_error_time:.6f} i={d.applied_current} "
                     f"consumers={d.heartbeat_consumers()} hb_age={hb_age} "
                     f"faults={vars(d.faults)} link={vars(d.link_stats)} rx_by_id={rx_by_id}")
         else:

@@ -17,7 +17,7 @@ from typing import NoReturn, Optional, Sequence
 import numpy as np
 
 from ff_planner.model.params import DEFAULT_PRESET, MODELS, PRESETS, ParameterError, load_params, n_joints, preset
-from ff_planner.model.profile import DEFAULT_COAST, OBJECTIVES, PlanningError, PlanRequest
+from ff_planner.model.profile import DEFAULT_COAST, DEFAULT_COAST_MAX, MAX_TF, OBJECTIVES, PlanningError, PlanRequest
 
 PROG = "ff-plan"
 
@@ -92,11 +92,19 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--uncertain", nargs="+", default=None, metavar="NAME",
                    help="friction parameters to be robust to (default: all of the model's)")
     o.add_argument("--objective", choices=OBJECTIVES, default=None,
-                   help="robust-derivative (paper), robust-sampled, time-optimal, energy-optimal")
+                   help="robust-derivative (paper), robust-sampled, robust-box (least worst rest "
+                        "error over the friction box), time-optimal, energy-optimal")
     o.add_argument("--steps", type=int, default=None, metavar="N",
-                   help="current steps per joint (default 2 + number of uncertain parameters)")
-    o.add_argument("--starts", type=int, default=None, help="multistart count (default 50)")
+                   help="current steps per joint (default 2 + number of uncertain parameters; "
+                        "0: the robust 1-DOF planner chooses the smallest N up to 12)")
+    o.add_argument("--starts", type=int, default=None,
+                   help="multistart count (default 50; 0: escalated 50 -> 200 -> 1000)")
     o.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
+    o.add_argument("--box", metavar="KEY=FRACTION", action="append", default=None,
+                   help="robust-box and the certificate: ± fraction of one uncertain parameter, "
+                        "e.g. --box pc=0.3 (repeatable; default 0.2 each)")
+    o.add_argument("--coast-max", type=float, default=None, metavar="S",
+                   help="robust-box: longest coast the planner may choose (default 0.25 s)")
     o.add_argument("--time-budget", type=float, default=None, metavar="S",
                    help="wall-clock budget (default 30 s); the best plan so far is returned")
     o.add_argument("--tol", type=float, default=None,
@@ -141,9 +149,10 @@ class ProgressPrinter:
 
 
 DEFAULTS = {"tf": 1.0, "coast": DEFAULT_COAST, "objective": "robust-derivative", "starts": 50,
-            "seed": 0, "time_budget": 30.0, "tol": 1e-6}
+            "seed": 0, "time_budget": 30.0, "tol": 1e-6, "coast_max": DEFAULT_COAST_MAX}
 _TASK_KEYS = ("q0", "qf", "tf", "coast")
-_PLAN_KEYS = ("uncertain", "objective", "steps", "starts", "seed", "time_budget", "tol")
+_PLAN_KEYS = ("uncertain", "objective", "steps", "starts", "seed", "time_budget", "tol", "box",
+              "coast_max")
 
 
 def load_config(path: str) -> dict:
@@ -198,7 +207,10 @@ def _resolve_params(args: argparse.Namespace, cfg: dict):
         if "=" not in item:
             raise UsageError(f"--set expects KEY=VALUE, got {item!r}")
         k, v = item.split("=", 1)
-        overrides[k.strip()] = _floats([v], f"--set {k.strip()}")[0]
+        vals = _floats([v], f"--set {k.strip()}")
+        if len(vals) != 1:
+            raise UsageError(f"--set {k.strip()}: give one number, got {v.strip()!r}")
+        overrides[k.strip()] = vals[0]
     return base.replace(**overrides) if overrides else base
 
 
@@ -225,6 +237,24 @@ def _number(v, name: str, kind=float):
     if kind is int and float(v) != int(v):
         raise UsageError(f"{name} must be a whole number, got {v!r}")
     return kind(v)
+
+
+def _box(v) -> Optional[dict]:
+    """--box KEY=FRACTION items (or the plan file's mapping) as {key: fraction}."""
+    if v is None:
+        return None
+    if isinstance(v, dict):
+        return {str(k): _number(x, f"--box {k}") for k, x in v.items()}
+    out = {}
+    for item in v:
+        if "=" not in str(item):
+            raise UsageError(f"--box expects KEY=FRACTION, got {item!r}")
+        k, x = str(item).split("=", 1)
+        vals = _floats([x], f"--box {k.strip()}")
+        if len(vals) != 1:
+            raise UsageError(f"--box {k.strip()}: give one number, got {x.strip()!r}")
+        out[k.strip()] = vals[0]
+    return out
 
 
 def make_request(args: argparse.Namespace) -> PlanRequest:
@@ -255,11 +285,13 @@ def make_request(args: argparse.Namespace) -> PlanRequest:
             raise UsageError(f"{name} must be a finite number, got {v}")
     if tf <= coast:
         raise UsageError(f"--tf {tf:g} s must exceed the coast of {coast:g} s")
+    if tf > MAX_TF:
+        raise UsageError(f"--tf {tf:g} s is too long: move times up to {MAX_TF:g} s are planned")
     steps = _pick(args, cfg, "steps")
     if steps is not None:
         steps = _number(steps, "--steps", int)
-        if steps < 1:
-            raise UsageError(f"--steps must be >= 1, got {steps}")
+        if steps < 0:
+            raise UsageError(f"--steps must be >= 1 (or 0: chosen by the planner), got {steps}")
     if tol <= 0:
         raise UsageError(f"--tol must be > 0, got {tol}")
     objective = str(_pick(args, cfg, "objective"))
@@ -268,7 +300,10 @@ def make_request(args: argparse.Namespace) -> PlanRequest:
     unc = _pick(args, cfg, "uncertain")
     named = _names(unc if isinstance(unc, (list, tuple)) else [unc]) if unc is not None else None
     uncertain = named if named is not None else list(params.friction_keys)
-    return PlanRequest(model=model, q0=tuple(q0), qf=tuple(qf), tf=tf,
+    box = _box(_pick(args, cfg, "box"))
+    coast_max = _number(_pick(args, cfg, "coast_max"), "--coast-max")
+    return PlanRequest(model=model, q0=tuple(q0), qf=tuple(qf), tf=tf, box=box,
+                       coast_max=coast_max,
                        uncertain=tuple(uncertain), objective=objective, steps=steps,
                        starts=_number(_pick(args, cfg, "starts"), "--starts", int),
                        seed=_number(_pick(args, cfg, "seed"), "--seed", int),
@@ -290,6 +325,9 @@ def summary(result, output: Optional[str] = None, plot: Optional[str] = None) ->
     rest = (result.extra or {}).get("rest_position")
     if rest is not None:
         d["rest_position"] = np.asarray(rest, dtype=float).tolist()
+    cert = getattr(result, "certificate", None)
+    if cert is not None:
+        d["certificate"] = cert.to_dict()
     if output:
         d["output"] = output
     if plot:
@@ -315,6 +353,15 @@ def _print_summary(d: dict, result) -> None:
               f"(all in the motion file)")
     elif sens:
         print("  dq(tf)/dp: " + ", ".join(f"{k} {v:+.2e}" for k, v in sens.items()))
+    c = d.get("certificate")
+    if c:
+        box = ", ".join(f"{k} ±{v * 100:g} %" for k, v in c["box"].items())
+        at = ", ".join(f"{k}×{v:.3g}" for k, v in c["worst_at"].items())
+        alone = ", ".join(f"{k} {v * 1e3:.3g}" for k, v in c["per_parameter"].items())
+        sw = max((abs(x) for x in c["switch_timing_per_100us"]), default=0.0)
+        print(f"  box ({box}): worst rest error {c['worst_rest_error'] * 1e3:.3g} mrad at {at}; "
+              f"alone (mrad): {alone}; moving at tf: {c['moving_at_tf'] * 100:.0f} % of the box; "
+              f"switch timing: max {sw * 1e3:.3g} mrad per 100 us delay")
     print(f"  starts: {d['starts_tried']}, time: {d['solve_time_s'] * 1e3:.1f} ms")
     for k in ("output", "plot"):
         if k in d:
@@ -333,12 +380,28 @@ def _check_writable(path: Optional[str], flag: str) -> None:
         raise UsageError(f"{flag}: folder {str(parent)!r} does not exist")
 
 
+def _protect_numbers(argv: Sequence[str]) -> list[str]:
+    """Values such as ``-inf``, ``-nan`` or ``-1e3`` that argparse would take for options: give
+    them a leading space (``float`` ignores it), so that they reach the value checks."""
+    out = []
+    for a in argv:
+        if a.startswith("-") and not a.startswith("--"):
+            try:
+                float(a)
+                a = " " + a
+            except ValueError:
+                pass
+        out.append(a)
+    return out
+
+
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """Entry point of ``ff-plan``; returns the exit code (see module docstring)."""
     parser = build_parser()
-    debug = "--debug" in (sys.argv[1:] if argv is None else list(argv))
+    raw = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in raw
     try:
-        args = parser.parse_args(argv)
+        args = parser.parse_args(_protect_numbers(raw))
         _check_writable(args.output, "-o")
         _check_writable(args.plot, "--plot")
         request = make_request(args)

@@ -107,6 +107,9 @@ def motion_to_dict(result: PlanResult, *, extra: Optional[Mapping[str, Any]] = N
         d["predicted"]["rest_position"] = _floats(rest)
     if result.extra:
         d["extra"] = jsonable(result.extra)
+    cert = getattr(result, "certificate", None)
+    if cert is not None:     # rest error over the uncertainty box (see RobustnessCertificate)
+        d["certificate"] = jsonable(cert.to_dict())
     if extra:
         d.update(jsonable(dict(extra)))
     validate_motion_dict(d)

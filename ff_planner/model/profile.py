@@ -16,7 +16,11 @@ from ff_planner.model.params import ParameterError, Params, default_params, n_jo
 
 DEFAULT_COAST = 0.05  # s, zero-current coast at the end of every move (paper section 4.1.1)
 
-OBJECTIVES = ("robust-derivative", "robust-sampled", "time-optimal", "energy-optimal")
+OBJECTIVES = ("robust-derivative", "robust-sampled", "robust-box", "time-optimal",
+              "energy-optimal")
+DEFAULT_COAST_MAX = 0.25   # s, robust-box: longest coast the planner may choose
+MAX_TF = 60.0              # s, longest move time a request may ask for
+DEFAULT_STARTS = 50        # multistart count when a request leaves starts at 0 (non-robust)
 
 
 @dataclass
@@ -95,13 +99,25 @@ class PlanRequest:
     tf: float = 1.0                          # s
     uncertain: Sequence[str] = ("pv", "pc", "pt")
     objective: str = "robust-derivative"
-    steps: Optional[int] = None              # per joint; None = 2 + len(uncertain)
-    starts: int = 50
+    steps: Optional[int] = None              # per joint; None = 2 + len(uncertain); 0 = chosen
+    starts: int = 50                         # 0 = chosen (1-DOF robust planners)
     seed: int = 0
     time_budget: float = 30.0                # s
     coast: float = DEFAULT_COAST             # s
     params: Optional[Params] = None
     tol: float = 1e-6                        # robustness tolerance on |dq(tf)/dp| and |q(tf) - qf|
+    box: Optional[dict[str, float]] = None   # ± fraction per uncertain parameter (default 0.2)
+    coast_max: float = DEFAULT_COAST_MAX     # s, robust-box: coast chosen in [coast, coast_max]
+
+    @property
+    def auto_steps(self) -> bool:
+        """steps = 0: the robust 1-DOF planner chooses the smallest N that works."""
+        return self.steps is not None and int(self.steps) == 0
+
+    @property
+    def auto_starts(self) -> bool:
+        """starts = 0: the robust 1-DOF planner escalates the multistart count."""
+        return int(self.starts) == 0
 
     def resolved_params(self) -> Params:
         return self.params if self.params is not None else default_params(self.model)
@@ -120,9 +136,15 @@ class PlanRequest:
                 raise PlanningError(f"{name} needs {nj} value(s) for model '{self.model}', got {len(v)}")
             if not all(math.isfinite(float(x)) for x in v):
                 raise PlanningError(f"{name} must be finite, got {list(v)}")
-        for name, x in (("tf", self.tf), ("coast", self.coast), ("time_budget", self.time_budget)):
+        for name, x in (("tf", self.tf), ("coast", self.coast), ("time_budget", self.time_budget),
+                        ("coast_max", self.coast_max)):
             if not math.isfinite(float(x)):
                 raise PlanningError(f"{name} must be finite, got {x}")
+        if not 0.0 < self.tf <= MAX_TF:
+            raise PlanningError(f"move time tf must be in (0, {MAX_TF:g}] s, got {self.tf:g}")
+        if self.objective == "robust-box" and not self.coast <= self.coast_max < self.tf:
+            raise PlanningError(f"robust-box needs coast <= coast_max < tf, got coast = "
+                                f"{self.coast} s, coast_max = {self.coast_max} s, tf = {self.tf} s")
         if self.coast < 0:
             raise PlanningError(f"coast must be >= 0 s, got {self.coast}")
         if self.tf <= self.coast:
@@ -136,12 +158,61 @@ class PlanRequest:
         if len(set(self.uncertain)) != len(self.uncertain):
             raise PlanningError(f"uncertain parameters repeat: {list(self.uncertain)}")
         n = self.n_steps()
-        if not 1 <= n <= 200:
-            raise PlanningError(f"steps per joint must be between 1 and 200, got {n}")
-        if self.starts < 1 or self.starts > 100000:
-            raise PlanningError(f"starts must be between 1 and 100000, got {self.starts}")
+        if not 1 <= n <= 200 or (self.steps is not None and int(self.steps) < 0):
+            raise PlanningError(f"steps per joint must be between 1 and 200 (0: chosen), got "
+                                f"{self.steps}")
+        if self.starts < 0 or self.starts > 100000:
+            raise PlanningError(f"starts must be between 1 and 100000 (0: chosen), got "
+                                f"{self.starts}")
+        if self.box is not None:
+            if not isinstance(self.box, dict):
+                raise PlanningError(f"box must map uncertain parameters to fractions, got "
+                                    f"{self.box!r}")
+            extra = [k for k in self.box if k not in self.uncertain]
+            if extra:
+                raise PlanningError(f"box names parameter(s) {extra} that are not uncertain; "
+                                    f"uncertain are {list(self.uncertain)}")
+            for k, f in self.box.items():
+                if isinstance(f, bool) or not isinstance(f, (int, float)) \
+                        or not math.isfinite(float(f)) or not 0.0 < float(f) < 1.0:
+                    raise PlanningError(f"box fraction of {k} must be a number in (0, 1), "
+                                        f"got {f!r}")
         if self.time_budget <= 0:
             raise PlanningError(f"time_budget must be > 0 s, got {self.time_budget}")
+
+
+@dataclass
+class RobustnessCertificate:
+    """How far a 1-DOF plan's rest position strays over an uncertainty box (judged on the exact
+    model, zero current after tf until the arm stops).
+
+    box: ± fraction per uncertain parameter. worst_rest_error (rad): largest |rest − qf| found
+    (samples, then local ascent from the worst ones), at ``worst_at`` (parameter → scale
+    factor). per_parameter: the same with each parameter alone. moving_at_tf: fraction of the
+    uniform samples still moving at tf. switch_timing (rad per 100 µs): change of the rest
+    position when switch j (the start of step j + 1, the last one the start of the coast) comes
+    100 µs late, by central differences (±10 µs) on the nominal model. samples: points
+    simulated.
+    """
+
+    box: dict[str, float]
+    worst_rest_error: float
+    worst_at: dict[str, float]
+    per_parameter: dict[str, float]
+    moving_at_tf: float
+    switch_timing: list[float]
+    samples: int
+    switch_timing_method: str = "central difference, ±10 us, nominal parameters"
+
+    def to_dict(self) -> dict:
+        """JSON-able form (the motion file's ``certificate``)."""
+        return {"box": dict(self.box), "worst_rest_error": float(self.worst_rest_error),
+                "worst_at": dict(self.worst_at), "per_parameter": dict(self.per_parameter),
+                "moving_at_tf": float(self.moving_at_tf),
+                "switch_timing_per_100us": [float(x) for x in self.switch_timing],
+                "switch_timing_method": self.switch_timing_method, "samples": int(self.samples),
+                "units": {"worst_rest_error": "rad", "per_parameter": "rad",
+                          "worst_at": "scale factor", "switch_timing_per_100us": "rad"}}
 
 
 @dataclass
@@ -168,3 +239,4 @@ class PlanResult:
     solve_time: float = 0.0          # s
     warm_start: bool = False
     extra: dict = field(default_factory=dict)   # objective-specific figures (e.g. sampled RMS)
+    certificate: Optional[RobustnessCertificate] = None   # 1-DOF: rest error over the box

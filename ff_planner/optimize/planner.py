@@ -3,7 +3,8 @@
 ``check`` does all validation (the request's fields, a planner for its model and objective, the
 reachability bound) and returns a ``CheckedRequest``; ``plan`` takes either a plain
 ``PlanRequest`` (checked first) or a ``CheckedRequest`` (not checked again — e.g. one checked by
-the planner service and handed to a worker process). Dispatch (``ROUTES``): robust-derivative /
+the planner service and handed to a worker process). Dispatch (``ROUTES``): robust-box ->
+``box_robust.plan_box_robust_1dof`` (arm1dof); robust-derivative /
 robust-sampled -> ``robust1d.plan_robust_1dof`` (arm1dof) or ``robust2d.plan_robust_scara2``
 (scara2); time-optimal / energy-optimal -> ``baselines.plan_baseline`` (arm1dof). Errors are
 ``PlanningError`` with the PlanTrajectory error name in ``.code``.
@@ -13,15 +14,18 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from dataclasses import replace as dc_replace
 from typing import Callable, Optional, Union
 
 import numpy as np
 
 from ff_planner.core.errors import ParameterError, PlanningError, WarmStartUnavailable, error_code_of
 from ff_planner.model.params import Arm1DofParams, Params, Scara2Params
-from ff_planner.model.profile import PlanRequest, PlanResult
+from ff_planner.model.profile import DEFAULT_STARTS, PlanRequest, PlanResult
 from ff_planner.model.simulate import rest_position
 from ff_planner.optimize.baselines import plan_baseline, reach_1dof
+from ff_planner.optimize.box_robust import plan_box_robust_1dof
+from ff_planner.optimize.certificate import certify_1dof
 from ff_planner.optimize.robust1d import plan_robust_1dof
 from ff_planner.optimize.robust2d import plan_robust_scara2
 
@@ -104,11 +108,84 @@ class Route:
 ROUTES: dict[tuple[str, str], Route] = {
     ("arm1dof", "robust-derivative"): Route(plan_robust_1dof, warm_start=True),
     ("arm1dof", "robust-sampled"): Route(plan_robust_1dof, warm_start=True),
+    ("arm1dof", "robust-box"): Route(plan_box_robust_1dof, warm_start=True),
     ("arm1dof", "time-optimal"): Route(plan_baseline, warm_start=False),
     ("arm1dof", "energy-optimal"): Route(plan_baseline, warm_start=False),
     ("scara2", "robust-derivative"): Route(plan_robust_scara2, warm_start=False),
     ("scara2", "robust-sampled"): Route(plan_robust_scara2, warm_start=False),
 }
+
+
+# --- chosen steps and starts (1-DOF robust planners) ----------------------------------------------
+AUTO_OBJECTIVES = ("robust-derivative", "robust-sampled", "robust-box")
+AUTO_MAX_STEPS = 12                 # largest N the planner escalates to
+AUTO_STARTS = (50, 200, 1000)       # multistart counts tried per N before the next N
+BOX_TARGET = 5e-3                   # rad: robust-box escalates N until its box worst is below
+
+
+def _good(result: PlanResult) -> bool:
+    """A truly robust plan (robust-box: and its box worst within BOX_TARGET)."""
+    if not (result.success and result.robust):
+        return False
+    if result.objective == "robust-box":
+        return float(result.extra.get("box_worst", math.inf)) <= BOX_TARGET
+    return True
+
+
+def plan_auto_1dof(req: PlanRequest, route: Route, progress: Progress = None,
+                   initial_currents: Optional[np.ndarray] = None) -> PlanResult:
+    """Choose N (steps = 0: from 2 + k up to AUTO_MAX_STEPS) and the starts (starts = 0:
+    AUTO_STARTS in turn, escalated before N): the first truly robust plan (``_good``), else the
+    best robust one (least box worst for robust-box), else the last best effort. ``extra["auto"]``
+    lists every (steps, starts) tried with its outcome; the time budget covers all of them."""
+    t0 = time.perf_counter()
+    k = len(req.uncertain)
+    ns = range(k + 2, AUTO_MAX_STEPS + 1) if req.auto_steps else [req.n_steps()]
+    ladder = AUTO_STARTS if req.auto_starts else (int(req.starts),)
+    tried: list[dict] = []
+    best: Optional[PlanResult] = None
+    last: Optional[PlanResult] = None
+    for n in ns:
+        for s in ladder:
+            left = req.time_budget - (time.perf_counter() - t0)
+            if left <= 0.0:
+                break
+            sub = dc_replace(req, steps=n, starts=s, time_budget=left)
+            warm = initial_currents if (initial_currents is not None and route.warm_start and
+                                        np.size(initial_currents) % n == 0 and
+                                        np.shape(initial_currents)[-1] in (n, 1)) else None
+            try:
+                r = route.fn(sub, progress) if warm is None else route.fn(
+                    sub, progress, initial_currents=np.asarray(warm, dtype=float))
+            except PlanningError:
+                if warm is None:
+                    raise
+                r = route.fn(sub, progress)
+            row = {"steps": n, "starts": s, "robust": bool(r.success and r.robust),
+                   "starts_tried": int(r.starts_tried), "time_s": float(r.solve_time)}
+            if "box_worst" in r.extra:
+                row["box_worst"] = float(r.extra["box_worst"])
+            tried.append(row)
+            last = r
+            if r.success and r.robust and (best is None or float(
+                    r.extra.get("box_worst", 0.0)) < float(best.extra.get("box_worst", 0.0))):
+                best = r
+            if _good(r):
+                break
+            if r.success and r.robust:
+                break            # robust at this N: more starts will not change N
+        if best is not None and _good(best):
+            break
+        if time.perf_counter() - t0 > req.time_budget:
+            break
+    result = best if best is not None else last
+    assert result is not None
+    result.extra = dict(result.extra or {})
+    result.extra["auto"] = {"tried": tried, "steps_chosen": result.profile.n_steps
+                            if result.profile is not None else None,
+                            "max_steps": AUTO_MAX_STEPS, "starts_ladder": list(ladder)}
+    result.starts_tried = sum(row["starts_tried"] for row in tried)
+    return result
 
 
 # --- facade ----------------------------------------------------------------------------------
@@ -164,7 +241,14 @@ def plan(request: Union[PlanRequest, CheckedRequest], progress: Progress = None,
     checked = request if isinstance(request, CheckedRequest) else check(request)
     req = checked.request
     route = ROUTES[(req.model, req.objective)]
-    if initial_currents is None:
+    auto = req.auto_steps or req.auto_starts
+    if auto and not (req.model == "arm1dof" and req.objective in AUTO_OBJECTIVES):
+        req = dc_replace(req, steps=None if req.auto_steps else req.steps,
+                         starts=DEFAULT_STARTS if req.auto_starts else req.starts)
+        auto = False
+    if auto:
+        result = plan_auto_1dof(req, route, progress, initial_currents)
+    elif initial_currents is None:
         result = route.fn(req, progress)
     elif route.warm_start:
         result = route.fn(req, progress, initial_currents=np.asarray(initial_currents, dtype=float))
@@ -182,6 +266,15 @@ def plan(request: Union[PlanRequest, CheckedRequest], progress: Progress = None,
         try:   # where the arm stops with zero current after tf: what a user will see
             rest = rest_position(checked.params, result.profile, [float(x) for x in result.q0])
             result.extra["rest_position"] = [float(x) for x in rest]
+        except (ValueError, ArithmeticError):
+            pass
+    arm = result.params if isinstance(result.params, Arm1DofParams) else checked.params
+    if (result.profile is not None and isinstance(arm, Arm1DofParams)
+            and req.uncertain and result.certificate is None):
+        try:
+            result.certificate = certify_1dof(arm, result.profile,
+                                              float(result.q0[0]), float(result.qf[0]),
+                                              list(req.uncertain), req.box)
         except (ValueError, ArithmeticError):
             pass
     if not result.success:

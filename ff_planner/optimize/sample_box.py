@@ -8,7 +8,7 @@ sampled parameter value is its nominal value times its scale.
 from __future__ import annotations
 
 import itertools
-from typing import Optional, Sequence
+from typing import Mapping, Optional, Sequence
 
 import numpy as np
 
@@ -53,3 +53,64 @@ def sample_scales(uncertain: Sequence[str], keys: Sequence[str],
                 r[col[u]] = 1.0 + s * corner
             rows.append(r)
     return np.array(rows) if rows else np.ones((1, len(keys)))
+
+
+# --- the uncertainty box of the robust-box objective and of the robustness certificate ------
+BOX_FRACTION = 0.2     # default ± fraction of every uncertain parameter
+BOX_CHECK_SEED = 20_240_611   # fixed seed of the planner's own check samples
+
+
+def box_fractions(uncertain: Sequence[str], box: Optional[Mapping[str, float]] = None
+                  ) -> dict[str, float]:
+    """± fraction per uncertain parameter: ``box`` where given, else BOX_FRACTION."""
+    given = dict(box or {})
+    return {u: float(given.get(u, BOX_FRACTION)) for u in uncertain}
+
+
+def _scaled(rows: np.ndarray, fractions: Mapping[str, float], keys: Sequence[str]) -> np.ndarray:
+    """Scale factors (S, len(keys)) from unit-box rows (S, k) in [−1, 1] over ``fractions``."""
+    out = np.ones((rows.shape[0], len(keys)))
+    for j, (u, f) in enumerate(fractions.items()):
+        out[:, list(keys).index(u)] = 1.0 + f * rows[:, j]
+    return out
+
+
+def box_corners(fractions: Mapping[str, float], keys: Sequence[str]) -> np.ndarray:
+    """The 2^k corners of the box, then its centre: scale factors (2^k + 1, len(keys))."""
+    k = len(fractions)
+    rows = np.array(list(itertools.product(SIGNS, repeat=k)) + [(0.0,) * k], dtype=float)
+    return _scaled(rows.reshape(-1, k), fractions, keys)
+
+
+def box_faces(fractions: Mapping[str, float], keys: Sequence[str]) -> np.ndarray:
+    """The 2k face centres of the box (each parameter alone at ±its fraction)."""
+    k = len(fractions)
+    rows = np.vstack([s * np.eye(k)[i] for i in range(k) for s in SIGNS]) if k else np.zeros((0, 0))
+    return _scaled(rows.reshape(-1, k), fractions, keys)
+
+
+def box_grid(fractions: Mapping[str, float], keys: Sequence[str], levels: int = 3) -> np.ndarray:
+    """A full grid of ``levels`` values per parameter over the box (levels^k rows)."""
+    axis = np.linspace(-1.0, 1.0, levels)
+    rows = np.array(list(itertools.product(axis, repeat=len(fractions))), dtype=float)
+    return _scaled(rows.reshape(-1, len(fractions)), fractions, keys)
+
+
+def box_uniform(fractions: Mapping[str, float], keys: Sequence[str], count: int,
+                seed: int = BOX_CHECK_SEED) -> np.ndarray:
+    """``count`` seeded points uniform in the box."""
+    rng = np.random.default_rng(seed)
+    rows = rng.uniform(-1.0, 1.0, (int(count), len(fractions)))
+    return _scaled(rows, fractions, keys)
+
+
+def box_samples(fractions: Mapping[str, float], keys: Sequence[str]) -> np.ndarray:
+    """The robust-box objective's minimax samples: the 2^k corners, the centre and the 2k face
+    centres."""
+    return np.vstack([box_corners(fractions, keys), box_faces(fractions, keys)])
+
+
+def box_check_samples(fractions: Mapping[str, float], keys: Sequence[str],
+                      count: int = 64) -> np.ndarray:
+    """The planner's check set (exchange step): a 3^k grid and ``count`` seeded uniform points."""
+    return np.vstack([box_grid(fractions, keys, 3), box_uniform(fractions, keys, count)])

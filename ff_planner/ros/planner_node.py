@@ -15,6 +15,7 @@ from typing import Any, Optional
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
@@ -29,6 +30,51 @@ from ff_planner.service.planner_service import PlannerService, RequestFields, Se
 
 NODE_ONLY = ("diagnostics_period", "executor_threads")
 ROS_BUILTIN = ("use_sim_time", "start_type_description_service")  # declared by every rclpy node
+#: name: (description with units, (from, to) range or None) of config/planner.yaml's parameters.
+#: All are read once, at start (read_only); types stay as the YAML gives them (dynamic typing),
+#: the service's configuration converts and checks them.
+PARAMETERS: dict[str, tuple[str, Optional[tuple[float, float]]]] = {
+    "default_model": ("model id used when a request leaves `model` empty: arm1dof | scara2", None),
+    "default_starts": ("multistart count when a request says 0", (1, 10_000_000)),
+    "default_time_budget": ("s, wall-clock planning budget when a request says 0", (0.0, 86400.0)),
+    "max_time_budget": ("s; requests asking for more are refused", (0.0, 86400.0)),
+    "max_steps": ("current steps per joint; larger requests are refused", (1, 100_000)),
+    "max_starts": ("multistart starts per request, at most", (1, 10_000_000)),
+    "max_move_time": ("s, longest move accepted", (0.0, 86400.0)),
+    "coast": ("s, zero-current coast at the end of every move", (0.0, 60.0)),
+    "tol": ("robustness tolerance: |dq(tf)/dp| (rad per parameter unit) and |q(tf) - qf| (rad)", (0.0, 1.0)),
+    "library_path": ("motion library (SQLite) file, shared with ff-library build; '' = none", None),
+    "use_library": ("look requests up in the motion library and store new plans there", None),
+    "warm_max_distance": ("rad (move time weighted by time_weight): re-optimise from a stored neighbour "
+                          "this close", (0.0, 1e6)),
+    "time_weight": ("rad per s of move-time difference in the neighbour distance", (0.0, 1e6)),
+    "workers": ("planner worker processes (scara2 plans use at most workers - 1)", (1, 1024)),
+    "max_pending": ("requests waiting or running; more are refused at once", (1, 1_000_000)),
+    "max_pending_long": ("scara2 requests waiting or running; 0 = max_pending // 2", (0, 1_000_000)),
+    "grace": ("s past a request's time budget before its worker is killed", (0.0, 3600.0)),
+    "motion_dir": ("folder: write every plan as an ff-motion/1 file there; '' = off", None),
+    "warmup": ("plan a small task in each worker at start (loads the compiled kernels)", None),
+    "diagnostics_period": ("s between /diagnostics messages; 0 = off", (0.0, 3600.0)),
+    "executor_threads": ("rclpy executor threads; 0 = max_pending + 4", (0, 100_000)),
+}
+
+
+def descriptor(name: str, value: Any = None) -> ParameterDescriptor:
+    """ParameterDescriptor of planner parameter ``name`` (``<model>.preset`` and
+    ``<model>.params.<key>`` included); read-only: the node reads its parameters at start."""
+    text, rng = PARAMETERS.get(name, ("", None))
+    parts = name.split(".")
+    if not text and len(parts) == 2 and parts[1] == "preset":
+        text = f"paper parameter set of model {parts[0]} (table1 | table2 | table3)"
+    elif not text and len(parts) == 3 and parts[1] == "params":
+        text = f"SI units: override of model {parts[0]}'s parameter {parts[2]} (ff_planner/model/params.py)"
+    d = ParameterDescriptor(name=name, description=(text + " (read at start)").lstrip(), read_only=True,
+                            dynamic_typing=True)
+    if rng is not None and isinstance(value, int) and not isinstance(value, bool):
+        d.integer_range = [IntegerRange(from_value=int(rng[0]), to_value=int(rng[1]), step=0)]
+    elif rng is not None and isinstance(value, float):
+        d.floating_point_range = [FloatingPointRange(from_value=float(rng[0]), to_value=float(rng[1]), step=0.0)]
+    return d
 
 
 class PlannerNode(Node):
@@ -38,7 +84,12 @@ class PlannerNode(Node):
     """
 
     def __init__(self, plan_fn: PlanFn = plan, **kwargs: Any) -> None:
-        super().__init__("ff_planner", automatically_declare_parameters_from_overrides=True, **kwargs)
+        super().__init__("ff_planner", **kwargs)
+        # every parameter the YAML gives (config_from_mapping refuses unknown names), each with its
+        # descriptor; the value (and so its type) is the YAML's
+        for name, param in sorted(self._parameter_overrides.items()):
+            if name not in ROS_BUILTIN and not name.startswith("qos_overrides"):
+                self.declare_parameter(name, param.value, descriptor(name, param.value))
         values = {name: p.value for name, p in self._parameters.items()
                   if name not in ROS_BUILTIN and not name.startswith("qos_overrides")}
         self.diagnostics_period = float(values.pop("diagnostics_period", 1.0))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 import uuid
-from typing import Any, Callable
+from typing import Any, Callable, Optional
 
 import canopen
 
@@ -47,13 +47,15 @@ def open_network(channel: str, interface: str = "virtual", notifier_cycle: float
     return net
 
 
-def mini_config(channel: str, family: str = "epos4", n: int = 1, **over: Any) -> BridgeConfig:
+def mini_config(channel: str, family: str = "epos4", n: int = 1, joint: Optional[dict] = None,
+                **over: Any) -> BridgeConfig:
     """Master settings for ``n`` joints (node ids 1..n) of ``tests.support.mini_drive.MiniEpos``
     drives on the virtual ``channel``: 10 A limit, 3 A nominal current, 5 ms SYNC, 10 ms
-    heartbeat, 0.3 s heartbeat timeout, 0.1 s setpoint watchdog; ``over`` replaces top-level keys."""
+    heartbeat, 0.3 s heartbeat timeout, 0.1 s setpoint watchdog; ``joint`` adds keys to every
+    joint, ``over`` replaces top-level keys."""
     joints = [{"name": f"joint{i + 1}", "node_id": i + 1, "family": family, "current_limit": 10.0,
                "units": {"nominal_current": 3.0, "torque_constant": 0.0267, "counts_per_rev": 2048,
-                         "gear_ratio": 54}} for i in range(n)]
+                         "gear_ratio": 54}, **(joint or {})} for i in range(n)]
     data: dict[str, Any] = {"bus": {"interface": "virtual", "channel": channel}, "joints": joints,
                             "sync_period": 0.005, "heartbeat_producer_ms": 10,
                             "heartbeat_timeout": 0.3, "setpoint_timeout": 0.1,

@@ -66,8 +66,9 @@ def test_stack_starts_all_four_and_stops_them_by_pid(tmp_path):
 @pytest.mark.integration
 def test_ff_bringup_stops_everything_when_a_child_dies(tmp_path, ros_env):
     env = dict(ros_env)
+    bag = tmp_path / "run_bag"
     proc = subprocess.Popen([sys.executable, "-u", "-m", "ff_executor.bringup.stack", "--no-planner",
-                             "--run-dir", str(tmp_path)], env=env, stdout=subprocess.PIPE,
+                             "--run-dir", str(tmp_path), "--record", str(bag)], env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
     try:
         lines = []
@@ -84,6 +85,8 @@ def test_ff_bringup_stops_everything_when_a_child_dies(tmp_path, ros_env):
         out, _ = proc.communicate(timeout=60)
         assert proc.returncode == 1
         assert "ff_executor died" in out and "stopped" in out
+        assert "ff_record (0)" in out, out          # the recorder closed its bag on the way out
+        assert (bag / "metadata.yaml").is_file() and list(bag.glob("*.mcap"))
         for l in lines:
             if " up (" in l:
                 child = int(l.rsplit("pid", 1)[1])
@@ -107,3 +110,41 @@ def test_timed_wrapper_runs_the_module_with_a_fine_switch_interval(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "ff_executor.bringup.timed", "--switch-interval", "5",
                           "probe_mod"], env=env, capture_output=True, text=True, timeout=30)
     assert bad.returncode != 0 and "switch-interval" in bad.stderr
+
+
+def test_environment_is_honoured_when_set_and_isolation_is_the_default(tmp_path):
+    from ff_executor.bringup.stack import environment_options
+
+    a = build_parser().parse_args([])
+    assert environment_options(a, {}) == {"domain_id": None, "run_dir": None, "log_dir": None, "record": None}
+    got = environment_options(a, {"ROS_DOMAIN_ID": "42", "ROS_LOG_DIR": str(tmp_path)})
+    assert got["domain_id"] == 42 and got["log_dir"] == str(tmp_path)
+    a = build_parser().parse_args(["--domain-id", "7", "--record", str(tmp_path / "bag")])
+    got = environment_options(a, {"ROS_DOMAIN_ID": "42"})
+    assert got["domain_id"] == 7 and got["record"] == str(tmp_path / "bag")
+    with pytest.raises(ValueError, match="exists"):
+        environment_options(build_parser().parse_args(["--record", str(tmp_path)]), {})
+    with pytest.raises(ValueError, match="whole number"):
+        environment_options(build_parser().parse_args([]), {"ROS_DOMAIN_ID": "abc"})
+
+
+def test_print_config_shows_the_values_from_config(capsys, tmp_path, monkeypatch):
+    import yaml
+
+    from ff_executor.bringup import demo
+    from ff_executor.bringup.stack import CONFIG_DIR, COUNTS_PER_REV
+
+    monkeypatch.setenv("ROS_DOMAIN_ID", "17")
+    monkeypatch.setenv("ROS_LOG_DIR", str(tmp_path / "logs"))
+    assert main(["--print-config", "--run-dir", str(tmp_path / "run")]) == 0
+    cfg = yaml.safe_load(capsys.readouterr().out)
+    assert cfg["ros"] == {"ROS_DOMAIN_ID": "17", "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+                          "ROS_LOG_DIR": str(tmp_path / "logs")}
+    sim_cfg = yaml.safe_load((CONFIG_DIR / "sim_arm1dof.yaml").read_text())["ff_sim_driver"]["ros__parameters"]
+    exe_sim = yaml.safe_load((CONFIG_DIR / "executor_sim.yaml").read_text())["ff_executor"]["ros__parameters"]
+    assert cfg["ff_sim_driver"]["parameters"]["counts_per_rev"] == sim_cfg["counts_per_rev"] == COUNTS_PER_REV
+    assert cfg["ff_hwbridge"]["config"]["joints"][0]["units"]["counts_per_rev"] == COUNTS_PER_REV
+    assert cfg["ff_executor"]["parameters"]["lead_time"] == exe_sim["lead_time"]
+    assert cfg["ff_executor"]["parameters"]["keepalive"] == 0.25     # from config/executor.yaml
+    assert demo.main(["--print-config", "--domain-id", "5"]) == 0
+    assert yaml.safe_load(capsys.readouterr().out)["ros"]["ROS_DOMAIN_ID"] == "5"

@@ -227,6 +227,7 @@ def test_second_goal_is_refused_while_one_runs(stack):
     time.sleep(0.2)
     status, result = run_goal(client, goal)
     assert status == GoalStatus.STATUS_ABORTED and "another goal is running" in result.message
+    assert repr(goal.profile.profile_id) in result.message and "None" not in result.message, result.message
     done = wait(first.get_result_async())
     assert done.status == GoalStatus.STATUS_SUCCEEDED, done.result.message
     assert len(bridge.received) == 6      # only the first goal's setpoints
@@ -255,3 +256,19 @@ def test_cancel_sends_zero_current_at_once(stack):
         if c0 != 0.0:
             assert t1 - t0 <= 1000, (t0, c0, t1)
     assert after[-1][1] == 0.0
+
+
+def test_parameters_carry_descriptors_with_units_ranges_and_read_only():
+    from rcl_interfaces.msg import ParameterDescriptor
+
+    from ff_executor.ros.executor_node import PARAMETERS, descriptor
+
+    for name in PARAMETERS:
+        d = descriptor(name)
+        assert isinstance(d, ParameterDescriptor) and d.description
+    lead = descriptor("lead_time")
+    assert lead.read_only and lead.description.startswith("s,")
+    assert lead.floating_point_range[0].from_value == 0.0 and lead.floating_point_range[0].to_value > 1.0
+    assert descriptor("max_steps").integer_range[0].from_value == 1
+    assert not descriptor("feedback_rate").read_only      # read for each goal
+    assert descriptor("start_tolerance").floating_point_range[0].to_value == float("inf")

@@ -7,6 +7,7 @@ tables, TPDOs on SYNC, heartbeat, EMCY + Fault on request. Its "physics" is a tr
 """
 from __future__ import annotations
 
+import threading
 import time
 
 import pytest
@@ -130,13 +131,64 @@ def test_setpoint_watchdog_and_feedback_loss(rig):
 
 def test_missing_node_gives_clear_error():
     channel = unique_channel("ff-test")
-    master = EposMaster(mini_config(channel, boot_timeout=0.2))
+    master = EposMaster(mini_config(channel, boot_timeout=0.2, boot_wait=0.5))
     master.connect()
     try:
-        with pytest.raises(EposError, match="no boot-up"):
+        t0 = time.monotonic()
+        with pytest.raises(EposError, match=r"no boot-up frame within 0.5 s \([23] NMT reset"):
             master.configure()
+        assert time.monotonic() - t0 >= 0.5                   # it did wait, with retries
     finally:
         master.disconnect()
+
+
+def test_a_drive_powered_late_is_waited_for(caplog):
+    channel = unique_channel("ff-test")
+    cfg = mini_config(channel, boot_timeout=0.2, boot_wait=5.0)
+    master = EposMaster(cfg)
+    master.connect()
+    drives = []
+
+    def power_on_late() -> None:
+        time.sleep(0.7)
+        drives.append(MiniEpos(channel, 1, cfg.joints[0].units))
+
+    t = threading.Thread(target=power_on_late)
+    t.start()
+    try:
+        with caplog.at_level("WARNING", logger="ff_hwbridge.drive.epos"):
+            master.configure()                                # blocks until the drive is there
+        t.join()
+        assert "waiting for the drive" in caplog.text
+        assert _wait(lambda: drives[0].node.nmt.state == "OPERATIONAL")
+    finally:
+        master.disconnect()
+        t.join()
+        for d in drives:
+            d.close()
+
+
+def test_identity_is_checked(rig):
+    master, drives = rig
+    drives[0].node.data_store.setdefault(0x1018, {})[1] = (0x1234).to_bytes(4, "little")
+    with pytest.raises(EposError, match=r"vendor id 0x1018:01 = 0x00001234, not maxon"):
+        master.configure()
+
+
+def test_configure_writes_the_drive_reactions_and_the_master_heartbeat(rig):
+    master, drives = rig
+    master.configure()
+    sdo = drives[0].node.sdo
+    c = master.config
+    assert c.master_heartbeat_ms == 100 and c.master_heartbeat_timeout_ms == 300   # defaults: on
+    # (300 = max(3 x 100 ms, heartbeat_timeout 0.3 s))
+    assert int(sdo[0x1016][1].raw) == (127 << 16) | 300
+    assert (int(sdo[0x605A].raw), int(sdo[0x605E].raw), int(sdo[0x6007].raw),
+            int(sdo[0x1029][1].raw)) == (2, 2, 1, 0)
+    assert c.rpdo_timeout_ms == 600                            # max(500 ms, 2 x heartbeat_timeout)
+    assert int(sdo[0x1400][5].raw) == 600                     # RPDO deadline, ms
+    assert (int(sdo[0x60C2][1].raw), int(sdo[0x60C2][2].raw)) == (5, -3)   # 5 ms SYNC
+    assert "joint1.drive_notes" not in master.status()       # every object was there
 
 
 def test_node_leaving_operational_or_rebooting_latches(rig):
@@ -186,13 +238,37 @@ def test_master_heartbeat_is_produced_and_consumed_by_the_drive():
     master.connect()
     try:
         master.configure()
-        assert int(drive.node.sdo[0x1016][1].raw) == (127 << 16) | 60
+        # consumer time max(3 x 20 ms, heartbeat_timeout 0.3 s)
+        assert int(drive.node.sdo[0x1016][1].raw) == (127 << 16) | 300
         assert _wait(lambda: len(seen) >= 3)
         assert set(seen) == {b"\x05"}
         master.disconnect()
         n = len(seen)
         time.sleep(0.1)
         assert len(seen) <= n + 1                              # stops with the master
+    finally:
+        master.disconnect()
+        drive.close()
+
+
+@pytest.mark.parametrize("joint, words", [({"position_limits": [-0.1, 0.1]}, "position envelope"),
+                                          ({"velocity_limit": 0.2}, "velocity envelope")])
+def test_envelope_latches_the_safe_state_and_rearms_inside(joint, words):
+    channel = unique_channel("ff-test")
+    cfg = mini_config(channel, joint=joint)
+    drive = MiniEpos(channel, 1, cfg.joints[0].units)
+    master = EposMaster(cfg)
+    master.connect()
+    try:
+        configure_and_enable(master)
+        master.command_currents([0.6])                       # the stand-in moves: 0.39 rad/s
+        assert _wait(lambda: master.latched, 2.0)
+        assert words in master.fault_reason and "joint1" in master.fault_reason
+        assert _wait(lambda: drive.setpoint_raw == 0)         # zero current at the drive
+        master.fault_reset()                                  # still outside: not re-latched ...
+        assert master.wait_for_state(State.OPERATION_ENABLED, 2.0)
+        time.sleep(0.05)
+        assert not master.latched
     finally:
         master.disconnect()
         drive.close()

@@ -144,7 +144,7 @@ def test_config_file_parameter_is_used(ros_env, tmp_path):
 
     cfg = tmp_path / "bridge.yaml"
     cfg.write_text(f"bus: {{interface: virtual, channel: {unique_channel('ff-none')}}}\n"
-                   "boot_timeout: 0.2\n"
+                   "boot_timeout: 0.2\nboot_wait: 0.3\n"
                    "joints:\n"
                    "  - {name: a, node_id: 5, family: epos2, current_limit: 2.0}\n"
                    "  - {name: b, node_id: 6, family: epos4, current_limit: 3.0}\n")
@@ -158,3 +158,31 @@ def test_config_file_parameter_is_used(ros_env, tmp_path):
         node.destroy_node()
     finally:
         rclpy.shutdown(context=ctx)
+
+
+def test_parameters_show_the_config_in_use_and_estop(bridge):
+    from rclpy.parameter import Parameter
+    from std_srvs.srv import Trigger
+
+    node, client, drive = bridge
+    assert node.get_parameter("boot_wait").value == 10.0      # a default before configure
+    assert node.get_parameter("master_heartbeat_ms").value == 100   # fail-safe default: on
+    node.trigger_configure()
+    node.trigger_activate()
+    assert node.active
+    assert node.get_parameter("sync_period").value == 0.005
+    # resolved: max(3 x 100 ms, heartbeat_timeout 1 s); rpdo: max(500 ms, 2 x 1 s)
+    assert node.get_parameter("master_heartbeat_timeout_ms").value == 1000
+    assert node.get_parameter("rpdo_timeout_ms").value == 2000
+    assert node.get_parameter("bus_channel").value == node.config.bus.channel
+    res = node.set_parameters([Parameter("setpoint_timeout", value=9.0)])[0]
+    assert not res.successful and "cleanup" in res.reason
+    assert node.config.setpoint_timeout == 0.3
+    estop = client.create_client(Trigger, "/ff_hwbridge/estop")
+    assert estop.wait_for_service(timeout_sec=5.0)
+    fut = estop.call_async(Trigger.Request())
+    assert _wait(fut.done, 5.0)
+    assert fut.result().success and "e-stop: service ~/estop" in fut.result().message
+    assert node.master.latched and "e-stop" in node.master.fault_reason
+    assert _wait(lambda: drive.state.value != "Operation enabled")
+    assert drive.setpoint_raw == 0

@@ -11,7 +11,10 @@ import pytest
 from canopen.sdo import SdoAbortedError, SdoCommunicationError
 
 from ff_hwbridge.protocol.cia402 import State
+from ff_hwbridge.protocol.epos_od import SUPPORTED_MODES, VELOCITY_UNIT_RPM
+from ff_hwbridge.sim.arm import SimArm
 from ff_hwbridge.sim.drive import DriveConfig, SimConfigError, SimEpos, build_object_dictionary
+from ff_planner.model.params import default_params
 from tests.support.canopen_helpers import open_network, waiter
 
 _chan = itertools.count()
@@ -376,6 +379,8 @@ def test_bad_settings_are_refused():
 
 def test_heartbeat_consumer_faults_on_a_silent_master(rig):
     rig.configure_contract_pdos()
+    rig.node.sdo[0x6007].raw = 1                          # abort connection: fault signal
+    rig.node.sdo[0x1029][1].raw = 1                       # NMT state unchanged
     rig.node.sdo[0x1016][1].raw = (127 << 16) | 100      # consume node 127's heartbeat, 100 ms
     task = rig.net_m.send_periodic(0x77F, [0x05], 0.005)
     try:
@@ -393,3 +398,113 @@ def test_heartbeat_consumer_faults_on_a_silent_master(rig):
     rig.node.sdo[0x1016][1].raw = 0                       # consumer off, then fault reset
     rig.rpdo(0x80)
     assert wait_for(lambda: rig.drive.state is State.SWITCH_ON_DISABLED)
+
+    assert rig.node.sdo[0x603F].raw == 0                  # error code cleared by the reset
+
+
+@pytest.mark.parametrize("option, state", [(0, State.OPERATION_ENABLED), (2, State.SWITCH_ON_DISABLED),
+                                           (3, State.QUICK_STOP_ACTIVE)])
+def test_communication_error_follows_abort_connection_option(rig, option, state):
+    """0x6007: 0 EMCY only (the current goes on), 2 disable voltage, 3 quick stop (maxon's
+    default); then 0x1029:01 = 0 (default): PRE-OPERATIONAL."""
+    rig.configure_contract_pdos()
+    assert rig.node.sdo[0x6007].raw == 3 and rig.node.sdo[0x1029][1].raw == 0   # maxon defaults
+    rig.node.sdo[0x605A].raw = 6                          # stay in quick stop active
+    rig.node.sdo[0x6007].raw = option
+    rig.node.sdo[0x1016][1].raw = (127 << 16) | 60
+    task = rig.net_m.send_periodic(0x77F, [0x05], 0.005)
+    try:
+        rig.enable()
+        rig.rpdo(0x0F, 500)
+        assert wait_for(lambda: rig.drive.applied_current == pytest.approx(1.5))
+    finally:
+        task.stop()
+    assert wait_for(lambda: any(d[:2] == b"\x30\x81" for d in rig.seen(0x81)))   # EMCY 0x8130
+    assert wait_for(lambda: rig.drive.nmt_state == "PRE-OPERATIONAL")
+    assert rig.drive.state is state
+    assert rig.drive.applied_current == (pytest.approx(1.5) if option == 0 else 0.0)
+
+
+def test_rpdo_timeout_faults_a_drive_whose_master_hangs(rig):
+    """RxPDO1 event timer 0x1400:05: armed by the first RPDO; RPDOs that stop (a hung master,
+    heartbeat or not) fault the drive with EMCY 0x8250 (0x6007 = 1)."""
+    rig.configure_contract_pdos()
+    rig.node.sdo[0x6007].raw = 1
+    rig.node.sdo[0x1400][5].raw = 80                      # ms
+    rig.enable()
+    t_end = time.monotonic() + 0.3
+    while time.monotonic() < t_end:                       # a live master: RPDOs every 10 ms
+        t_last = time.monotonic()
+        rig.rpdo(0x0F, 300)
+        time.sleep(0.01)
+    assert rig.drive.state is State.OPERATION_ENABLED
+    assert wait_for(lambda: rig.drive.state is State.FAULT)
+    assert time.monotonic() - t_last >= 0.08              # not before the timer ran out
+    assert rig.drive.applied_current == 0.0
+    assert rig.node.sdo[0x603F].raw == 0x8250
+    assert rig.node.sdo[0x1003][1].raw == 0x8250
+
+
+def test_warning_emcy_does_not_fault(rig):
+    rig.configure_contract_pdos()
+    rig.enable()
+    rig.rpdo(0x0F, 500)
+    assert wait_for(lambda: rig.drive.applied_current == pytest.approx(1.5))
+    rig.drive.raise_warning(0xFF01)
+    assert wait_for(lambda: any(d[:2] == b"\x01\xFF" for d in rig.seen(0x81)))
+    assert rig.drive.state is State.OPERATION_ENABLED
+    assert rig.drive.applied_current == pytest.approx(1.5)
+    assert rig.node.sdo[0x6041].raw & (1 << 7)            # statusword bit 7: warning
+    rig.drive.clear_warning()
+    assert not rig.node.sdo[0x6041].raw & (1 << 7)
+    rig.rpdo(0x0F, 5000)                                  # 15 A requested, limit 10 A
+    assert wait_for(lambda: rig.drive.applied_current == pytest.approx(10.0))
+    assert rig.node.sdo[0x6041].raw & (1 << 11)           # internal limit active
+
+
+def test_epos4_objects_a_stranger_reads():
+    """What a CiA 402 master reads from an EPOS4 before it trusts it, with the configured motor
+    data and maxon's defaults."""
+    r = Rig(nominal_current=2.5, counts_per_rev=4096)
+    r.drive.boot()
+    try:
+        sdo = r.node.sdo
+        assert sdo[0x1000].raw & 0xFFFF == 402 and sdo[0x1018][1].raw == 0xFB
+        assert sdo[0x6502].raw == SUPPORTED_MODES["epos4"] and sdo[0x6502].raw & (1 << 9)   # CST
+        assert (sdo[0x60C2][1].raw, sdo[0x60C2][2].raw) == (0, -3)
+        assert sdo[0x603F].raw == 0
+        assert (sdo[0x605A].raw, sdo[0x605E].raw, sdo[0x6007].raw, sdo[0x1029][1].raw) == (2, 2, 3, 0)
+        assert sdo[0x6085].raw == 10000
+        assert sdo[0x3000][5].raw == 4096
+        assert sdo[0x60A9].raw == VELOCITY_UNIT_RPM
+        assert sdo[0x3001][1].raw == 2500 and sdo[0x3001][5].raw == 26700
+        assert sdo[0x6076].raw == 2500 * 26700 // 1000
+    finally:
+        r.close()
+
+
+def _sdo_latency_after_idle(node, idle: float) -> float:
+    time.sleep(idle)
+    t0 = time.perf_counter()
+    _ = node.sdo[0x6064].raw                              # a live object: samples the plant
+    return time.perf_counter() - t0
+
+
+def test_physics_runs_on_its_own_clock_not_in_the_can_thread():
+    """The plant advances on its own thread: the first SDO after an idle spell answers as fast
+    as after a short one (no catch-up integration inside the CAN callback)."""
+    params = default_params("arm1dof")
+    arm = SimArm(params, 0.0)
+    arm.start_clock(0.002)
+    r = Rig(plant=arm.port(0))
+    r.drive.boot()
+    try:
+        r.enable()
+        r.rpdo(0x0F, 300)                                 # moving: every step has work to do
+        short = _sdo_latency_after_idle(r.node, 0.2)
+        long = _sdo_latency_after_idle(r.node, 2.0)
+        assert long < 0.05, long
+        assert long < short + 0.02, (short, long)         # no growth with the idle time
+    finally:
+        r.close()
+        arm.stop_clock()

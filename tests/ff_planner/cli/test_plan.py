@@ -24,7 +24,11 @@ from ff_planner.export.motion_file import read_motion
     (["--set", "foo=1"], "unknown parameter"),
     (["--set", "pc=-1"], "must be >= 0"),
     (["--set", "pc"], "KEY=VALUE"),
-    (["--steps", "0"], "--steps must be >= 1"),
+    (["--tf", "1e5"], "too long"),
+    (["--tf", "1000"], "too long"),
+    (["--set", "pc=0.3,0.19"], "give one number"),
+    (["--qf", "-inf"], "finite"),
+    (["--q0", "-nan"], "finite"),
     (["--steps", "-3"], "--steps must be >= 1"),
     (["--model", "scara2", "--qf", "1"], "needs 2 value"),
     (["--model", "robot"], "invalid choice"),
@@ -114,7 +118,7 @@ def test_config_files_load_and_flags_override(tmp_path, capsys):
     bad.write_text("task: {qf: [1.0], speed: 3}\n")
     assert main(["--config", str(bad)]) == 2
     assert "speed" in capsys.readouterr().err
-    bad.write_text("plan: {steps: 0}\n")
+    bad.write_text("plan: {steps: -2}\n")
     assert main(["--config", str(bad)]) == 2
     assert "--steps must be >= 1" in capsys.readouterr().err
     bad.write_text("task: {tf: .nan}\n")
@@ -136,3 +140,21 @@ def test_progress_printer_is_quiet_at_first_then_throttled():
     quiet = ProgressPrinter(delay=3600.0, stream=out)
     quiet({"starts_done": 1})
     assert quiet.lines == 0
+
+
+def test_negative_exponent_values_are_values(capsys):
+    """A value such as -1e-1 after --qf is a number, not an option."""
+    assert main(["--qf", "-1e-1", "--objective", "energy-optimal", "--json", "--quiet"]) == 0
+    d = json.loads(capsys.readouterr().out)
+    assert abs(d["rest_position"][0] + 0.1) < 1e-6
+
+
+def test_certificate_printed_and_written(tmp_path, capsys):
+    out = tmp_path / "m.json"
+    assert main(["--objective", "energy-optimal", "-o", str(out), "--quiet"]) == 0
+    text = capsys.readouterr().out
+    assert "worst rest error" in text and "moving at tf" in text
+    cert = json.loads(out.read_text())["certificate"]
+    assert cert["worst_rest_error"] > 0.1      # the energy-optimal plan is not robust
+    assert set(cert["per_parameter"]) == {"pv", "pc", "pt"}
+    assert len(cert["switch_timing_per_100us"]) == len(json.loads(out.read_text())["currents"])

@@ -128,3 +128,16 @@ def test_robust_plan_file_stays_robust_when_resimulated_perturbed(tmp_path, robu
             # first-order robust: a 0.1 % change costs at most ~curvature * dp^2 (<< 0.1 % of a
             # non-robust plan's ~3e-3 rad per 0.1 %)
             assert chk.max_error <= 2e-5, (name, s, chk.error)
+
+
+def test_certificate_round_trips_through_the_motion_file(tmp_path):
+    from ff_planner.export.motion_file import read_motion, write_motion
+    from ff_planner.optimize.planner import plan
+
+    r = plan(PlanRequest(objective="energy-optimal"))
+    path = write_motion(tmp_path / "m.json", r)
+    cert = json.loads(path.read_text())["certificate"]
+    assert cert["worst_rest_error"] == pytest.approx(r.certificate.worst_rest_error)
+    assert cert["worst_at"] == r.certificate.worst_at
+    assert cert["units"]["worst_rest_error"] == "rad"
+    assert read_motion(path).extra["certificate"]["box"] == {"pv": 0.2, "pc": 0.2, "pt": 0.2}

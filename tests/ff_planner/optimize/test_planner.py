@@ -27,7 +27,7 @@ from ff_planner.optimize.planner import CheckedRequest, Route, check, plan, reac
     (dict(model="arm7"), "UNKNOWN_MODEL", "arm7"),
     (dict(objective="fastest"), "INVALID_REQUEST", "objective"),
     (dict(qf=(1.0, 2.0)), "INVALID_REQUEST", "qf needs 1"),
-    (dict(starts=0), "INVALID_REQUEST", "starts"),
+    (dict(starts=-1), "INVALID_REQUEST", "starts"),
 ])
 def test_bad_requests_raise_clear_planning_errors(kw, code, needle):
     with pytest.raises(PlanningError) as ei:

@@ -1,0 +1,82 @@
+"""ff-ctl and ff-record without a running system: usage errors (exit 2), help, value parsing."""
+from __future__ import annotations
+
+import argparse
+
+import pytest
+from rcl_interfaces.msg import ParameterType
+
+from ff_executor.ros import ctl, record
+from ff_msgs_py.launch import client_ros_settings
+
+SUBCOMMANDS = ("graph", "lifecycle", "fault-reset", "diag", "param", "plan", "execute", "record")
+
+
+def test_every_subcommand_has_help(capsys):
+    assert ctl.main(["--help"]) == 0
+    top = capsys.readouterr().out
+    for sub in SUBCOMMANDS:
+        assert sub in top
+        assert ctl.main([sub, "--help"]) == 0
+        out = capsys.readouterr().out
+        assert out.startswith("usage: ff-ctl " + sub), out[:80]
+    # plan and execute take ff-plan's options
+    ctl.main(["execute", "--help"])
+    out = capsys.readouterr().out
+    assert all(opt in out for opt in ("--uncertain", "--objective", "--tolerance"))
+    assert record.main(["--help"]) == 0
+    assert "--duration" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("argv, text", [
+    (["bogus"], "invalid choice"),
+    ([], "required"),
+    (["lifecycle", "set", "ff_hwbridge"], "transition or state"),
+    (["param", "get", "ff_executor"], "NODE NAME"),
+    (["execute"], "motion file or plan options"),
+    (["plan", "--coast", "0.1"], "planner node's settings"),
+    (["plan", "--tf", "0.01"], "coast"),
+    (["execute", "nope.json", "--qf", "1"], "not both"),
+    (["graph", "--timeout", "0"], "--timeout"),
+])
+def test_bad_usage_exits_2_with_one_line(capsys, argv, text):
+    assert ctl.main(argv) == 2
+    err = capsys.readouterr().err
+    assert text in err and err.count("\n") == 1, err
+
+
+def test_bad_domain_and_existing_bag_folder_exit_2(capsys, tmp_path, monkeypatch):
+    monkeypatch.setenv("ROS_DOMAIN_ID", "x1")
+    assert ctl.main(["graph"]) == 2
+    assert "ROS_DOMAIN_ID" in capsys.readouterr().err
+    monkeypatch.setenv("ROS_DOMAIN_ID", "300")
+    assert record.main(["-o", str(tmp_path)]) == 2
+    assert "0..232" in capsys.readouterr().err
+
+
+def test_client_ros_settings_honour_the_environment_and_stay_on_loopback():
+    assert client_ros_settings(None, {}) == (0, {"ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST",
+                                                 "ROS_DOMAIN_ID": "0"})
+    dom, env = client_ros_settings(None, {"ROS_DOMAIN_ID": "42"})
+    assert dom == 42 and env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
+    dom, env = client_ros_settings(7, {"ROS_DOMAIN_ID": "42", "ROS_AUTOMATIC_DISCOVERY_RANGE": "SUBNET"})
+    assert dom == 7 and env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "SUBNET"
+
+
+def test_parameter_values_from_text_take_the_current_type():
+    v = ctl._value_msg("25", ParameterType.PARAMETER_DOUBLE)
+    assert v.type == ParameterType.PARAMETER_DOUBLE and v.double_value == 25.0
+    v = ctl._value_msg("[1, 2.5]", ParameterType.PARAMETER_DOUBLE_ARRAY)
+    assert v.type == ParameterType.PARAMETER_DOUBLE_ARRAY and list(v.double_array_value) == [1.0, 2.5]
+    v = ctl._value_msg("true", ParameterType.PARAMETER_BOOL)
+    assert v.type == ParameterType.PARAMETER_BOOL and v.bool_value is True
+    v = ctl._value_msg("123", ParameterType.PARAMETER_STRING)
+    assert v.type == ParameterType.PARAMETER_STRING and v.string_value == "123"
+
+
+def test_plan_options_are_ff_plans():
+    a = ctl.build_parser().parse_args(["plan", "--qf", "0.5", "--tf", "0.8", "--uncertain", "pc", "--set", "pc=0.2"])
+    req = ctl._plan_request(a)
+    assert req.model == "arm1dof" and list(req.qf) == [0.5] and req.tf == 0.8 and list(req.uncertain) == ["pc"]
+    assert req.resolved_params().pc == 0.2
+    assert isinstance(a, argparse.Namespace) and a.plan_service == "/ff_planner/plan"

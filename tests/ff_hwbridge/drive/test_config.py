@@ -1,0 +1,55 @@
+"""The bridge configuration's drive-side safety keys: fail-safe defaults, the shipped configs, and
+clear refusals."""
+from __future__ import annotations
+
+import pytest
+import yaml
+
+from ff_hwbridge.drive.config import ConfigError, load_config
+
+BASE = {"bus": {"interface": "virtual", "channel": "x"},
+        "joints": [{"name": "j", "node_id": 1, "current_limit": 5.0}]}
+
+
+def test_defaults_are_fail_safe():
+    c = load_config(BASE)
+    assert c.master_heartbeat_ms == 100 and c.master_heartbeat_timeout_ms == 300
+    assert c.rpdo_timeout_ms == 500
+    slow = load_config({**BASE, "heartbeat_timeout": 1.0})   # as patient with the master as with drives
+    assert (slow.master_heartbeat_timeout_ms, slow.rpdo_timeout_ms) == (1000, 2000)
+    assert load_config({**BASE, "rpdo_timeout_ms": 0}).rpdo_timeout_ms == 0      # off
+    assert (c.quick_stop_option, c.fault_reaction_option, c.abort_connection_option,
+            c.communication_error_behaviour) == (2, 2, 1, 0)
+    assert c.scaling_source == "check" and c.check_identity and c.boot_wait == 10.0
+
+
+@pytest.mark.parametrize("path", ["config/bridge_epos4_1dof.yaml", "config/bridge_sim_scara2.yaml"])
+def test_shipped_configs_stop_the_drive_when_the_bridge_dies(path):
+    c = load_config(path)
+    assert c.master_heartbeat_ms > 0 and 0 < c.master_heartbeat_timeout_ms <= 500
+    assert c.rpdo_timeout_ms > 0 and c.abort_connection_option == 1
+
+
+def test_ros_params_sim_config_has_the_master_heartbeat_on():
+    p = yaml.safe_load(open("config/bridge_ros_params_sim_1dof.yaml"))["ff_hwbridge"]["ros__parameters"]
+    assert p["master_heartbeat_ms"] > 0 and p["rpdo_timeout_ms"] > 0
+
+
+@pytest.mark.parametrize("key, value, words", [
+    ("quick_stop_option", 9, "quick_stop_option must be an integer 0..8"),
+    ("abort_connection_option", -1, "abort_connection_option must be an integer 0..3"),
+    ("scaling_source", "yaml", "scaling_source must be one of"),
+    ("master_heartbeat_timeout_ms", 50, "master_heartbeat_timeout_ms must be an integer ms above"),
+    ("boot_wait", -1, "boot_wait must be"),
+])
+def test_bad_drive_settings_are_refused(key, value, words):
+    with pytest.raises(ConfigError, match=words):
+        load_config({**BASE, key: value})
+
+
+def test_envelope_keys():
+    j = load_config({**BASE, "joints": [{**BASE["joints"][0], "position_limits": [-1, 2],
+                                         "velocity_limit": 3}]}).joints[0]
+    assert j.position_limits == (-1.0, 2.0) and j.velocity_limit == 3.0
+    with pytest.raises(ConfigError, match=r"joints\[0\].position_limits must be finite with low < high"):
+        load_config({**BASE, "joints": [{**BASE["joints"][0], "position_limits": [2, 1]}]})
