@@ -76,7 +76,7 @@ def _fmt(values: Any, digits: int = 4) -> str:
 # --- graph ------------------------------------------------------------------------------------
 def graph(s: Session, a: argparse.Namespace) -> int:
     """Nodes, topics (types, publisher/subscriber counts), services and actions of the domain."""
-    s.settle_graph(a.wait)
+    s.settle_graph(a.wait, expect=[_node_name(n) for n in a.expect])
     me = s.node.get_fully_qualified_name()
     nodes = sorted(f"{ns.rstrip('/')}/{n}" for n, ns in s.node.get_node_names_and_namespaces()
                    if f"{ns.rstrip('/')}/{n}" != me and (a.all or not n.startswith("_")))
@@ -457,6 +457,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_common(g)
     g.add_argument("--wait", type=float, default=5.0, metavar="S",
                    help="discovery: wait until the graph is steady for 1.5 s, at most S s (default 5)")
+    g.add_argument("--expect", nargs="+", default=[], metavar="NODE",
+                   help="keep waiting (up to --wait) until these nodes are discovered, e.g. ff_hwbridge")
     g.add_argument("--all", action="store_true", help="also hidden nodes, action internals, parameter services")
     g.add_argument("--json", action="store_true", help="print JSON")
     g.set_defaults(func=graph)

@@ -11,7 +11,7 @@ import itertools
 import os
 import threading
 import time
-from typing import Any, Optional
+from typing import Any, Optional, Sequence
 
 import rclpy
 from rclpy.executors import MultiThreadedExecutor
@@ -84,10 +84,11 @@ class Session:
         finally:
             self.node.destroy_client(client)
 
-    def settle_graph(self, timeout: float, quiet: float = 1.5) -> None:
+    def settle_graph(self, timeout: float, quiet: float = 1.5, expect: Sequence[str] = ()) -> None:
         """Wait until discovery is steady: the graph (nodes, topics, endpoints) has not changed for
-        ``quiet`` s; at most ``timeout`` s. (Fast DDS discovers a node's endpoints one by one, in
-        0.25-2 s on loopback.)"""
+        ``quiet`` s and every node named in ``expect`` (e.g. "/ff_hwbridge") is in it; at most
+        ``timeout`` s. (Fast DDS discovers a node's endpoints one by one, in 0.25-2 s on loopback;
+        a busy process may join seconds after the others.)"""
         end = time.monotonic() + timeout
         last: object = None
         since = time.monotonic()
@@ -98,6 +99,7 @@ class Session:
                 for t, _ in n.get_topic_names_and_types()), sorted(s for s, _ in n.get_service_names_and_types()))
             if now != last:
                 last, since = now, time.monotonic()
-            elif now[0] and time.monotonic() - since >= quiet:
+            elif now[0] and time.monotonic() - since >= quiet and all(
+                    e in {ns.rstrip("/") + "/" + nm for nm, ns in now[0]} for e in expect):
                 return
             time.sleep(0.1)
