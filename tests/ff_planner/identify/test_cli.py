@@ -35,6 +35,7 @@ def test_simulate_then_fit_records(tmp_path, capsys):
     assert out["ff_plan_box_args"].startswith("--box pv=")
 
 
+@pytest.mark.integration     # a fresh interpreter in another process
 def test_offline_entry_point_loads_no_ros():
     """The console script's module and the offline CLI import no rclpy (only --sim does)."""
     code = ("import sys, ff_executor.bringup.identify, ff_planner.cli.identify; "
