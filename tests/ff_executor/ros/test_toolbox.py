@@ -112,7 +112,7 @@ def test_plan_then_execute_a_motion_file_while_recording(stack, capsys, tmp_path
     assert (bag / "metadata.yaml").is_file()
     (mcap,) = bag.glob("*.mcap")
     counts: Counter[str] = Counter()
-    truth, measured, feedback = [], [], []
+    measured, feedback = [], []
     with open(mcap, "rb") as f:
         decoders = {}
         for schema, channel, message in make_reader(f).iter_messages():
@@ -120,8 +120,6 @@ def test_plan_then_execute_a_motion_file_while_recording(stack, capsys, tmp_path
                 decoders[schema.id] = decoder(schema.name, schema.data.decode())
             m = decoders[schema.id](message.data)    # every message decodes
             counts[channel.topic] += 1
-            if channel.topic == "/ff_sim_driver/ground_truth":
-                truth.append(m.position[0])
             if channel.topic == "/ff_hwbridge/joint_states":
                 measured.append(m.position[0])
             if channel.topic == "/ff_executor/execute/_action/feedback":
