@@ -6,7 +6,8 @@
 ``ros2 bag`` is not on PyPI; the bag is written with the ``rosbags`` package (the [record] extra)
 in rosbag2 format version 9 with MCAP storage, so ``ros2 bag``, Foxglove and the ``mcap`` readers
 open it. Messages are stored as received (serialized CDR, subscriptions with ``raw=True``), stamped
-with the receive time on the ROS clock (ns); each topic carries its type's full definition
+with the middleware's reception time (ns, system clock; on stop, messages already queued are
+written before the bag closes); each topic carries its type's full definition
 (``ff_msgs_py.definitions``: ff_msgs types from the interface files, including the action feedback
 message) and the publishers' type hash (RIHS01) and QoS. Each subscription takes the
 publishers' reliability and durability (a reliable, transient-local subscription would not hear
@@ -109,6 +110,7 @@ class Recorder:
         self._lock = threading.Lock()
         self._conns: dict[str, Any] = {}
         self._subs: list[Any] = []
+        self._last_rx: dict[str, int] = {}    # topic -> reception time of its newest message (ns)
         self.summary = RecordSummary(self.path)
         self._t0 = time.monotonic()
         self._closed = False
@@ -149,15 +151,33 @@ class Recorder:
             self.summary.counts[topic] = 0
             self.summary.types[topic] = typename
 
-        def on_raw(data: bytes) -> None:
-            stamp = self.node.get_clock().now().nanoseconds
+        def on_raw(data: bytes, info: Any) -> None:
+            # the middleware's reception time: a busy recorder that takes a message late still
+            # stamps it when it arrived
+            stamp = int(info.get("received_timestamp") or 0) or self.node.get_clock().now().nanoseconds
             with self._lock:
                 if not self._closed:
                     self.writer.write(conn, stamp, data)
                     self.summary.counts[topic] += 1
+                    self._last_rx[topic] = stamp
 
         self._subs.append(self.node.create_subscription(MESSAGE_TYPES[typename], topic, on_raw, qos, raw=True))
         self.log(f"{PROG}: + {topic} [{typename}]")
+
+    def drain(self, timeout: float = 3.0, recent: float = 1.0) -> bool:
+        """Wait until every topic that delivered within ``recent`` s before now has delivered a
+        message received after now: the messages already queued when a stop was asked for are
+        written, not dropped. At most ``timeout`` s; True when drained."""
+        t_stop = time.time_ns()
+        with self._lock:
+            live = [t for t, ns in self._last_rx.items() if t_stop - ns < recent * 1e9]
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            with self._lock:
+                if all(self._last_rx[t] >= t_stop for t in live):
+                    return True
+            time.sleep(0.02)
+        return False
 
     def close(self) -> RecordSummary:
         """Stop writing, close the bag (writes metadata.yaml); returns the summary."""
@@ -198,6 +218,11 @@ def record(node: Node, path: str | Path, duration: Optional[float] = None,
                     announced = True
             time.sleep(0.1)
     except KeyboardInterrupt:
+        pass
+    try:
+        if not rec.drain():
+            log(f"{PROG}: stopped before every queued message was written (the recorder fell behind)")
+    except KeyboardInterrupt:    # a second Ctrl-C: close at once
         pass
     return rec.close()
 

@@ -102,6 +102,7 @@ def test_plan_then_execute_a_motion_file_while_recording(stack, capsys, tmp_path
         assert code == 0 and motion.is_file(), out
         code, out = run_ctl(stack, capsys, "execute", str(motion), "--tolerance", "0")
         executed = out
+        t_done = time.time_ns()
         assert code == 0, out
         assert "execute succeeded" in out and out.count("  t = ") >= 5, out   # live feedback lines
         time.sleep(0.5)
@@ -112,7 +113,7 @@ def test_plan_then_execute_a_motion_file_while_recording(stack, capsys, tmp_path
     assert (bag / "metadata.yaml").is_file()
     (mcap,) = bag.glob("*.mcap")
     counts: Counter[str] = Counter()
-    measured, feedback = [], []
+    measured, feedback, js_times = [], [], []
     with open(mcap, "rb") as f:
         decoders = {}
         for schema, channel, message in make_reader(f).iter_messages():
@@ -122,9 +123,12 @@ def test_plan_then_execute_a_motion_file_while_recording(stack, capsys, tmp_path
             counts[channel.topic] += 1
             if channel.topic == "/ff_hwbridge/joint_states":
                 measured.append(m.position[0])
+                js_times.append(message.log_time)
             if channel.topic == "/ff_executor/execute/_action/feedback":
                 feedback.append(m.feedback.elapsed)
     bridge = next(p for p in stack.procs if p.name == "ff_hwbridge")
+    # stamped on reception (system clock) and drained on stop: the bag reaches past the move's end
+    assert max(js_times) >= t_done, ((t_done - max(js_times)) / 1e9, len(js_times))
     # the recorded joint states show the move (the bridge's measured position, rad)
     assert max(abs(q) for q in measured) > 0.2, (f"the arm did not move ({len(measured)} samples); "
                                              f"ff-ctl:\n{executed}\nbridge:\n{bridge.output()[-1500:]}")
