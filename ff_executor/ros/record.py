@@ -161,7 +161,8 @@ class Recorder:
                     self.summary.counts[topic] += 1
                     self._last_rx[topic] = stamp
 
-        self._subs.append(self.node.create_subscription(MESSAGE_TYPES[typename], topic, on_raw, qos, raw=True))
+        callback: Any = on_raw    # rclpy passes (message, message info) to a two-argument callback
+        self._subs.append(self.node.create_subscription(MESSAGE_TYPES[typename], topic, callback, qos, raw=True))
         self.log(f"{PROG}: + {topic} [{typename}]")
 
     def drain(self, timeout: float = 3.0, recent: float = 1.0) -> bool:
