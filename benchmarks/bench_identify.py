@@ -11,7 +11,18 @@ of fits judged adequate, fit wall time, and the seconds of arm motion (profile t
 N trials through the simulated ROS stack (``ff-identify --sim``: bridge joint states; an
 excitation whose envelope holds with a switch 20 ms late: ≤ 3 A), slow.
 
+``--mismatch N``: N arms per kind of friction that is not Eq. 9 (a Stribeck rise of 30 % of pc
+below 0.1 rad/s; a Coulomb level varying ±10 % with position, period 0.25 rad), same draw, same
+excitation: the rate at which the fit flags the mismatch, and how often its (widened) intervals
+hold the arm's sliding friction. ``--learn N``: learning from use (``ff_planner.identify.learn``)
+on N arms drawn from a prior of pv ±30 %, pc and pt ±5 % (95 %) around table 2: the update from
+the rest positions of 5 baseline motions (energy- and time-optimal, planned on the prior) and,
+separately, of 3 robust motions: errors, coverage and information (bits) per execution.
+``--issue`` = ``--trials 20 --mismatch 20 --learn 20`` plus a "checks" section: pc and pt within
+3 %, pv within 10 %, at most 60 s of motion, 95 % intervals holding the truth in >= 18 of 20.
+
 Usage: python benchmarks/bench_identify.py [--trials 50] [--seed 0] [--fit-inertia] [--stack 0]
+       [--mismatch 0] [--learn 0] [--issue]
 """
 from __future__ import annotations
 
@@ -22,8 +33,11 @@ import time
 import numpy as np
 
 from ff_planner.identify import Envelope, design_excitation, fit_friction
-from ff_planner.identify.measure import Sensors, measure_runs
-from ff_planner.model.params import preset
+from ff_planner.identify.learn import Execution, prior_from_box, update_from_executions
+from ff_planner.identify.measure import FrictionMismatch, Sensors, measure_rest, measure_runs
+from ff_planner.model.params import Arm1DofParams, preset
+from ff_planner.model.profile import PlanRequest
+from ff_planner.optimize import plan
 
 KEYS = ("pv", "pc", "pt")
 
@@ -60,14 +74,97 @@ def _row(fit, true, keys, fit_s):
             "half": {k: fit.half_width(k) / abs(fit.estimates[k]) for k in keys}}
 
 
+MISMATCHES = {"stribeck": FrictionMismatch(stribeck=0.3, stribeck_speed=0.1),
+              "position_coulomb": FrictionMismatch(coulomb_ripple=0.1, coulomb_period=0.25)}
+
+
+def _mismatch(rng, base, ex, n):
+    """Flag rate and coverage of the sliding (Eq. 9 part of the) friction per mismatch kind."""
+    out = {}
+    for name, mm in MISMATCHES.items():
+        rows = []
+        for _ in range(n):
+            true = _draw(rng, base, False)
+            recs = measure_runs(true, ex.profiles, 0.0, Sensors(), rng, mismatch=mm)
+            t1 = time.perf_counter()
+            fit = fit_friction(recs, base)
+            rows.append(_row(fit, true, KEYS, time.perf_counter() - t1))
+        out[name] = {"friction": mm.__dict__, "trials": n,
+                     "flagged": int(sum(not r["adequate"] for r in rows)),
+                     "flag_rate": float(np.mean([not r["adequate"] for r in rows])),
+                     "coverage_count": {k: int(sum(r["cover"][k] for r in rows)) for k in KEYS},
+                     "rel_error": {k: _stats([r["err"][k] for r in rows]) for k in KEYS},
+                     "half_width_rel_median": {k: float(np.median([r["half"][k] for r in rows])) for k in KEYS}}
+    return out
+
+
+LEARN_BASELINES = [("energy-optimal", 0.0, 1.0, 1.0), ("energy-optimal", 1.0, 0.2, 0.6),
+                   ("time-optimal", 0.2, -0.6, 0.8), ("energy-optimal", -0.6, 0.9, 1.5),
+                   ("time-optimal", 0.9, 0.0, 0.5)]
+LEARN_ROBUST = [(0.0, 1.0, 1.0), (0.2, -0.6, 0.8), (-0.6, 0.9, 1.5)]
+
+
+def _learn(rng, base, n, noise=8e-5, q_sigma=1e-4):
+    """Update from executions: a prior of pv ±30 %, pc, pt ±5 % around table 2, arms drawn from it."""
+    prior = prior_from_box(base, {"pv": 0.3, "pc": 0.05, "pt": 0.05})
+    sets = {"baseline": [(plan(PlanRequest(q0=(a,), qf=(b,), tf=tf, objective=o, params=base)).profile, a)
+                         for o, a, b, tf in LEARN_BASELINES],
+            "robust": [(plan(PlanRequest(q0=(a,), qf=(b,), tf=tf, objective="robust-derivative", starts=10,
+                                         params=base)).profile, a) for a, b, tf in LEARN_ROBUST]}
+    out = {"prior_box95": {"pv": 0.3, "pc": 0.05, "pt": 0.05}, "rest_noise_rad": noise, "q_sigma_rad": q_sigma,
+           "encoder_counts": Sensors().counts_per_rev, "trials": n}
+    for name, profs in sets.items():
+        rows = []
+        for _ in range(n):
+            true = base.replace(**dict(zip(KEYS, rng.multivariate_normal(prior.mean, prior.cov))))
+            exs = [Execution(p, q0, measure_rest(true, p, q0, rng, Sensors(), noise), q_sigma) for p, q0 in profs]
+            t1 = time.perf_counter()
+            res = update_from_executions(prior, exs)
+            wall = time.perf_counter() - t1
+            rows.append({"err_prior": {k: float(prior.mean[i] / getattr(true, k) - 1.0) for i, k in enumerate(KEYS)},
+                         "err": {k: res.estimates[k] / getattr(true, k) - 1.0 for k in KEYS},
+                         "cover": {k: res.interval95[k][0] <= getattr(true, k) <= res.interval95[k][1] for k in KEYS},
+                         "std_ratio": {k: res.std[k] / float(prior.std[i]) for i, k in enumerate(KEYS)},
+                         "bits": [e.information_bits for e in res.executions], "consistent": res.adequate,
+                         "wall_s": wall})
+        out[name] = {"executions": len(profs),
+                     "rel_error_prior": {k: _stats([r["err_prior"][k] for r in rows]) for k in KEYS},
+                     "rel_error_updated": {k: _stats([r["err"][k] for r in rows]) for k in KEYS},
+                     "coverage_count": {k: int(sum(r["cover"][k] for r in rows)) for k in KEYS},
+                     "std_ratio_median": {k: float(np.median([r["std_ratio"][k] for r in rows])) for k in KEYS},
+                     "bits_per_execution_median": float(np.median([b for r in rows for b in r["bits"]])),
+                     "bits_per_execution_max": float(np.max([b for r in rows for b in r["bits"]])),
+                     "consistent_count": int(sum(r["consistent"] for r in rows)),
+                     "update_wall_s": _stats([r["wall_s"] for r in rows])}
+    return out
+
+
+def _checks(offline, rows):
+    n = len(rows)
+    worst = {k: float(np.max(np.abs([r["err"][k] for r in rows]))) for k in KEYS}
+    cover = {k: int(sum(r["cover"][k] for r in rows)) for k in KEYS}
+    motion = float(max(r["motion_s"] for r in rows))
+    return {"trials": n, "max_rel_error": worst, "coverage_count": cover,
+            "coverage_all_three_count": int(sum(all(r["cover"].values()) for r in rows)),
+            "motion_s": motion,
+            "pc_pt_within_3pct": worst["pc"] <= 0.03 and worst["pt"] <= 0.03, "pv_within_10pct": worst["pv"] <= 0.10,
+            "motion_at_most_60s": motion <= 60.0, "coverage_at_least_18_of_20": min(cover.values()) >= 0.9 * n}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=50)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--fit-inertia", action="store_true")
     ap.add_argument("--stack", type=int, default=0, help="trials on the simulated ROS stack too")
+    ap.add_argument("--mismatch", type=int, default=0, help="trials per kind of friction that is not Eq. 9")
+    ap.add_argument("--learn", type=int, default=0, help="trials of the update from executions")
+    ap.add_argument("--issue", action="store_true", help="--trials 20 --mismatch 20 --learn 20 and the checks")
     a = ap.parse_args()
+    if a.issue:
+        a.trials, a.mismatch, a.learn = 20, max(a.mismatch, 20), max(a.learn, 20)
     base = preset("table2")
+    assert isinstance(base, Arm1DofParams)
     env = Envelope(-1.0, 1.0, 3.0)
     t0 = time.perf_counter()
     ex = design_excitation(base, env, 0.0)
@@ -88,6 +185,15 @@ def main() -> None:
                        "design_s": design_s},
         "sensors": Sensors().__dict__, "seed": a.seed},
         "offline": _summarise(rows, keys)}
+    out["offline"]["coverage_count"] = {k: int(sum(r["cover"][k] for r in rows)) for k in keys}
+    if a.issue:
+        out["checks"] = _checks(out["offline"], rows)
+    if a.mismatch:
+        t1 = time.perf_counter()
+        out["mismatch"] = _mismatch(rng, base, ex, a.mismatch)
+        out["mismatch"]["wall_s"] = time.perf_counter() - t1
+    if a.learn:
+        out["learn"] = _learn(rng, base, a.learn)
     if a.stack:
         from ff_executor.bringup.identify import run_on_stack    # ROS only for this part
 

@@ -3,12 +3,17 @@
     ff-identify --records runs.json -o params.yaml --report rep/     # fit recorded runs
     ff-identify --simulate --sim-set pc=0.25 --json                  # simulated measurement, no ROS
     ff-identify --sim --sim-set pc=0.25 -o params.yaml               # on the simulated ROS stack
+    ff-identify --update params.yaml --executions runs.json -o updated.yaml --json   # learn from use
 
 ``--sim`` starts the simulated stack with those true parameters, runs the excitation through the
 executor action and records the bridge's joint states (``ff_executor.bringup.identify``, the
 runner the ``ff-identify`` console script hands in; this module loads no ROS, so the offline modes
 run anywhere). Exit codes: 0 the friction law fits the runs; 1 it does not (model mismatch:
 outputs are written, labelled) or the run failed; 2 bad input (one error line).
+
+``--update`` learns from use (``ff_planner.identify.learn``): the parameter file's estimate and
+covariance are the prior, each logged execution's measured rest position the evidence; exit code
+1 when the rest positions disagree with the updated estimate and their noise.
 """
 from __future__ import annotations
 
@@ -16,16 +21,26 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any, Callable, NoReturn, Optional, Sequence
+from typing import Any, Callable, Mapping, NoReturn, Optional, Sequence
 
 import numpy as np
 
 from ff_planner.identify.excitation import Envelope, design_excitation
+from ff_planner.export.motion_file import read_motion, validate_motion_dict
 from ff_planner.identify.fit import fit_friction
-from ff_planner.identify.measure import Sensors, measure_runs
-from ff_planner.identify.output import plan_config_yaml, summary, write_params, write_report
+from ff_planner.identify.learn import (
+                                       DEFAULT_Q_SIGMA,
+                                       load_executions,
+                                       load_prior,
+                                       profile_from_record,
+                                       update_from_executions,
+                                       update_summary,
+)
+from ff_planner.identify.measure import FrictionMismatch, Sensors, measure_runs
+from ff_planner.identify.output import plan_config_yaml, summary, update_report_text, write_params, write_report
 from ff_planner.identify.records import RunRecord, load_records, save_records
 from ff_planner.model.params import Arm1DofParams, ParameterError, load_params, preset
+from ff_planner.model.profile import CurrentProfile
 
 PROG = "ff-identify"
 
@@ -52,8 +67,27 @@ def build_parser() -> argparse.ArgumentParser:
     src.add_argument("--sim", action="store_true", help="run the excitation on the simulated ROS stack")
     src.add_argument("--simulate", action="store_true",
                      help="run it on the exact model with a simulated encoder and current sensor (no ROS)")
+    src.add_argument("--update", metavar="YAML",
+                     help="learn from use: update this ff-identify parameter file from --executions")
+    u = p.add_argument_group("learning from use (--update)")
+    u.add_argument("--executions", action="append", nargs="+", default=[], metavar="JSON",
+                   help="logged executions: a JSON list of {motion: ff-motion/1 path or inline profile, "
+                        "rest_position: rad [, q_sigma: rad] [, q0: rad]}")
+    u.add_argument("--q-sigma", type=float, default=DEFAULT_Q_SIGMA, metavar="RAD",
+                   help=f"rest position noise of executions that do not state one (default {DEFAULT_Q_SIGMA:g})")
+    u.add_argument("--drift", type=float, default=0.0, metavar="FRACTION",
+                   help="how much the friction may have changed since the parameter file was written "
+                        "(1 sigma, fraction of each value; adds to the prior's variance; default 0)")
+    u.add_argument("--prior-box", action="append", default=[], metavar="KEY=FRACTION", type=_key_value,
+                   help="the prior as a 95 %% box estimate*(1 +- b) per pv, pc, pt, for a parameter file "
+                        "without ff-identify's covariance or intervals")
     p.add_argument("--sim-set", action="append", default=[], metavar="KEY=VALUE", type=_key_value,
                    help="a true parameter of the simulated arm (SI), e.g. pc=0.25 (--sim, --simulate)")
+    p.add_argument("--sim-friction", action="append", default=[], metavar="KEY=VALUE", type=_key_value,
+                   help="--simulate: friction that is not Eq. 9, to test the fit's honesty: stribeck=F "
+                        "(extra static friction, fraction of pc), stribeck_speed=RAD/S (default 0.1), "
+                        "coulomb_ripple=F (Coulomb level varying with position), coulomb_period=RAD "
+                        "(default 0.25)")
     p.add_argument("--sim-measure", choices=("joints", "truth"), default="joints",
                    help="--sim records: the bridge's joint states (default) or the simulated arm's ground "
                         "truth rounded to the encoder (exact sample times)")
@@ -101,6 +135,15 @@ def _key_value(item: str) -> tuple[str, float]:
         raise argparse.ArgumentTypeError(f"needs KEY=VALUE with a number, got {item!r}") from None
 
 
+def _mismatch(items: Sequence[tuple[str, float]]) -> FrictionMismatch:
+    bad = [k for k, _ in items if k not in FrictionMismatch.KEYS]
+    if bad:
+        raise UsageError(f"--sim-friction: unknown key(s) {bad}; use {', '.join(FrictionMismatch.KEYS)}")
+    m = FrictionMismatch(**dict(items))
+    m.validate()
+    return m
+
+
 def _guess(path: Optional[str]) -> Arm1DofParams:
     if path is None:
         p = preset("table2")
@@ -116,6 +159,10 @@ def _guess(path: Optional[str]) -> Arm1DofParams:
 def run(args: argparse.Namespace, sim_runner: Optional[SimRunner] = None,
         log: Callable[[str], None] = lambda s: print(s, file=sys.stderr, flush=True)) -> tuple[int, dict[str, Any]]:
     """Do what the arguments ask; returns (exit code, summary)."""
+    if args.update:
+        return _update(args)
+    if args.executions:
+        raise UsageError("--executions needs --update PARAMS.yaml")
     meta: dict[str, Any] = {}
     truth: Optional[dict] = None
     if args.records:
@@ -130,6 +177,9 @@ def run(args: argparse.Namespace, sim_runner: Optional[SimRunner] = None,
         if args.sim and sim_runner is None:
             raise UsageError("--sim needs the on-stack runner: use the ff-identify console script "
                              "(python -m ff_executor.bringup.identify)")
+        mismatch = _mismatch(args.sim_friction) if args.sim_friction else None
+        if mismatch is not None and args.sim:
+            raise UsageError("--sim-friction applies to --simulate (the simulated stack's arm follows Eq. 9)")
         base = _guess(args.params)
         true_vals = dict(args.sim_set)
         true = base.replace(**true_vals)
@@ -142,10 +192,13 @@ def run(args: argparse.Namespace, sim_runner: Optional[SimRunner] = None,
             records, meta = sim_runner(ex, base, true_vals, args.q_start, log, measure=args.sim_measure)
             source = "the simulated stack"
         else:
-            records = measure_runs(true, ex.profiles, args.q_start, Sensors(), np.random.default_rng(args.seed))
-            source = "a simulated measurement"
+            records = measure_runs(true, ex.profiles, args.q_start, Sensors(), np.random.default_rng(args.seed),
+                                   mismatch=mismatch)
+            source = "a simulated measurement" + (" with friction that is not Eq. 9" if mismatch else "")
         truth = true.to_dict()
         meta["truth"] = truth
+        if mismatch is not None:
+            meta["friction_mismatch"] = dict(args.sim_friction)
         if args.save_records:
             save_records(args.save_records, records, base, meta)
     fit = fit_friction(records, base, fit_inertia=args.fit_inertia, q_noise=args.q_noise)
@@ -161,12 +214,61 @@ def run(args: argparse.Namespace, sim_runner: Optional[SimRunner] = None,
     return (0 if fit.adequate else 1), out
 
 
+def _load_motion(motion: str | Mapping[str, Any], folder: Path) -> tuple[CurrentProfile, Optional[float]]:
+    """An executed motion: an ff-motion/1 file (path relative to the executions file), an inline
+    ff-motion/1 object or an inline CurrentProfile-like record; (profile, planned q0 rad)."""
+    if isinstance(motion, str):
+        path = Path(motion) if Path(motion).is_absolute() else folder / motion
+        m = read_motion(path)
+    elif "format" in motion:
+        m = validate_motion_dict(motion)
+    else:
+        return profile_from_record(motion)
+    if m.model != "arm1dof":
+        raise ParameterError(f"learning from use supports model 'arm1dof' only, got '{m.model}'")
+    return m.profile, float(m.q0[0])
+
+
+def _update(args: argparse.Namespace) -> tuple[int, dict[str, Any]]:
+    """--update: the parameter file as the prior, the executions' rest positions as evidence."""
+    if not Path(args.update).is_file():
+        raise UsageError(f"--update: no such file {args.update!r}")
+    files = [f for group in args.executions for f in group]
+    if not files:
+        raise UsageError("--update needs --executions JSON (the logged executions)")
+    if not (args.q_sigma > 0.0):
+        raise UsageError(f"--q-sigma must be > 0 rad, got {args.q_sigma}")
+    for f in files:
+        if not Path(f).is_file():
+            raise UsageError(f"--executions: no such file {f!r}")
+    prior = load_prior(args.update, dict(args.prior_box) if args.prior_box else None).with_drift(args.drift)
+    executions = [e for f in files for e in load_executions(f, _load_motion, args.q_sigma)]
+    res = update_from_executions(prior, executions)
+    out = update_summary(res, args.box_floor, {"source": args.update, "executions_files": files})
+    src = f"{args.update} updated from {len(executions)} execution(s)"
+    if args.output:
+        write_params(args.output, res, args.box_floor, src)
+    if args.plan_config:
+        Path(args.plan_config).write_text(plan_config_yaml(res, args.box_floor))
+    if args.report:
+        d = Path(args.report)
+        d.mkdir(parents=True, exist_ok=True)
+        (d / "update.txt").write_text(update_report_text(res, args.box_floor))
+    return (0 if res.adequate else 1), out
+
+
 def _print_human(out: dict[str, Any]) -> None:
     print(f"{PROG}: {out['message']}")
     for k, v in out["estimates"].items():
         lo, hi = out["interval95"][k]
         print(f"  {k:<3} = {v:.6g} {out['units'][k]}   95 % [{lo:.6g}, {hi:.6g}]"
               + (f"   box ±{100 * out['box'][k]:.2f} %" if k in out["box"] else ""))
+    if "executions" in out:
+        for e in out["executions"]:
+            print(f"  {e['name']}: {e['information_bits']:.2f} bits, rest error before "
+                  f"{1e3 * (e['measured_rest_rad'] - e['predicted_rest_prior_rad']):+.3f} mrad, after "
+                  f"{1e3 * (e['measured_rest_rad'] - e['predicted_rest_posterior_rad']):+.3f} mrad")
+        return
     print(f"  {out['n_runs']} runs, {out['motion_seconds']:.1f} s of motion, residual rms {out['rms_rad']:.3g} rad")
 
 

@@ -4,7 +4,14 @@ Positions come from an incremental encoder on the motor (``counts_per_rev`` per 
 quadrature counts included, behind the gear: quantum 2π / (counts_per_rev · n) rad at the joint);
 the measured current is the commanded one plus white noise (``current_noise`` A rms) and a
 commutation ripple (``ripple`` fraction of |I| at ``ripple_hz``). Used by the tests, the benchmark
-and ``ff-identify --simulate``. Units: rad, rad/s, A, s.
+and ``ff-identify --simulate``.
+
+``FrictionMismatch`` makes the simulated arm's friction differ from Eq. 9, so that the fit's
+adequacy tests are exercised, not just its algebra: a Stribeck rise of the Coulomb level at low
+speed (static friction above the sliding level) and a Coulomb level that varies with position
+(cogging, a seal or a cable that drags more at some angles). The arm is then advanced in short
+steps of the exact Eq. 9 motion with the Coulomb level of the step's start state. Units: rad,
+rad/s, A, s, Nm.
 """
 from __future__ import annotations
 
@@ -15,7 +22,9 @@ from typing import Optional, Sequence
 import numpy as np
 
 from ff_planner.identify.records import RunRecord
+from ff_planner.core.errors import ParameterError
 from ff_planner.identify.sampling import sample_params
+from ff_planner.model.arm1dof import advance_core, final_state
 from ff_planner.model.params import Arm1DofParams
 from ff_planner.model.profile import CurrentProfile
 
@@ -36,12 +45,80 @@ class Sensors:
         return 2.0 * math.pi / (self.counts_per_rev * float(params.n))
 
 
+@dataclass(frozen=True)
+class FrictionMismatch:
+    """Friction that is not Eq. 9: the Coulomb level is
+
+        pc·(1 + stribeck·exp(−(q̇/stribeck_speed)²))·(1 + coulomb_ripple·sin(2π·q/coulomb_period))
+
+    (stribeck: extra static friction as a fraction of pc, at |q̇| ≪ stribeck_speed rad/s;
+    coulomb_ripple: fraction of pc, period coulomb_period rad). Integrated in ``step`` s steps."""
+
+    stribeck: float = 0.0
+    stribeck_speed: float = 0.1      # rad/s
+    coulomb_ripple: float = 0.0
+    coulomb_period: float = 0.25     # rad
+    step: float = 1e-4               # s
+
+    KEYS = ("stribeck", "stribeck_speed", "coulomb_ripple", "coulomb_period")
+
+    @property
+    def active(self) -> bool:
+        return self.stribeck != 0.0 or self.coulomb_ripple != 0.0
+
+    def validate(self) -> None:
+        if not (math.isfinite(self.stribeck) and -1.0 < self.stribeck <= 2.0):
+            raise ParameterError(f"stribeck must be in (-1, 2] (a fraction of pc), got {self.stribeck}")
+        if not (math.isfinite(self.coulomb_ripple) and 0.0 <= self.coulomb_ripple < 1.0):
+            raise ParameterError(f"coulomb_ripple must be in [0, 1) (a fraction of pc), got {self.coulomb_ripple}")
+        for key in ("stribeck_speed", "coulomb_period", "step"):
+            v = float(getattr(self, key))
+            if not (math.isfinite(v) and v > 0.0):
+                raise ParameterError(f"{key} must be > 0, got {v}")
+
+    def coulomb(self, pc: float, q: float, v: float) -> float:
+        """The Coulomb level (Nm) at position q (rad) and speed v (rad/s)."""
+        return (pc * (1.0 + self.stribeck * math.exp(-(v / self.stribeck_speed) ** 2))
+                * (1.0 + self.coulomb_ripple * math.sin(2.0 * math.pi * q / self.coulomb_period)))
+
+
+def simulate_mismatch(params: Arm1DofParams, profile: CurrentProfile, q0: float, t: np.ndarray,
+                      mismatch: FrictionMismatch) -> np.ndarray:
+    """Positions (rad) at the times ``t`` (s, ascending) of the arm with ``mismatch`` friction,
+    from rest at q0: exact Eq. 9 steps of at most ``mismatch.step`` s, each with the Coulomb level
+    of its start state, switches and sample times hit exactly."""
+    mismatch.validate()
+    J, c, pv, pc, pt = (float(params.J), float(params.torque_per_amp), float(params.pv),
+                        float(params.pc), float(params.pt))
+    bounds = [float(x) for x in profile.step_times[1:]]
+    q, v, tt = float(q0), 0.0, 0.0
+    out = np.full(np.asarray(t).shape, float(q0))
+    for k in np.nonzero(np.asarray(t) > 0.0)[0]:
+        target = float(t[k])
+        while tt < target - 1e-12:
+            tn = min(target, tt + mismatch.step)
+            for b in bounds:
+                if tt + 1e-12 < b < tn:
+                    tn = b
+                    break
+            i = profile.current_at(tt)[0]
+            q, v = advance_core(J, c, pv, mismatch.coulomb(pc, q, v), pt, q, v, i, tn - tt)
+            tt = tn
+        out[k] = q
+    return out
+
+
 def measure_run(params: Arm1DofParams, profile: CurrentProfile, q0: float, sensors: Sensors,
-                rng: np.random.Generator, t_end: Optional[float] = None) -> RunRecord:
-    """A RunRecord of ``profile`` on the exact arm ``params`` from rest at q0 (rad)."""
+                rng: np.random.Generator, t_end: Optional[float] = None,
+                mismatch: Optional[FrictionMismatch] = None) -> RunRecord:
+    """A RunRecord of ``profile`` on the arm ``params`` from rest at q0 (rad): the exact Eq. 9
+    arm, or with ``mismatch`` friction."""
     horizon = profile.tf if t_end is None else float(t_end)
     t = np.arange(-sensors.pre, horizon + 1e-12, sensors.sample_period)
-    q, _ = sample_params(params, profile, q0, t)
+    if mismatch is not None and mismatch.active:
+        q = simulate_mismatch(params, profile, q0, t, mismatch)
+    else:
+        q, _ = sample_params(params, profile, q0, t)
     return _record(t, q, profile, params, sensors, rng)
 
 
@@ -62,12 +139,25 @@ def record_trajectory(t: np.ndarray, q: np.ndarray, profile: CurrentProfile, par
 
 
 def measure_runs(params: Arm1DofParams, profiles: Sequence[CurrentProfile], q_start: float,
-                 sensors: Sensors, rng: np.random.Generator) -> list[RunRecord]:
+                 sensors: Sensors, rng: np.random.Generator,
+                 mismatch: Optional[FrictionMismatch] = None) -> list[RunRecord]:
     """Records of the runs in order, each starting where the previous one came to rest."""
     out = []
     q = float(q_start)
     for prof in profiles:
-        rec = measure_run(params, prof, q, sensors, rng)
+        rec = measure_run(params, prof, q, sensors, rng, mismatch=mismatch)
         out.append(rec)
-        q = float(sample_params(params, prof, q, np.array([prof.tf]))[0][0])
+        if mismatch is not None and mismatch.active:
+            q = float(simulate_mismatch(params, prof, q, np.array([prof.tf]), mismatch)[0])
+        else:
+            q = float(sample_params(params, prof, q, np.array([prof.tf]))[0][0])
     return out
+
+
+def measure_rest(params: Arm1DofParams, profile: CurrentProfile, q0: float, rng: np.random.Generator,
+                 sensors: Sensors = Sensors(), noise: float = 0.0) -> float:
+    """The rest position (rad) an execution of ``profile`` from rest at q0 shows on the encoder:
+    the exact rest position under ``params``, plus ``noise`` rad rms, rounded to the encoder."""
+    q = final_state(params, profile, float(q0), to_rest=True)[0] + noise * float(rng.standard_normal())
+    res = sensors.q_resolution(params)
+    return float(np.floor(q / res + 0.5) * res)

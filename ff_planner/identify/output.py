@@ -8,14 +8,19 @@ Units: SI (Nm·s/rad, Nm, fraction, kg·m²).
 """
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
-from typing import Any, Mapping, Optional
+from typing import Any, Mapping, Optional, Union
 
 import numpy as np
 import yaml
 
 from ff_planner.identify.fit import FRICTION, FitResult
+from ff_planner.identify.learn import COV_TAG, UpdateResult, prior_from_fit
+
+#: what a parameter file can be written from: an identification or an update from executions
+Estimate = Union[FitResult, UpdateResult]
 
 UNITS = {"pv": "Nm·s/rad", "pc": "Nm", "pt": "fraction", "J": "kg·m²"}
 
@@ -40,24 +45,34 @@ def summary(fit: FitResult, box_floor: float = 0.02, extra: Optional[Mapping[str
     return out
 
 
-def params_yaml(fit: FitResult, box_floor: float = 0.02, source: str = "") -> str:
-    """The parameter file's text: model, preset, params (all of them, SI) and the box as comments."""
+def covariance_line(fit: Estimate) -> str:
+    """The ``# covariance`` comment of the parameter file: the covariance of (pv, pc, pt) (SI²)
+    with the standard deviations of the 95 % intervals (half-width / 1.96) and the correlations of
+    the estimate — the prior of a later update from executions (``learn.load_prior``)."""
+    cov = fit.covariance if isinstance(fit, UpdateResult) else prior_from_fit(fit).cov
+    return f"{COV_TAG} {json.dumps([[float(f'{v:.6g}') for v in row] for row in np.asarray(cov)])}"
+
+
+def params_yaml(fit: Estimate, box_floor: float = 0.02, source: str = "") -> str:
+    """The parameter file's text: model, preset, params (all of them, SI), and as comments the
+    box, the 95 % intervals and the covariance of the friction parameters."""
     box = fit.relative_box(box_floor)
     box_args = " ".join(f"--box {k}={box[k]:.4g}" for k in FRICTION)
     head = ["# arm1dof parameters identified by ff-identify" + (f" from {source}" if source else ""),
             f"# fit: {fit.message}",
             "# uncertainty box (fraction of the estimate, covers the 95 % interval; use it as the",
             "# planner's friction uncertainty, e.g. the sampled-robust box):"]
-    head += [f"#   {k}: {box[k]:.4g}    # 95 % interval [{fit.interval95[k][0]:.6g}, "
-             f"{fit.interval95[k][1]:.6g}] {UNITS[k]}" for k in FRICTION]
+    head += [f"#   {k}: {box[k]:.4g}    # 95 % interval [{fit.interval95[k][0]:.10g}, "
+             f"{fit.interval95[k][1]:.10g}] {UNITS[k]}" for k in FRICTION]
     head.append(f"#   as ff-plan options: --uncertain pv pc pt {box_args}")
+    head.append(covariance_line(fit))
     if not fit.adequate:
         head.append("# WARNING: the friction law does not fit the runs; treat these values with care")
     body = {"model": "arm1dof", "preset": "table2", "params": fit.params.to_dict()}
     return "\n".join(head) + "\n" + yaml.safe_dump(body, sort_keys=False)
 
 
-def plan_config_yaml(fit: FitResult, box_floor: float = 0.02) -> str:
+def plan_config_yaml(fit: Estimate, box_floor: float = 0.02) -> str:
     """An ``ff-plan --config`` file: the identified parameters plus ``plan: {uncertain, box}``
     (the box fractions per friction parameter, for the planner's robust-box objective)."""
     box = fit.relative_box(box_floor)
@@ -67,7 +82,7 @@ def plan_config_yaml(fit: FitResult, box_floor: float = 0.02) -> str:
     return head + yaml.safe_dump(body, sort_keys=False)
 
 
-def write_params(path: str | Path, fit: FitResult, box_floor: float = 0.02, source: str = "") -> Path:
+def write_params(path: str | Path, fit: Estimate, box_floor: float = 0.02, source: str = "") -> Path:
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
     p.write_text(params_yaml(fit, box_floor, source))
@@ -97,6 +112,30 @@ def report_text(fit: FitResult, truth: Optional[Mapping[str, float]] = None, box
         lines.append(f"size (chi2 vs encoder quantum): {t['chi2']:.0f} on {t['chi2_dof']:.0f} dof, "
                      f"p = {t['p_chi2']:.3g}")
     lines += [f"verdict: {fit.message}"]
+    return "\n".join(lines) + "\n"
+
+
+def update_report_text(res: UpdateResult, box_floor: float = 0.02) -> str:
+    """A plain-text report of an update from executions: prior and updated estimates with their
+    intervals, and what each execution contributed."""
+    box = res.relative_box(box_floor)
+    lines = ["ff-identify --update: friction of the 1-DOF arm (Eq. 9) learned from executions",
+             f"method: {res.method}", f"prior covariance from: {res.prior.source}", "",
+             f"{'param':<6}{'prior':>12}{'± (95 %)':>12}{'updated':>14}{'95 % interval':>32}{'box':>9}"]
+    for i, k in enumerate(FRICTION):
+        lo, hi = res.interval95[k]
+        lines.append(f"{k:<6}{res.prior.mean[i]:>12.6g}{1.96 * res.prior.std[i]:>12.3g}{res.estimates[k]:>14.6g}"
+                     f"   [{lo:>12.6g}, {hi:>12.6g}]{box[k]:>9.3g}  {UNITS[k]}")
+    lines += ["", f"{'execution':<32}{'bits':>7}{'error before':>15}{'after (mrad)':>14}"
+              f"{'dq/dpv':>10}{'dq/dpc':>10}{'dq/dpt':>10}"]
+    for e in res.executions:
+        s = e.sensitivity
+        lines.append(f"{e.name[:31]:<32}{e.information_bits:>7.2f}{1e3 * (e.measured - e.predicted_prior):>15.3f}"
+                     f"{1e3 * (e.measured - e.predicted_posterior):>14.3f}"
+                     f"{s['pv']:>10.3g}{s['pc']:>10.3g}{s['pt']:>10.3g}")
+    lines += ["", f"information, all executions: {res.information_bits:.2f} bits",
+              f"consistency: chi2 = {res.chi2:.3g} on {len(res.executions)} dof, p = {res.p_consistent:.3g}",
+              f"verdict: {res.message}"]
     return "\n".join(lines) + "\n"
 
 

@@ -10,6 +10,7 @@ import yaml
 
 from ff_planner.cli.identify import main
 from ff_planner.model.params import load_params
+from ff_planner.model.profile import CurrentProfile
 
 
 def test_simulate_then_fit_records(tmp_path, capsys):
@@ -55,3 +56,92 @@ def test_bad_input_is_one_line_exit_2(argv, msg, capsys):
     assert main(argv) == 2
     err = capsys.readouterr().err.strip()
     assert msg in err and len(err.splitlines()) == 1
+
+
+def _motion_files(tmp_path):
+    """Two energy-optimal baselines planned on table 2, written as ff-motion/1 files."""
+    from ff_planner.export.motion_file import write_motion
+    from ff_planner.model.profile import PlanRequest
+    from ff_planner.optimize import plan
+
+    out = []
+    for i, (q0, qf, tf) in enumerate([(0.0, 1.0, 1.0), (1.0, 0.2, 0.6)]):
+        res = plan(PlanRequest(q0=(q0,), qf=(qf,), tf=tf, objective="energy-optimal"))
+        out.append((write_motion(tmp_path / f"m{i}.json", res), res.profile, q0))
+    return out
+
+
+def test_update_from_executions_round_trip(tmp_path, capsys):
+    import numpy as np
+
+    from ff_planner.identify.learn import load_prior
+    from ff_planner.identify.measure import Sensors, measure_rest
+
+    prior = tmp_path / "p.yaml"
+    assert main(["--simulate", "--levels", "2", "--sim-set", "pc=0.2", "-o", str(prior)]) == 0
+    capsys.readouterr()
+    true = load_params(prior).replace(pc=0.2 * 1.001, pt=0.22 * 0.999)     # the friction drifted
+    rng = np.random.default_rng(0)
+    runs = []
+    for path, prof, q0 in _motion_files(tmp_path):
+        runs.append({"motion": path.name, "rest_position": measure_rest(true, prof, q0, rng, Sensors(), 5e-5)})
+    runs.append({"motion": {"step_times": [0.0, 0.3, 0.6], "currents": [3.0, -3.0], "tf": 0.9, "coast": 0.3},
+                 "q0": 0.2, "q_sigma": 1e-4,
+                 "rest_position": measure_rest(true, CurrentProfile(np.array([0.0, 0.3, 0.6]), np.array([3.0, -3.0]),
+                                                                     0.9, 0.3), 0.2, rng, Sensors(), 5e-5)})
+    ex = tmp_path / "runs.json"
+    ex.write_text(json.dumps(runs))
+    # the identification's intervals (~1e-5 relative) rule out a 0.1 % drift: flagged
+    assert main(["--update", str(prior), "--executions", str(ex), "--json"]) == 1
+    flagged = json.loads(capsys.readouterr().out)
+    assert not flagged["adequate"] and flagged["message"].startswith("INCONSISTENT")
+    upd, cfg = tmp_path / "updated.yaml", tmp_path / "plan.yaml"
+    code = main(["--update", str(prior), "--executions", str(ex), "--drift", "0.01", "-o", str(upd),
+                 "--plan-config", str(cfg), "--report", str(tmp_path / "rep"), "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0, out["message"]
+    assert len(out["executions"]) == 3 and out["prior"]["covariance_from"] == "covariance + drift 0.01"
+    assert all(e["information_bits"] > 1.0 for e in out["executions"])
+    for k in ("pc", "pt"):
+        lo, hi = out["interval95"][k]
+        assert lo <= getattr(true, k) <= hi
+        assert out["std"][k] < out["prior"]["std"][k]
+    p2 = load_prior(upd)                        # the updated file is the next update's prior
+    assert p2.params == load_params(upd) and p2.params.pc == pytest.approx(out["estimates"]["pc"])
+    np.testing.assert_allclose(p2.cov, np.array(out["covariance"]), rtol=1e-5)
+    assert yaml.safe_load(cfg.read_text())["plan"]["box"] == pytest.approx(out["box"])
+    assert "bits" in (tmp_path / "rep" / "update.txt").read_text()
+
+
+@pytest.mark.parametrize("runs, extra, msg", [
+    (None, [], "needs --executions"),
+    ([{"motion": "nope.json", "rest_position": 0.1}], [], "cannot read motion file"),
+    ([{"motion": {"step_times": [0, 0.5], "currents": [1.0], "tf": 0.6, "q0": 0}}], [], "rest_position"),
+    ("not json", [], "is not JSON"),
+    ([{"motion": {"format": "ff-motion/1"}, "rest_position": 0.1}], [], "missing key"),
+    ([], ["--q-sigma", "0"], "--q-sigma must be > 0"),
+    ([], ["--drift", "-1"], "drift must be a fraction"),
+])
+def test_update_bad_input_is_one_line_exit_2(tmp_path, capsys, runs, extra, msg):
+    prior = tmp_path / "p.yaml"
+    prior.write_text("model: arm1dof\npreset: table2\n")
+    argv = ["--update", str(prior), "--prior-box", "pv=0.3", "--prior-box", "pc=0.1", "--prior-box", "pt=0.1"]
+    if runs is not None:
+        ex = tmp_path / "runs.json"
+        ex.write_text(runs if isinstance(runs, str) else json.dumps(runs))
+        argv += ["--executions", str(ex)]
+    assert main(argv + extra) == 2
+    err = capsys.readouterr().err.strip()
+    assert msg in err and len(err.splitlines()) == 1, err
+
+
+def test_update_refuses_a_file_without_uncertainty_and_executions_without_update(tmp_path, capsys):
+    prior = tmp_path / "p.yaml"
+    prior.write_text("model: arm1dof\npreset: table2\n")
+    ex = tmp_path / "runs.json"
+    ex.write_text(json.dumps([{"motion": {"step_times": [0, 0.5], "currents": [3.0], "tf": 0.9, "q0": 0},
+                               "rest_position": 0.1}]))
+    assert main(["--update", str(prior), "--executions", str(ex)]) == 2
+    assert "--prior-box" in capsys.readouterr().err
+    assert main(["--simulate", "--executions", str(ex)]) == 2
+    assert "needs --update" in capsys.readouterr().err

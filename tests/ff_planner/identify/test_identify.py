@@ -10,7 +10,7 @@ import pytest
 from ff_planner.core.errors import ParameterError
 from ff_planner.identify import Envelope, RunRecord, design_excitation, fit_friction, load_records, save_records
 from ff_planner.identify.fit import ljung_box
-from ff_planner.identify.measure import Sensors, measure_runs, record_trajectory
+from ff_planner.identify.measure import FrictionMismatch, Sensors, measure_runs, record_trajectory, simulate_mismatch
 from ff_planner.identify.output import params_yaml, summary, write_report
 from ff_planner.identify.sampling import sample_params
 from ff_planner.model.arm1dof import advance_core
@@ -195,3 +195,32 @@ def test_bad_records_are_refused(tmp_path):
     bad.write_text("{}")
     with pytest.raises(ParameterError, match="ff-identify-records/1"):
         load_records(bad)
+
+
+def test_mismatch_plant_steps_reproduce_eq9_when_switched_off(excitation):
+    prof = excitation.profiles[0]
+    t = np.linspace(0.0, prof.tf, 500)
+    exact, _ = sample_params(BASE, prof, 0.1, t)
+    stepped = simulate_mismatch(BASE, prof, 0.1, t, FrictionMismatch(step=1e-3))
+    np.testing.assert_allclose(stepped, exact, atol=1e-9)
+    # a Stribeck rise holds the arm longer at breakaway and stops it sooner
+    strib = simulate_mismatch(BASE, prof, 0.1, t, FrictionMismatch(stribeck=0.5, step=1e-3))
+    assert abs(strib[-1] - 0.1) < abs(exact[-1] - 0.1) - 1e-3
+
+
+def test_stribeck_friction_is_flagged_and_no_tight_interval_is_claimed(excitation):
+    rng = np.random.default_rng(8)
+    good = fit_friction(measure_runs(BASE, excitation.profiles, 0.0, Sensors(), rng), BASE)
+    assert good.adequate, good.message
+    recs = measure_runs(BASE, excitation.profiles, 0.0, Sensors(), rng, mismatch=FrictionMismatch(stribeck=0.3))
+    fit = fit_friction(recs, BASE)
+    assert not fit.adequate and "MODEL MISMATCH" in fit.message and "widened" in fit.message
+    assert fit.tests["p_white"] < 1e-3 and fit.tests["p_chi2"] < 1e-3
+    for k in ("pv", "pc", "pt"):
+        # Eq. 9 cannot match the arm; the estimate is off by more than the well-modelled fit's
+        # interval, and the intervals say so: wide enough to hold the arm's sliding friction
+        assert abs(fit.estimates[k] - getattr(BASE, k)) > 10 * good.half_width(k)
+        lo, hi = fit.interval95[k]
+        assert lo <= getattr(BASE, k) <= hi
+        assert fit.half_width(k) > 100 * good.half_width(k)
+    assert "WARNING" in params_yaml(fit)
