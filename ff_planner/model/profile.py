@@ -21,6 +21,8 @@ OBJECTIVES = ("robust-derivative", "robust-sampled", "robust-box", "time-optimal
 DEFAULT_COAST_MAX = 0.25   # s, robust-box: longest coast the planner may choose
 MAX_TF = 60.0              # s, longest move time a request may ask for
 DEFAULT_STARTS = 50        # multistart count when a request leaves starts at 0 (non-robust)
+BOX_DEFAULT_STEPS = 8      # robust-box steps when a request leaves them unset (1-DOF paper task:
+#                            worst rest error ~17 mrad in ~0.6 s, against ~120 mrad at N = 5)
 
 
 @dataclass
@@ -99,7 +101,7 @@ class PlanRequest:
     tf: float = 1.0                          # s
     uncertain: Sequence[str] = ("pv", "pc", "pt")
     objective: str = "robust-derivative"
-    steps: Optional[int] = None              # per joint; None = 2 + len(uncertain); 0 = chosen
+    steps: Optional[int] = None              # per joint; None = 2 + k (robust-box 8); 0 = chosen
     starts: int = 50                         # 0 = chosen (1-DOF robust planners)
     seed: int = 0
     time_budget: float = 30.0                # s
@@ -123,7 +125,12 @@ class PlanRequest:
         return self.params if self.params is not None else default_params(self.model)
 
     def n_steps(self) -> int:
-        return int(self.steps) if self.steps else 2 + len(self.uncertain)
+        """Steps per joint: ``steps``, or when unset 2 + k (robust-box: BOX_DEFAULT_STEPS)."""
+        if self.steps:
+            return int(self.steps)
+        if self.objective == "robust-box":
+            return max(BOX_DEFAULT_STEPS, 2 + len(self.uncertain))
+        return 2 + len(self.uncertain)
 
     def validate(self) -> None:
         """Raise PlanningError/ParameterError with what to change; changes nothing."""

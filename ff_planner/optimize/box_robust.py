@@ -13,15 +13,23 @@ box's corners, centre and face centres; after each solve the plan is checked on 
 64 seeded uniform points, and the worst of those are added (exchange) until the check set adds
 no more than 2 %; the LM's minimum-norm steps then put the plan back onto the robust set
 exactly (SLSQP meets the equalities only to its own tolerance). Decisions: the N step currents
-— the coast-entry speed is free below the stopping bound — and the coast length, chosen among
+— the coast-entry speed is free below the stopping bound —, the N − 1 interior switch times
+(free step durations, each step at least MIN_STEP; ``box_kernels``: exact columns in the
+currents, central differences in the switch times) and the coast length, chosen among
 COAST_LEVELS values in [coast, coast_max] (an outer discrete choice: SLSQP with a
-finite-difference coast column was measured to be misled by the model's kinks). Starts:
-derivative-robust plans of the compiled LM multistart (``robust1d``); up to SCREEN_MAX of them
-get a short minimax (SCREEN_ITER iterations) and the BOX_CANDIDATES best after it are refined
-to convergence. Units: rad, A, s.
+finite-difference coast column was measured to be misled by the model's kinks).
+
+Search: derivative-robust equal-step plans of the compiled LM multistart (``robust1d``,
+CANDIDATES_WANT per coast); up to SCREEN_MAX of them per coast get a short equal-step minimax
+(SCREEN_ITER iterations); the BOX_CANDIDATES best over all coasts are refined to convergence
+with equal steps, then with free switch times from there (and, for N ≤ FREE_DIRECT_MAX_STEPS,
+also from the LM plan itself). The best verified plan among the LM plan, the equal-step and the
+free-time refinements is returned. With a ``grid`` the free switch times are rounded to it and
+the currents solved again. Units: rad, A, s.
 """
 from __future__ import annotations
 
+import copy
 import math
 import time
 from dataclasses import replace as dc_replace
@@ -32,9 +40,10 @@ from scipy.optimize import minimize
 
 from ff_planner.core.errors import PlanningError
 from ff_planner.model.arm1dof import FRICTION
-from ff_planner.model.arm1dof_derivatives import NP, Q_, VC_, hd_sim
+from ff_planner.model.arm1dof_derivatives import NP, Q_, VC_, hd_sim, workspace
 from ff_planner.model.params import Arm1DofParams
 from ff_planner.model.profile import PlanRequest, PlanResult
+from ff_planner.optimize import box_kernels
 from ff_planner.optimize import lm1d as _lm1d
 from ff_planner.optimize.robust1d import (
     STOP_MARGIN,
@@ -50,11 +59,17 @@ from ff_planner.optimize.sample_box import box_check_samples, box_fractions, box
 Progress = Optional[Callable[[dict], None]]
 
 COAST_LEVELS = 5        # coast lengths tried, evenly in [coast, coast_max]
-SCREEN_MAX = 24         # derivative-robust LM plans screened per coast (short minimax) ...
+SCREEN_MAX = 8          # derivative-robust LM plans screened per coast (short minimax) ...
 SCREEN_ITER = 15        # ... of this many SLSQP iterations on the minimax samples
-BOX_CANDIDATES = 1      # screened plans refined to convergence with exchange, per coast
+BOX_CANDIDATES = 2      # screened plans (over all coasts) refined to convergence with exchange
+FREE_DIRECT_MAX_STEPS = 6   # up to this N the free-time minimax also starts from the LM plan
+MIN_STEP = 0.01         # s, shortest current step of a free-time plan
+TIME_H = 1e-6           # s, central-difference step of the switch-time columns
+T_UNIT = 1.0            # s, unit of the switch times inside SLSQP (measured: 0.01 and 0.1 s found worse plans)
 SOLVE_ITER = 100        # SLSQP iterations of a full refinement
 SOLVE_FTOL = 1e-5       # SLSQP tolerance on the worst error in mrad (10 nrad)
+CANDIDATES_WANT = 24    # LM plans collected per coast (the screening takes the SCREEN_MAX best)
+BARREN_STARTS = 128     # a coast whose first this many LM starts found nothing is given up
 STARTS_FACTOR = 10      # LM starts per coast = STARTS_FACTOR × request.starts (~0.1 ms a start)
 EXCHANGE_ROUNDS = 3     # check-set exchanges per refinement
 EXCHANGE_ADD = 3        # worst check samples added per exchange
@@ -69,9 +84,26 @@ class _Box:
         self.scales = np.ascontiguousarray(scales)
         self.memo: dict = {}
 
-    def terms(self, I: np.ndarray):
+    def values(self, I: np.ndarray):
+        """(e, None, eq, None, v_c, None): ``terms`` without the Jacobians (for SLSQP's line
+        search: one exact simulation per sample, one forward-mode one at the nominal)."""
         key = I.tobytes()
         if key not in self.memo:
+            self.memo.clear()
+            pr = self.prob
+            p = pr.params
+            e, g = box_kernels.free_values(
+                p.J, p.n * p.kt, pr.pvals, pr.pscale, self.scales, pr.times,
+                np.ascontiguousarray(I, dtype=float), pr.tf, pr.q0, pr.goal, pr.W)
+            rows = [0] + [1 + i for i in range(NP) if pr.umask[i]]
+            self.memo[key] = (e, None, g[rows], None, g[4], None)
+        return self.memo[key]
+
+    def terms(self, I: np.ndarray):
+        """(e, ∂e/∂I, eq, ∂eq/∂I, v_c, ∂v_c/∂I): rest errors at the samples, the nominal
+        equalities [q(tf) − qf, ∂q/∂p_i·s_i] and the coast-entry speed, exact Jacobians."""
+        key = I.tobytes()
+        if key not in self.memo or self.memo[key][1] is None:
             self.memo.clear()
             pr = self.prob
             p = pr.params
@@ -93,7 +125,7 @@ class _Box:
         return self.memo[key]
 
     def worst(self, I: np.ndarray) -> float:
-        e = self.terms(I)[0]
+        e = self.values(I)[0]
         return float(np.max(np.abs(e))) if np.all(np.isfinite(e)) else math.inf
 
     def solve(self, I0: np.ndarray, deadline: float, maxiter: int = SOLVE_ITER) -> np.ndarray:
@@ -105,7 +137,7 @@ class _Box:
             return np.ascontiguousarray(x[:n])
 
         def ineq(x):
-            e, _, _, _, vc, _ = self.terms(split(x))
+            e, _, _, _, vc, _ = self.values(split(x))
             return np.concatenate([x[n] - ERR_SCALE * e, x[n] + ERR_SCALE * e, [vb - abs(vc)]])
 
         def ineq_jac(x):
@@ -119,7 +151,7 @@ class _Box:
             return A
 
         def eq(x):
-            return self.terms(split(x))[2]
+            return self.values(split(x))[2]
 
         def eq_jac(x):
             J = self.terms(split(x))[3]
@@ -140,6 +172,149 @@ class _Box:
         return np.clip(np.asarray(res.x[:n], float), -pr.i_max, pr.i_max)
 
 
+class _FreeBox:
+    """The minimax problem of one coast with free switch times: x = (I (N), t_1..t_{N−1})."""
+
+    def __init__(self, prob: _Problem, scales: np.ndarray):
+        self.prob = prob
+        self.scales = np.ascontiguousarray(scales)
+        self.memo: dict = {}
+        n = prob.n
+        self.end = float(prob.times[n])
+        # each interior switch at least MIN_STEP from its neighbours and the ends
+        self.lo = np.array([j * MIN_STEP for j in range(1, n)])
+        self.hi = np.array([self.end - (n - j) * MIN_STEP for j in range(1, n)])
+
+    def times(self, x: np.ndarray) -> np.ndarray:
+        n = self.prob.n
+        t = np.empty(n + 1)
+        t[0] = 0.0
+        t[1:n] = np.clip(x[n:2 * n - 1], self.lo, self.hi)
+        t[n] = self.end
+        return t
+
+    def terms(self, x: np.ndarray):
+        """(e, ∂e/∂x, g, ∂g/∂x) at x (``box_kernels.free_terms``), memoised."""
+        key = x.tobytes()
+        if key not in self.memo or self.memo[key][1] is None:
+            self.memo.clear()
+            pr = self.prob
+            p = pr.params
+            n = pr.n
+            cur = np.ascontiguousarray(x[:n], dtype=float)
+            self.memo[key] = box_kernels.free_terms(
+                p.J, p.n * p.kt, pr.pvals, pr.pscale, self.scales, self.times(x), cur, pr.tf,
+                pr.q0, pr.goal, TIME_H, pr.W)
+        return self.memo[key]
+
+    def values(self, x: np.ndarray):
+        """(e, g) at x without the Jacobians (SLSQP's line search asks for values only)."""
+        key = x.tobytes()
+        if key not in self.memo:
+            self.memo.clear()
+            pr = self.prob
+            p = pr.params
+            e, g = box_kernels.free_values(
+                p.J, p.n * p.kt, pr.pvals, pr.pscale, self.scales, self.times(x),
+                np.ascontiguousarray(x[:pr.n], dtype=float), pr.tf, pr.q0, pr.goal, pr.W)
+            self.memo[key] = (e, None, g, None)
+        return self.memo[key]
+
+    def worst(self, x: np.ndarray) -> float:
+        return _worst(self.prob, self.times(x), x[:self.prob.n], self.scales)
+
+    def solve(self, x0: np.ndarray, deadline: float, maxiter: int = SOLVE_ITER) -> np.ndarray:
+        """SLSQP on the epigraph form from ``x0``; the switch times enter in units of T_UNIT
+        (currents and times then have Jacobian columns of like size)."""
+        pr = self.prob
+        n = pr.n
+        nv = 2 * n - 1
+        vb = pr.vb
+        unit = np.ones(nv)
+        unit[n:] = T_UNIT
+        gaps = np.zeros((n, nv + 1))       # t_j − t_{j−1} ≥ MIN_STEP (j = 1..N), linear
+        for j in range(n):
+            if j < n - 1:
+                gaps[j, n + j] = T_UNIT
+            if j > 0:
+                gaps[j, n + j - 1] = -T_UNIT
+        gap_rhs = np.zeros(n)
+        gap_rhs[n - 1] = self.end
+
+        def terms(y):
+            return self.terms(y[:nv] * unit)
+
+        def ineq(y):
+            e, _, g, _ = self.values(y[:nv] * unit)
+            return np.concatenate([y[nv] - ERR_SCALE * e, y[nv] + ERR_SCALE * e,
+                                   [vb - abs(g[4])], gaps @ y + gap_rhs - MIN_STEP])
+
+        def ineq_jac(y):
+            e, Ge, g, Gg = terms(y)
+            m = e.shape[0]
+            A = np.zeros((2 * m + 1 + n, nv + 1))
+            A[:m, :nv] = -ERR_SCALE * Ge * unit
+            A[m:2 * m, :nv] = ERR_SCALE * Ge * unit
+            A[:2 * m, nv] = 1.0
+            A[2 * m, :nv] = -np.sign(g[4]) * Gg[4] * unit
+            A[2 * m + 1:] = gaps
+            return A
+
+        rows = [0] + [1 + i for i in range(NP) if pr.umask[i]]
+
+        def eq(y):
+            return self.values(y[:nv] * unit)[2][rows]
+
+        def eq_jac(y):
+            Gg = terms(y)[3][rows] * unit
+            return np.hstack([Gg, np.zeros((len(rows), 1))])
+
+        def stop_at_deadline(yk):
+            if time.perf_counter() > deadline:
+                raise StopIteration     # SLSQP returns its current iterate
+
+        w0 = ERR_SCALE * self.worst(x0) * 1.001
+        if not math.isfinite(w0):
+            raise ArithmeticError("start does not come to rest in the box")
+        y0 = np.concatenate([x0[:nv] / unit, [w0]])
+        grad_t = np.zeros(nv + 1)
+        grad_t[nv] = 1.0
+        bounds = ([(-pr.i_max, pr.i_max)] * n + list(zip(self.lo / T_UNIT, self.hi / T_UNIT))
+                  + [(0.0, None)])
+        res = minimize(lambda y: y[nv], y0, jac=lambda y: grad_t, method="SLSQP", bounds=bounds,
+                       constraints=[{"type": "eq", "fun": eq, "jac": eq_jac},
+                                    {"type": "ineq", "fun": ineq, "jac": ineq_jac}],
+                       options={"maxiter": int(maxiter), "ftol": SOLVE_FTOL},
+                       callback=stop_at_deadline)
+        x = np.asarray(res.x[:nv], float) * unit
+        x[:n] = np.clip(x[:n], -pr.i_max, pr.i_max)
+        x[n:] = self.times(x)[1:n]
+        return x
+
+
+def _worst(prob: _Problem, times: np.ndarray, cur: np.ndarray, scales: np.ndarray) -> float:
+    """Largest |rest − qf| (rad) over the friction scale factors (inf if one never stops)."""
+    p = prob.params
+    e = box_kernels.rest_errors(p.J, p.n * p.kt, prob.pvals, np.ascontiguousarray(scales),
+                                np.ascontiguousarray(times), np.ascontiguousarray(cur, float),
+                                prob.tf, prob.q0, prob.goal)
+    return float(np.max(np.abs(e))) if np.all(np.isfinite(e)) else math.inf
+
+
+def _with_times(prob: _Problem, times: np.ndarray, grid: Optional[float] = None) -> _Problem:
+    """A copy of ``prob`` whose steps end at ``times`` (the compiled LM takes any times); with
+    ``grid`` (s) the interior switch times are rounded to it (at least one grid step apart)."""
+    t = np.array(times, dtype=float)
+    if grid:
+        for j in range(1, t.shape[0] - 1):
+            t[j] = max(round(t[j] / grid) * grid, t[j - 1] + grid)
+        t[1:-1] = np.minimum(t[1:-1], t[-1] - grid * np.arange(t.shape[0] - 2, 0, -1))
+    out = copy.copy(prob)
+    out.times = np.ascontiguousarray(t)
+    out.W = workspace(prob.n)
+    return out
+
+
 def _polish(prob: _Problem, I: np.ndarray) -> Optional[np.ndarray]:
     """The LM's minimum-norm steps from ``I`` back onto the robust set (SLSQP meets the
     equalities to its own tolerance only, the verification asks for 0.1·tol); None if it fails."""
@@ -148,14 +323,19 @@ def _polish(prob: _Problem, I: np.ndarray) -> Optional[np.ndarray]:
     return block[0].copy() if done and st[0] == _lm1d.OK else None
 
 
-def _candidates(prob: _Problem, starts: int, seed: int, deadline: float) -> tuple[list, int, int]:
-    """Derivative-robust LM plans from ``starts`` seeded starts (the tuned chunk cycle)."""
-    found, tried, iters, chunk = [], 0, 0, 0
+def _candidates(prob: _Problem, starts: int, seed: int, deadline: float,
+                want: int = 1 << 30) -> tuple[list, int, int]:
+    """Derivative-robust LM plans from up to ``starts`` seeded starts (the tuned chunk cycle),
+    stopping once ``want`` of them are found."""
+    found: list[np.ndarray] = []
+    tried = iters = chunk = 0
     cfg = prob.cfg()
     direction = 0.0 if prob.goal == prob.q0 else (1.0 if prob.goal > prob.q0 else -1.0)
     counts = np.zeros(5, np.int64)
     ver = np.empty(10 + 2 * int(_lm1d.sweep_size(int(prob.umask.sum()), 1)))
-    while tried < starts and time.perf_counter() < deadline:
+    while tried < starts and len(found) < want and time.perf_counter() < deadline:
+        if not found and tried >= BARREN_STARTS:
+            break       # measured: such coasts (long ones) yield 0-1 plans in 500 starts
         m = min(64, starts - tried)
         frac, oppose, mid = chunk_spread(prob.settings, chunk)
         block = np.empty((m, prob.n))
@@ -170,35 +350,76 @@ def _candidates(prob: _Problem, starts: int, seed: int, deadline: float) -> tupl
     return found, tried, iters
 
 
+def _refine_equal(prob: _Problem, I: np.ndarray, base: np.ndarray, check: np.ndarray,
+                  deadline: float) -> np.ndarray:
+    """Equal-step minimax from ``I`` on the base samples, with exchange from the check set."""
+    box = _Box(prob, base)
+    for _ in range(EXCHANGE_ROUNDS):
+        try:
+            I = box.solve(I, deadline)
+        except (ValueError, ArithmeticError):
+            break
+        e = _Box(prob, check).values(I)[0]
+        if not np.all(np.isfinite(e)) or np.max(np.abs(e)) <= 1.02 * box.worst(I):
+            break
+        box = _Box(prob, np.vstack([box.scales, check[np.argsort(-np.abs(e))[:EXCHANGE_ADD]]]))
+    return I
+
+
+def _refine(prob: _Problem, x: np.ndarray, base: np.ndarray, check: np.ndarray,
+            deadline: float) -> np.ndarray:
+    """Free-time minimax from ``x`` on the base samples, with exchange from the check set."""
+    box = _FreeBox(prob, base)
+    for _ in range(EXCHANGE_ROUNDS):
+        x = box.solve(x, deadline)
+        e = box_kernels.rest_errors(
+            prob.params.J, prob.params.n * prob.params.kt, prob.pvals, check, box.times(x),
+            np.ascontiguousarray(x[:prob.n]), prob.tf, prob.q0, prob.goal)
+        if not np.all(np.isfinite(e)) or np.max(np.abs(e)) <= 1.02 * box.worst(x):
+            break
+        add = check[np.argsort(-np.abs(e))[:EXCHANGE_ADD]]
+        box = _FreeBox(prob, np.vstack([box.scales, add]))
+        if time.perf_counter() > deadline:
+            break
+    return x
+
+
 def plan_box_robust_1dof(request: PlanRequest, progress: Progress = None,
-                         initial_currents: Optional[np.ndarray] = None) -> PlanResult:
+                         initial_currents: Optional[np.ndarray] = None,
+                         grid: Optional[float] = None) -> PlanResult:
     """Plan the robust-box objective for the 1-DOF arm (see the module docstring).
 
     initial_currents (N,) / (M, N) A: extra LM starts, tried first (e.g. a library neighbour).
-    ``extra``: box_worst (rad, on the planner's check set), coast chosen, per-coast figures."""
+    grid: put the switch times on this grid (s), e.g. 1e-3 for a 1 kHz drive (also read from
+    ``request.grid`` when the request has that field): free switch times are rounded to it and
+    the currents solved again for zero derivatives at the rounded times.
+    ``extra``: box_worst (rad, on the planner's samples and check set), coast chosen, per-coast
+    figures."""
     t0 = time.perf_counter()
     params = request.resolved_params()
     if request.model != "arm1dof" or not isinstance(params, Arm1DofParams):
         raise PlanningError(f"robust-box plans the arm1dof model, not '{request.model}'")
     deadline = t0 + float(request.time_budget)
+    if grid is None:
+        grid = getattr(request, "grid", None)
     unc = [u for u in FRICTION if u in request.uncertain]
     fr = box_fractions(unc, request.box)
-    base_scales = box_samples(fr, FRICTION)
-    check_scales = box_check_samples(fr, FRICTION)
+    base_scales = np.ascontiguousarray(box_samples(fr, FRICTION))
+    check_scales = np.ascontiguousarray(box_check_samples(fr, FRICTION))
     lo = max(float(request.coast), 2.0 * STOP_MARGIN)
     coasts = np.unique(np.linspace(lo, max(lo, float(request.coast_max)), COAST_LEVELS))
     n = request.n_steps()
-    best = None     # (worst on check set, I, prob)
     tried = iters = 0
     per_coast: list[dict] = []
     fallback = None
-    for coast in coasts[::-1]:
+    pool: list = []          # (worst after the short minimax, its I, prob, the LM plan I0)
+    for coast in coasts:
         if per_coast and time.perf_counter() > deadline:
             break
         req_c = dc_replace(request, coast=float(coast))
-        prob = _Problem(req_c, params, n)
+        prob = _Problem(req_c, params, n, grid)
         cands, t_, i_ = _candidates(prob, STARTS_FACTOR * int(request.starts),
-                                    int(request.seed), deadline)
+                                    int(request.seed), deadline, CANDIDATES_WANT)
         if initial_currents is not None:
             init = np.array(initial_currents, dtype=float, ndmin=2).reshape(-1, n)
             out = np.ascontiguousarray(np.clip(init, -prob.i_max, prob.i_max))
@@ -209,12 +430,13 @@ def plan_box_robust_1dof(request: PlanRequest, progress: Progress = None,
         iters += i_
         if fallback is None:
             fallback = prob
+        row: dict = {"coast": float(coast), "robust_candidates": len(cands)}
+        per_coast.append(row)
         if not cands:
-            per_coast.append({"coast": float(coast), "robust_candidates": 0})
             continue
+        cands.sort(key=lambda c: _worst(prob, prob.times, c, base_scales))
         box = _Box(prob, base_scales)
-        cands.sort(key=box.worst)
-        screened = []
+        screened = 0
         for I0 in cands[:SCREEN_MAX]:     # a short minimax says more than the start's worst
             if time.perf_counter() > deadline:
                 break
@@ -222,56 +444,63 @@ def plan_box_robust_1dof(request: PlanRequest, progress: Progress = None,
                 I1 = box.solve(I0, deadline, SCREEN_ITER)
             except (ValueError, ArithmeticError):
                 continue
-            screened.append((min(box.worst(I1), box.worst(I0)), I0, I1))
-        screened.sort(key=lambda x: x[0])
-        row: dict = {"coast": float(coast), "robust_candidates": len(cands),
-                     "screened": len(screened)}
-        for _, I0, I1 in screened[:BOX_CANDIDATES]:
+            screened += 1
+            pool.append((min(box.worst(I1), box.worst(I0)), I1, prob, I0))
+        row["screened"] = screened
+    pool.sort(key=lambda r: r[0])
+    best = None     # (worst on samples + check set, I, prob with the final times)
+    refined = 0
+
+    def consider(I: Optional[np.ndarray], prob_t: _Problem) -> None:
+        nonlocal best
+        if I is None:
+            return
+        w = max(_worst(prob_t, prob_t.times, I, base_scales),
+                _worst(prob_t, prob_t.times, I, check_scales))
+        if best is not None and not w < best[0]:
+            return
+        if verify(params, prob_t.profile(I), prob_t.q0, prob_t.goal, unc, request.tol)["robust"]:
+            best = (w, I.copy(), prob_t)
+
+    for _w1, I1, prob, I0 in pool[:BOX_CANDIDATES]:
+        if time.perf_counter() > deadline:
+            break
+        refined += 1
+        I = _refine_equal(prob, I1, base_scales, check_scales, deadline)
+        consider(_polish(prob, I), prob)
+        consider(I0, prob)
+        # then the switch times join the decisions: from the equal-step minimax plan, and for
+        # few steps also from the LM plan itself (measured: better at N = 5, worse from N = 8)
+        starts = [I] + ([I0] if n <= FREE_DIRECT_MAX_STEPS else [])
+        for J_ in starts:
             if time.perf_counter() > deadline:
                 break
-            box = _Box(prob, base_scales)
-            I = I1.copy()
-            for _ in range(EXCHANGE_ROUNDS):
-                try:
-                    I = box.solve(I, deadline)
-                except (ValueError, ArithmeticError):
-                    break
-                chk = _Box(prob, check_scales)
-                e = chk.terms(I)[0]
-                if not np.all(np.isfinite(e)):
-                    break
-                if np.max(np.abs(e)) <= 1.02 * box.worst(I):
-                    break
-                add = check_scales[np.argsort(-np.abs(e))[:EXCHANGE_ADD]]
-                box = _Box(prob, np.vstack([box.scales, add]))
-            for J_ in (_polish(prob, I), I, I0):   # the refined plan, on the robust set
-                if J_ is None:
-                    continue
-                w = max(_Box(prob, base_scales).worst(J_), _Box(prob, check_scales).worst(J_))
-                if best is not None and not w < best[0]:
-                    continue
-                ok = verify(params, prob.profile(J_), prob.q0, prob.goal, unc, request.tol)
-                if ok["robust"]:
-                    best = (w, J_.copy(), prob)
-                    break
-            if progress is not None:
-                progress({"stage": f"robust-box coast {coast:.3f} s", "starts_done": tried,
-                          "best": float(best[0]) if best else math.inf})
-        row["best_worst"] = float(best[0]) if best and best[2] is prob else None
-        per_coast.append(row)
+            try:
+                x = _refine(prob, np.concatenate([J_, prob.times[1:n]]), base_scales,
+                            check_scales, deadline)
+            except (ValueError, ArithmeticError):
+                continue
+            prob_t = _with_times(prob, _FreeBox(prob, base_scales).times(x), grid)
+            consider(_polish(prob_t, x[:n]), prob_t)
+        if progress is not None:
+            progress({"stage": f"robust-box refine {refined}", "starts_done": tried,
+                      "best": float(best[0]) if best else math.inf})
     stats = {"n_steps": n, "box": fr, "coasts_tried": per_coast, "box_samples": int(
         base_scales.shape[0]), "box_check_samples": int(check_scales.shape[0]),
-        "search_time_s": time.perf_counter() - t0}
+        "refined": refined, "search_time_s": time.perf_counter() - t0}
     out_of_time = time.perf_counter() > deadline
     if best is None:
         assert fallback is not None     # the first coast always runs
         stats["stop_speed_bound"] = fallback.vb
         return _no_plan(request, fallback, None, tried, iters, False, t0, stats, out_of_time)
     w, I, prob = best
-    stats.update(box_worst=w, coast=prob.coast, stop_speed_bound=prob.vb)
+    stats.update(box_worst=w, coast=prob.coast, stop_speed_bound=prob.vb,
+                 step_durations=np.diff(prob.times).tolist())
     req_c = dc_replace(request, coast=prob.coast)
     msg = (f"truly robust plan (zero exact derivatives) with least worst rest error over the "
            f"box: {w * 1e3:.3g} mrad on {check_scales.shape[0] + base_scales.shape[0]} samples, "
-           f"coast {prob.coast:.3g} s")
+           f"coast {prob.coast:.3g} s, "
+           f"{'equal' if np.allclose(np.diff(prob.times), prob.times[1]) else 'free'} step "
+           f"durations")
     return _result(req_c, prob, I, True, msg, tried, iters, initial_currents is not None, t0,
                    stats)

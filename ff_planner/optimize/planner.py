@@ -15,13 +15,13 @@ import math
 import time
 from dataclasses import dataclass
 from dataclasses import replace as dc_replace
-from typing import Callable, Optional, Union
+from typing import Callable, Optional, Sequence, Union
 
 import numpy as np
 
 from ff_planner.core.errors import ParameterError, PlanningError, WarmStartUnavailable, error_code_of
 from ff_planner.model.params import Arm1DofParams, Params, Scara2Params
-from ff_planner.model.profile import DEFAULT_STARTS, PlanRequest, PlanResult
+from ff_planner.model.profile import BOX_DEFAULT_STEPS, DEFAULT_STARTS, PlanRequest, PlanResult
 from ff_planner.model.simulate import rest_position
 from ff_planner.optimize.baselines import plan_baseline, reach_1dof
 from ff_planner.optimize.box_robust import plan_box_robust_1dof
@@ -121,6 +121,7 @@ AUTO_OBJECTIVES = ("robust-derivative", "robust-sampled", "robust-box")
 AUTO_MAX_STEPS = 12                 # largest N the planner escalates to
 AUTO_STARTS = (50, 200, 1000)       # multistart counts tried per N before the next N
 BOX_TARGET = 5e-3                   # rad: robust-box escalates N until its box worst is below
+BOX_AUTO_STEP = 2                   # robust-box tries N = BOX_DEFAULT_STEPS, +2, ... up to the max
 
 
 def _good(result: PlanResult) -> bool:
@@ -134,13 +135,19 @@ def _good(result: PlanResult) -> bool:
 
 def plan_auto_1dof(req: PlanRequest, route: Route, progress: Progress = None,
                    initial_currents: Optional[np.ndarray] = None) -> PlanResult:
-    """Choose N (steps = 0: from 2 + k up to AUTO_MAX_STEPS) and the starts (starts = 0:
+    """Choose N (steps = 0: from 2 + k up to AUTO_MAX_STEPS; robust-box: BOX_DEFAULT_STEPS, +2, ...)
+    and the starts (starts = 0:
     AUTO_STARTS in turn, escalated before N): the first truly robust plan (``_good``), else the
     best robust one (least box worst for robust-box), else the last best effort. ``extra["auto"]``
     lists every (steps, starts) tried with its outcome; the time budget covers all of them."""
     t0 = time.perf_counter()
     k = len(req.uncertain)
-    ns = range(k + 2, AUTO_MAX_STEPS + 1) if req.auto_steps else [req.n_steps()]
+    if not req.auto_steps:
+        ns: Sequence[int] = [req.n_steps()]
+    elif req.objective == "robust-box":   # the box worst falls with N; small N rarely help
+        ns = range(max(BOX_DEFAULT_STEPS, k + 2), AUTO_MAX_STEPS + 1, BOX_AUTO_STEP)
+    else:
+        ns = range(k + 2, AUTO_MAX_STEPS + 1)
     ladder = AUTO_STARTS if req.auto_starts else (int(req.starts),)
     tried: list[dict] = []
     best: Optional[PlanResult] = None

@@ -1,0 +1,107 @@
+"""robust-box with free switch times: the compiled terms, the plans, the chosen N."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ff_planner.model.arm1dof import batch_core
+from ff_planner.model.arm1dof_derivatives import Q_, hd_sim, workspace
+from ff_planner.model.params import Arm1DofParams
+from ff_planner.model.profile import BOX_DEFAULT_STEPS, PlanRequest
+from ff_planner.optimize.box_kernels import free_terms, free_values
+from ff_planner.optimize.box_robust import MIN_STEP
+from ff_planner.optimize.planner import plan
+from ff_planner.optimize.robust1d import verify
+from ff_planner.optimize.sample_box import box_corners, box_fractions
+
+KEYS = ("pv", "pc", "pt")
+
+
+def corner_worst(result) -> float:
+    p, prof = result.params, result.profile
+    sc = box_corners(box_fractions(KEYS), KEYS)
+    fr = np.ascontiguousarray(sc * np.array([p.pv, p.pc, p.pt]))
+    q, _ = batch_core(p.J, p.n * p.kt, fr, np.ones(len(sc), bool), prof.step_times,
+                      np.ascontiguousarray(prof.currents[:, 0]), prof.tf, 0.0)
+    return float(np.max(np.abs(q - 1.0)))
+
+
+def test_free_terms_match_the_simulator_and_its_derivatives():
+    p = Arm1DofParams()
+    nom = np.array([p.pv, p.pc, p.pt])
+    times = np.array([0.0, 0.2, 0.45, 0.7, 0.95])
+    cur = np.array([-2.0, 6.0, 1.0, -5.0])
+    scales = np.array([[1.0, 1.0, 1.0], [0.8, 1.2, 0.9], [1.1, 0.85, 1.2]])
+    W = workspace(4)
+    e, Ge, g, Gg = free_terms(p.J, p.n * p.kt, nom, np.abs(nom), scales, times, cur, 1.0, 0.0,
+                              1.0, 1e-6, W)
+    e2, g2 = free_values(p.J, p.n * p.kt, nom, np.abs(nom), scales, times, cur, 1.0, 0.0, 1.0, W)
+    assert np.allclose(e, e2, rtol=0, atol=1e-12) and np.array_equal(g, g2)
+    q, _ = batch_core(p.J, p.n * p.kt, np.ascontiguousarray(scales * nom), np.ones(3, bool),
+                      times, cur, 1.0, 0.0)
+    assert np.allclose(e, q - 1.0, rtol=0, atol=1e-12)
+    hd_sim(p.J, p.n * p.kt, p.pv, p.pc, p.pt, times, cur, 1.0, 0.0, False, np.abs(nom), W)
+    assert g[0] == pytest.approx(W[Q_, 0] - 1.0, abs=1e-12)
+    # switch-time columns against a wider central difference of the simulator
+    for j in (1, 2, 3):
+        h = 1e-5
+        tp, tm = times.copy(), times.copy()
+        tp[j] += h
+        tm[j] -= h
+        qp, _ = batch_core(p.J, p.n * p.kt, np.ascontiguousarray(scales * nom), np.ones(3, bool),
+                           tp, cur, 1.0, 0.0)
+        qm, _ = batch_core(p.J, p.n * p.kt, np.ascontiguousarray(scales * nom), np.ones(3, bool),
+                           tm, cur, 1.0, 0.0)
+        assert np.allclose(Ge[:, 4 + j - 1], (qp - qm) / (2 * h), rtol=1e-3, atol=1e-6)
+
+
+@pytest.fixture(scope="module")
+def n5_plan():
+    return plan(PlanRequest(objective="robust-box", steps=5, seed=0))
+
+
+def test_n5_free_times_beat_the_best_equal_step_plan(n5_plan):
+    r = n5_plan
+    assert r.success and r.robust
+    d = np.diff(r.profile.step_times)
+    assert np.all(d >= MIN_STEP - 1e-12)
+    assert r.profile.step_times[-1] == pytest.approx(1.0 - r.profile.coast, abs=1e-12)
+    ver = verify(r.params, r.profile, 0.0, 1.0, KEYS)
+    assert ver["robust"] and ver["max_abs_derivative"] <= 1e-6
+    # equal steps at N = 5: 296 mrad at best (2000 LM starts per coast, 0.03-0.2 s)
+    assert corner_worst(r) < 0.2
+    assert r.extra["step_durations"] == pytest.approx(d.tolist())
+
+
+def test_robust_box_default_steps():
+    assert PlanRequest(objective="robust-box").n_steps() == BOX_DEFAULT_STEPS
+    assert PlanRequest(objective="robust-box", steps=6).n_steps() == 6
+    assert PlanRequest().n_steps() == 5
+    assert PlanRequest(objective="robust-box", uncertain=("pc",)).n_steps() == BOX_DEFAULT_STEPS
+
+
+def test_free_switch_times_go_on_a_grid():
+    from ff_planner.library.gridded import on_grid
+    from ff_planner.optimize.box_robust import plan_box_robust_1dof
+
+    r = plan_box_robust_1dof(PlanRequest(objective="robust-box", steps=5, seed=1), grid=1e-3)
+    assert r.success and r.robust
+    assert on_grid(r.profile, 1e-3)
+    assert corner_worst(r) < 0.2
+
+
+def test_robust_box_chosen_steps_ladder():
+    from ff_planner.optimize.planner import Route, plan_auto_1dof
+
+    seen = []
+    base = plan(PlanRequest(objective="robust-box", steps=8, starts=5, coast_max=0.1))
+
+    def fake(req, progress=None):
+        seen.append(req.steps)
+        out = base
+        out.extra = dict(base.extra, box_worst=0.004 if req.steps == 10 else 0.02)
+        return out
+
+    r = plan_auto_1dof(PlanRequest(objective="robust-box", steps=0), Route(fake, False))
+    assert seen == [8, 10]                       # stops at the first N within BOX_TARGET
+    assert [t["steps"] for t in r.extra["auto"]["tried"]] == [8, 10]
