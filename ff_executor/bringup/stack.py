@@ -61,12 +61,13 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 
+from ff_msgs_py.configs import config_dir
 from ff_msgs_py.launch import NodeProcess, apply_ros_environment, ros_environment, start_module
 from ff_planner.model.params import ParameterError, default_params
 from ff_planner.model.registry import MODELS, model_spec
 
 REPO = Path(__file__).resolve().parents[2]
-CONFIG_DIR = REPO / "config"
+CONFIG_DIR = config_dir()
 
 
 def config_parameters(name: str, node: str) -> dict:

@@ -17,6 +17,8 @@ Grid file (YAML; angles rad, times s)::
     q0: 0.0                     # an axis: a number, a list, or {start, stop, step} (stop included)
     qf: {start: 0.5, stop: 1.5, step: 0.25}
     tf: [0.8, 1.0, 1.2]
+    switch_grid: 0.001          # s, optional: switch times on the drives' SYNC grid (the robust
+                                #    1-DOF plans; what the planner node serves)
     zero_moves: skip            # skip | keep  (tasks with qf == q0)
     max_tasks: 100000
 
@@ -48,12 +50,13 @@ from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
+from ff_planner.library.gridded import GridPlanRequest, applies
 from ff_planner.library.store import canonical_coords, task_key
 from ff_planner.model.params import MODELS, ParameterError, Params, default_params, n_joints, preset
 from ff_planner.model.profile import DEFAULT_COAST, OBJECTIVES, PlanningError, PlanRequest
 
 _KEYS = ("model", "preset", "params", "objective", "uncertain", "steps", "coast", "starts", "seed",
-         "time_budget", "tol", "q0", "qf", "tf", "zero_moves", "max_tasks", "name")
+         "time_budget", "tol", "q0", "qf", "tf", "zero_moves", "max_tasks", "name", "switch_grid")
 _DIGITS = 9
 
 
@@ -93,6 +96,7 @@ class GridSpec:
     zero_moves: str = "skip"
     max_tasks: int = 100000
     name: str = ""
+    switch_grid: Optional[float] = None    # s; None = switch times anywhere
 
     @property
     def axes(self) -> list[Axis]:
@@ -238,6 +242,14 @@ def parse_grid(data: Mapping[str, Any]) -> GridSpec:
         q0=_joint_axes("q0", data["q0"], nj), qf=_joint_axes("qf", data["qf"], nj),
         tf=parse_axis("tf", data["tf"]), zero_moves=zero,
         max_tasks=int(_num("max_tasks", data.get("max_tasks", 100000))), name=str(data.get("name", "")))
+    if data.get("switch_grid") not in (None, 0, 0.0):
+        g = _num("switch_grid", data["switch_grid"])
+        if not 0.0 < g < min(spec.tf.values):
+            raise GridError(f"switch_grid: must be a positive time below the shortest move time, got {g}")
+        if not applies(model, objective):
+            raise GridError(f"switch_grid: the {model} {objective} planner does not place switch times on "
+                            f"a grid; remove switch_grid")
+        spec.switch_grid = g
     if min(spec.tf.values) <= spec.coast:
         raise GridError(f"tf: every move time must exceed the coast of {spec.coast} s; "
                         f"smallest is {min(spec.tf.values)} s")
@@ -264,10 +276,11 @@ def load_grid(source: Union[str, Path, Mapping[str, Any]]) -> GridSpec:
 
 # --- expansion --------------------------------------------------------------------------------
 def _request(spec: GridSpec, q0: Sequence[float], qf: Sequence[float], tf: float) -> PlanRequest:
-    return PlanRequest(model=spec.model, q0=[float(x) for x in q0], qf=[float(x) for x in qf], tf=float(tf),
-                       uncertain=list(spec.uncertain), objective=spec.objective, steps=spec.steps,
-                       starts=spec.starts, seed=spec.seed, time_budget=spec.time_budget, coast=spec.coast,
-                       params=spec.params, tol=spec.tol)
+    kw: dict[str, Any] = dict(model=spec.model, q0=[float(x) for x in q0], qf=[float(x) for x in qf],
+                              tf=float(tf), uncertain=list(spec.uncertain), objective=spec.objective,
+                              steps=spec.steps, starts=spec.starts, seed=spec.seed,
+                              time_budget=spec.time_budget, coast=spec.coast, params=spec.params, tol=spec.tol)
+    return GridPlanRequest(grid=spec.switch_grid, **kw) if spec.switch_grid else PlanRequest(**kw)
 
 
 def expand(spec: GridSpec) -> Grid:

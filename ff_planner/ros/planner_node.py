@@ -1,32 +1,43 @@
-"""ROS 2 node ``ff_planner``: serves ``~/plan`` (ff_msgs/srv/PlanTrajectory) and ``/diagnostics``.
+"""ROS 2 node ``ff_planner``: serves ``~/plan`` (ff_msgs/srv/PlanTrajectory), the action
+``~/plan_long`` (ff_msgs/action/PlanMotion: the same request, progress feedback, cancel) and
+``/diagnostics``.
 
 A thin adapter around :class:`ff_planner.service.planner_service.PlannerService` (all logic there, no ROS).
 Parameters come from YAML (``--ros-args --params-file config/planner.yaml``); see that file for the
 names. Service calls run in a reentrant callback group on a multi-threaded executor and wait on a
 pool of worker processes, so a long 2-DOF plan never blocks 1-DOF requests; diagnostics run in
-their own group.
+their own group. The action takes one goal at a time (a second is rejected while one runs, the
+reason in the node's log) and shares the workers with the service; a cancel kills the goal's
+worker (replaced at once) and the goal ends canceled within ~0.1 s.
 
 Console script: ``ff-planner-node`` (= ``ff_planner.ros.planner_node:main``).
 """
 from __future__ import annotations
 
 import sys
+import threading
+import time
 from typing import Any, Optional
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 
+from ff_msgs.action import PlanMotion
 from ff_msgs.srv import PlanTrajectory
-from ff_msgs_py.convert import error_response, result_to_response
+from ff_msgs_py.convert import error_response
 from ff_msgs_py.threads import in_thread
 from ff_planner.library.warm import PlanFn
 from ff_planner.optimize.planner import plan
-from ff_planner.service.planner_service import PlannerService, RequestFields, ServiceConfigError, config_from_mapping
+from ff_planner.ros.messages import feedback_from_progress, fields_from_msg, fill_response
+from ff_planner.service.planner_service import CANCELED, PlannerService, ServiceConfigError, config_from_mapping
+
+FEEDBACK_PERIOD = 0.2   # s between PlanMotion feedback messages
 
 NODE_ONLY = ("diagnostics_period", "executor_threads")
 ROS_BUILTIN = ("use_sim_time", "start_type_description_service")  # declared by every rclpy node
@@ -54,6 +65,9 @@ PARAMETERS: dict[str, tuple[str, Optional[tuple[float, float]]]] = {
     "grace": ("s past a request's time budget before its worker is killed", (0.0, 3600.0)),
     "motion_dir": ("folder: write every plan as an ff-motion/1 file there; '' = off", None),
     "warmup": ("plan a small task in each worker at start (loads the compiled kernels)", None),
+    "switch_grid": ("s, put switch times on this grid when a request says 0 (the drives' SYNC period; "
+                    "default 0.001 = 1 ms); 0 = no grid. Applied by the robust 1-DOF planners "
+                    "(robust-derivative, robust-sampled, robust-box)", (0.0, 1.0)),
     "diagnostics_period": ("s between /diagnostics messages; 0 = off", (0.0, 3600.0)),
     "executor_threads": ("rclpy executor threads; 0 = max_pending + 4", (0, 100_000)),
 }
@@ -108,6 +122,11 @@ class PlannerNode(Node):
         self._wake = self.create_guard_condition(lambda: None)   # resumes awaited work (ff_msgs_py.threads)
         self._srv = self.create_service(PlanTrajectory, "~/plan", self._on_plan, qos_profile=qos,
                                         callback_group=ReentrantCallbackGroup())
+        self._goal_lock = threading.Lock()
+        self._goal_busy: Optional[tuple[str, float]] = None    # (goal id, time.monotonic() accepted)
+        self._action = ActionServer(self, PlanMotion, "~/plan_long", execute_callback=self._on_plan_long,
+                                    goal_callback=self._on_goal, cancel_callback=self._on_cancel,
+                                    callback_group=ReentrantCallbackGroup())
         self._diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         if self.diagnostics_period > 0:
             self.create_timer(self.diagnostics_period, self._publish_diagnostics,
@@ -120,24 +139,102 @@ class PlannerNode(Node):
 
     def _plan_blocking(self, req: PlanTrajectory.Request, res: PlanTrajectory.Response) -> PlanTrajectory.Response:
         try:
-            fields = RequestFields(
-                model=req.model, q0=list(req.q0), qf=list(req.qf), move_time=req.move_time,
-                uncertain=list(req.uncertain), objective=req.objective, steps=req.steps,
-                starts=req.starts, seed=req.seed, time_budget=req.time_budget,
-                override_names=list(req.override_names), override_values=list(req.override_values))
-            result = self.service.handle_fields(fields)
-            try:
-                result_to_response(result, res)
-            except Exception as exc:  # noqa: BLE001 - e.g. a profile that cannot become a message
-                error_response(res, "INTERNAL_ERROR", f"could not encode the plan: {exc}")
-            src = result.extra.get("source", "?") if result.extra else "?"
-            self.get_logger().info(
-                f"plan {req.model or '-'} {list(req.q0)} -> {list(req.qf)} tf={req.move_time:g}: "
-                f"{result.error_code} ({src}, {1e3 * result.extra.get('latency', 0.0):.1f} ms)"
-                + ("" if result.success else f": {result.message}"))
+            result = self.service.handle_fields(fields_from_msg(req))
+            self._encode(result, res)
+            self._log_result("plan", req, result)
         except Exception as exc:  # noqa: BLE001 - never die on a request
             self.get_logger().error(f"request failed: {exc!r}")
             error_response(res, "INTERNAL_ERROR", f"planner node error: {exc}")
+        return res
+
+    def _encode(self, result: Any, res: Any) -> None:
+        try:
+            fill_response(result, res)
+        except Exception as exc:  # noqa: BLE001 - e.g. a profile that cannot become a message
+            error_response(res, "INTERNAL_ERROR", f"could not encode the plan: {exc}")
+
+    def _log_result(self, what: str, req: Any, result: Any) -> None:
+        extra = result.extra or {}
+        self.get_logger().info(
+            f"{what} {req.model or '-'} {list(req.q0)} -> {list(req.qf)} tf={req.move_time:g}: "
+            f"{result.error_code} ({extra.get('source', '?')}, {1e3 * extra.get('latency', 0.0):.1f} ms)"
+            + ("" if result.success else f": {result.message}"))
+
+    # --- the ~/plan_long action ---------------------------------------------------------------
+    def _on_goal(self, goal: PlanMotion.Goal) -> GoalResponse:
+        """One goal at a time: a second one is rejected while one runs (reason logged)."""
+        with self._goal_lock:
+            if self._goal_busy is not None:
+                gid, since = self._goal_busy
+                self.get_logger().warning(
+                    f"plan_long goal rejected: busy with goal {gid} for {time.monotonic() - since:.1f} s "
+                    f"(one goal at a time); wait for it, cancel it, or call the ~/plan service")
+                return GoalResponse.REJECT
+            self._goal_busy = ("?", time.monotonic())
+        return GoalResponse.ACCEPT
+
+    def _on_cancel(self, _goal_handle: Any) -> CancelResponse:
+        return CancelResponse.ACCEPT
+
+    async def _on_plan_long(self, goal_handle: Any) -> PlanMotion.Result:
+        """Action ~/plan_long: plans on its own thread, with feedback and cancel."""
+        try:
+            return await in_thread(self._plan_long_blocking, goal_handle, wake=self._wake, name="ff_plan_goal")
+        finally:
+            with self._goal_lock:
+                self._goal_busy = None
+
+    def _plan_long_blocking(self, goal_handle: Any) -> PlanMotion.Result:
+        gid = bytes(goal_handle.goal_id.uuid).hex()[:8]
+        t0 = time.monotonic()
+        with self._goal_lock:
+            self._goal_busy = (gid, t0)
+        goal = goal_handle.request
+        res = PlanMotion.Result()
+        cancel = threading.Event()
+        latest: dict[str, Any] = {}
+        stage = ["accepted"]
+        lock = threading.Lock()
+
+        def progress(report: dict) -> None:
+            with lock:
+                if report.get("stage"):
+                    stage[0] = str(report["stage"])
+                latest.clear()
+                latest.update(report)
+
+        box: list[Any] = []
+        fields = fields_from_msg(goal)
+        worker = threading.Thread(target=lambda: box.append(self.service.handle_fields(fields, progress, cancel)),
+                                  name="ff_plan_goal_work", daemon=True)
+        self.get_logger().info(f"plan_long goal {gid}: {goal.model or '-'} {list(goal.q0)} -> {list(goal.qf)} "
+                               f"tf={goal.move_time:g} {goal.objective or 'robust-derivative'}")
+        worker.start()
+        total = int(goal.starts)
+        steps = int(goal.steps) or (2 + len(goal.uncertain) if len(goal.uncertain) else 0)
+        while worker.is_alive():
+            worker.join(FEEDBACK_PERIOD)
+            if goal_handle.is_cancel_requested and not cancel.is_set():
+                self.get_logger().info(f"plan_long goal {gid}: cancel requested")
+                cancel.set()
+            if worker.is_alive() and goal_handle.is_active:
+                with lock:
+                    fb = feedback_from_progress(PlanMotion.Feedback(), latest, stage=stage[0],
+                                                starts_total=total, steps=steps, elapsed=time.monotonic() - t0)
+                goal_handle.publish_feedback(fb)
+        if not box:
+            error_response(res, "INTERNAL_ERROR", "planner node error: the plan ended without an answer")
+            goal_handle.abort()
+            return res
+        result = box[0]
+        self._encode(result, res)
+        self._log_result(f"plan_long goal {gid}", goal, result)
+        if (result.extra or {}).get(CANCELED) or (cancel.is_set() and not result.success):
+            goal_handle.canceled()
+        elif result.success:
+            goal_handle.succeed()
+        else:
+            goal_handle.abort()
         return res
 
     def _publish_diagnostics(self) -> None:
@@ -171,7 +268,7 @@ def main(argv: Optional[list[str]] = None, plan_fn: PlanFn = plan) -> int:
             return 2
         executor = MultiThreadedExecutor(num_threads=node.executor_threads)
         executor.add_node(node)
-        node.get_logger().info("ff_planner ready: service ~/plan")
+        node.get_logger().info("ff_planner ready: service ~/plan, action ~/plan_long")
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass

@@ -15,6 +15,18 @@ it again. Order of work for a valid request:
    without multistart (worker process); if that fails and time is left, a cold solve follows;
 4. otherwise a cold multistart solve in a worker process.
 
+Request fields beyond the facade's: ``box_names``/``box_fractions`` (± fraction per uncertain
+parameter, for robust-box and the certificate), ``coast_max`` (s, robust-box) and ``switch_grid``
+(s: switch times on the drive's SYNC grid; 0 = the node's ``switch_grid``, negative = none). A
+library row answers a request as it is only when it fits these (its switch times on the grid, its
+certificate's box the request's). Every answer with a profile carries ``extra["predicted_rest"]``
+(rad per joint, nominal parameters: 1-DOF where the arm stops with zero current after tf, 2-DOF
+``q_final`` when the plan is at rest at tf).
+
+Long plans: ``handle_fields(fields, progress=fn, cancel=event)`` reports the planner's progress
+dicts (sent by the worker process over a Unix datagram socket, see :class:`ProgressChannel`) and
+stops when ``event`` is set (the worker is killed and replaced, the answer says "canceled").
+
 Concurrency: a pool of ``workers`` processes (pebble: a task running past its time budget has its
 worker killed and replaced). At most ``workers − 1`` scara2 (long) plans run or wait in the pool at
 once, so a worker is always left for 1-DOF requests. More than ``max_pending`` requests waiting or
@@ -25,10 +37,14 @@ included.
 """
 from __future__ import annotations
 
+import json
 import math
 import multiprocessing
 import os
+import shutil
+import socket
 import sqlite3
+import tempfile
 import threading
 import time
 import traceback
@@ -43,15 +59,22 @@ from pebble import ProcessPool
 
 from ff_planner.core.errors import ParameterError, PlanningError, WarmStartUnavailable, error_code_of
 from ff_planner.export.motion_file import write_motion
+from ff_planner.library.gridded import GridPlanRequest, applies, on_grid
 from ff_planner.library.refusal import as_vector, failure
 from ff_planner.library.store import LibraryError, MotionLibrary, MotionRecord, record_from_result, task_key
 from ff_planner.library.warm import PlanFn, warm_plan
 from ff_planner.model.params import MODELS, Params, check_model, default_params, preset
-from ff_planner.model.profile import PlanRequest, PlanResult
+from ff_planner.model.profile import PlanRequest, PlanResult, RobustnessCertificate
+from ff_planner.model.simulate import rest_position
 from ff_planner.optimize.planner import CheckedRequest, check, plan
+from ff_planner.optimize.sample_box import box_fractions
 
 SHIFT_EPS = 1e-9          # rad / s: canonical distance below which a stored task is the same motion
 LONG_MODELS = ("scara2",)  # models whose plans take long (seconds to minutes)
+PROGRESS_PERIOD = 0.05    # s: a worker reports progress at most this often
+CANCEL_POLL = 0.05        # s: how often a running plan looks at its cancel event
+REST_SPEED = 1e-6         # rad/s: a 2-DOF plan with |qd(tf)| below this is at rest at tf
+CANCELED = "canceled"     # extra["canceled"] of an answer stopped by its caller
 
 
 class ServiceConfigError(ValueError):
@@ -83,6 +106,7 @@ class ServiceConfig:
     grace: float = 0.5                   # s beyond the time budget before a worker is killed
     motion_dir: str = ""                 # "" = no motion files
     warmup: bool = True                  # plan a small task in each worker at start (JIT caches)
+    switch_grid: float = 0.001           # s, switch-time grid when a request says 0 (1 ms SYNC); 0 = none
 
     def validate(self) -> None:
         """Raise ServiceConfigError naming the first setting that cannot be used."""
@@ -106,6 +130,8 @@ class ServiceConfig:
                 raise ServiceConfigError(f"{name} must be a finite number > 0, got {v}")
         if not (self.coast >= 0 and math.isfinite(self.coast)):
             raise ServiceConfigError(f"coast must be >= 0 s, got {self.coast}")
+        if not (math.isfinite(self.switch_grid) and 0.0 <= self.switch_grid < 1.0):
+            raise ServiceConfigError(f"switch_grid must be in [0, 1) s (0 = no grid), got {self.switch_grid}")
 
     def model_params(self, model: str) -> Params:
         """The node's parameters for ``model``: its preset with the configured overrides."""
@@ -139,11 +165,42 @@ def _ping() -> int:
     return os.getpid()
 
 
+class _Reporter:
+    """The progress callback of a plan in a worker: sends the planner's dicts (numbers and strings
+    only) as JSON datagrams to ``path``, at most every PROGRESS_PERIOD s (a new stage at once).
+    Never blocks and never raises: a full or closed socket drops the report."""
+
+    def __init__(self, path: str, tag: int) -> None:
+        self.path, self.tag = path, tag
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self.sock.setblocking(False)
+        self.last = -math.inf
+        self.stage: Any = None
+
+    def __call__(self, report: Mapping[str, Any]) -> None:
+        now = time.monotonic()
+        stage = report.get("stage")
+        if now - self.last < PROGRESS_PERIOD and stage == self.stage:
+            return
+        self.last, self.stage = now, stage
+        out: dict[str, Any] = {"tag": self.tag}
+        for k, v in report.items():
+            if isinstance(v, (bool, str)):
+                out[str(k)] = v
+            elif isinstance(v, (int, float, np.integer, np.floating)):
+                out[str(k)] = float(v) if isinstance(v, (float, np.floating)) else int(v)
+        try:
+            self.sock.sendto(json.dumps(out).encode(), self.path)
+        except OSError:
+            pass
+
+
 def _solve(checked: CheckedRequest, deadline: float, initial_currents: Optional[np.ndarray],
-           plan_fn: PlanFn) -> PlanResult:
+           plan_fn: PlanFn, report_to: Optional[tuple[str, int]] = None) -> PlanResult:
     """One plan in a worker: cold (multistart) or warm (from ``initial_currents``, A), within
     ``deadline`` (time.monotonic(), shared by all processes on Linux). Raises WarmStartUnavailable
-    when the planner cannot start from the currents; every other error becomes a refusal."""
+    when the planner cannot start from the currents; every other error becomes a refusal.
+    ``report_to``: (socket path, tag) of a :class:`ProgressChannel` for the planner's progress."""
     request = checked.request
     t0 = time.monotonic()
     left = deadline - t0
@@ -152,11 +209,12 @@ def _solve(checked: CheckedRequest, deadline: float, initial_currents: Optional[
                        f"the time budget of {request.time_budget:.3g} s ran out while waiting for a "
                        f"free worker; raise time_budget or retry later")
     req = replace(checked, request=replace(request, time_budget=min(float(request.time_budget), left)))
+    progress = _Reporter(*report_to) if report_to is not None else None
     try:
         if initial_currents is not None:
-            result = warm_plan(req, initial_currents, plan_fn)
+            result = warm_plan(req, initial_currents, plan_fn, progress)
         else:
-            result = plan_fn(req)
+            result = plan_fn(req, progress)
     except WarmStartUnavailable:
         raise
     except (PlanningError, ParameterError) as exc:
@@ -166,6 +224,65 @@ def _solve(checked: CheckedRequest, deadline: float, initial_currents: Optional[
         result = failure(request, "INTERNAL_ERROR", f"planner error: {tb}")
     result.solve_time = result.solve_time or (time.monotonic() - t0)
     return result
+
+
+# --- progress from the workers ---------------------------------------------------------------------
+class ProgressChannel:
+    """Progress reports from worker processes: a Unix datagram socket in a private temporary
+    folder and a thread that hands each report to the callback registered under its tag.
+
+    Datagrams share no lock with the workers, so a worker killed mid-report (time budget, cancel)
+    cannot leave the channel blocked or garbled for the others.
+    """
+
+    def __init__(self) -> None:
+        self.folder = tempfile.mkdtemp(prefix="ff_plan_")
+        self.path = os.path.join(self.folder, "progress")
+        self.sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        self.sock.bind(self.path)
+        self.sock.settimeout(0.2)
+        self._subs: dict[int, Callable[[dict], None]] = {}
+        self._next = 0
+        self._lock = threading.Lock()
+        self._closed = False
+        self._thread = threading.Thread(target=self._loop, name="ff_plan_progress", daemon=True)
+        self._thread.start()
+
+    def register(self, fn: Callable[[dict], None]) -> tuple[str, int]:
+        """Route reports to ``fn``; returns the (path, tag) a worker sends them to."""
+        with self._lock:
+            self._next += 1
+            self._subs[self._next] = fn
+            return self.path, self._next
+
+    def unregister(self, tag: int) -> None:
+        with self._lock:
+            self._subs.pop(tag, None)
+
+    def _loop(self) -> None:
+        while not self._closed:
+            try:
+                data = self.sock.recv(65536)
+            except socket.timeout:
+                continue
+            except OSError:
+                return
+            try:
+                report = json.loads(data)
+                fn = self._subs.get(int(report.pop("tag")))
+            except (ValueError, KeyError, TypeError):
+                continue
+            if fn is not None:
+                try:
+                    fn(report)
+                except Exception:  # noqa: BLE001 - a caller's callback must not stop the channel
+                    pass
+
+    def close(self) -> None:
+        self._closed = True
+        self._thread.join(timeout=1.0)
+        self.sock.close()
+        shutil.rmtree(self.folder, ignore_errors=True)
 
 
 # --- the service ------------------------------------------------------------------------------
@@ -185,6 +302,10 @@ class RequestFields:
     time_budget: float = 0.0
     override_names: Sequence[str] = ()
     override_values: Sequence[float] = ()
+    box_names: Sequence[str] = ()        # uncertain parameters given their own box half-width
+    box_fractions: Sequence[float] = ()  # ± fraction of the nominal value, one per box_names entry
+    coast_max: float = 0.0               # s, robust-box; 0 = the planner's default
+    switch_grid: float = 0.0             # s; 0 = the node's switch_grid, negative = no grid
 
 
 class PlannerService:
@@ -221,6 +342,7 @@ class PlannerService:
         self._times: dict[str, deque[float]] = {}
         self._closed = False
         self._no_warm: set[tuple[str, str]] = set()   # (model, objective) whose planner cannot warm start
+        self._channel: Optional[ProgressChannel] = None
 
     @property
     def planner_name(self) -> str:
@@ -235,6 +357,7 @@ class PlannerService:
         pool = ProcessPool(max_workers=self.config.workers, initializer=_worker_init,
                            initargs=(self.plan_fn, self.config.warmup), context=ctx)
         self._pool = pool
+        self._channel = ProgressChannel()
         futs = [pool.schedule(_ping) for _ in range(self.config.workers)]
         for f in futs:
             f.result(timeout=wait)
@@ -246,6 +369,9 @@ class PlannerService:
             self._pool.stop()
             self._pool.join(timeout=10)
             self._pool = None
+        if self._channel is not None:
+            self._channel.close()
+            self._channel = None
         if self.library is not None:
             self.library.close()
 
@@ -283,17 +409,71 @@ class PlannerService:
         if steps is not None and steps > c.max_steps:
             raise PlanningError(f"steps = {steps} per joint exceeds this planner's limit of {c.max_steps}; "
                                 f"ask for fewer (default is 2 + number of uncertain parameters)")
-        req = PlanRequest(model=model, q0=[float(x) for x in f.q0], qf=[float(x) for x in f.qf], tf=tf,
-                          uncertain=uncertain, objective=objective, steps=steps, starts=starts,
-                          seed=int(f.seed), time_budget=budget, coast=c.coast, params=params, tol=c.tol)
+        box = self._box(f, uncertain)
+        coast_max = float(f.coast_max)
+        if not (math.isfinite(coast_max) and coast_max >= 0.0):
+            raise PlanningError(f"coast_max must be a finite number >= 0 s (0 = default), got {coast_max}")
+        grid = self._grid(f, objective, model)
+        kw: dict[str, Any] = dict(model=model, q0=[float(x) for x in f.q0], qf=[float(x) for x in f.qf],
+                                  tf=tf, uncertain=uncertain, objective=objective, steps=steps,
+                                  starts=starts, seed=int(f.seed), time_budget=budget, coast=c.coast,
+                                  params=params, tol=c.tol, box=box)
+        if coast_max > 0.0:
+            kw["coast_max"] = coast_max
+        req = GridPlanRequest(grid=grid, **kw) if grid is not None else PlanRequest(**kw)
         checked = check(req)   # UNREACHABLE answered at once, before the library lookup
         if req.n_steps() > c.max_steps:
             raise PlanningError(f"{req.n_steps()} steps per joint exceeds this planner's limit of "
                                 f"{c.max_steps}; ask for fewer steps or uncertain parameters")
+        if grid is not None and req.steps != 0:
+            cells = math.floor((tf - c.coast) / grid + 1e-9)
+            if cells < req.n_steps():
+                raise PlanningError(f"{req.n_steps()} steps do not fit on a {grid:g} s switch_grid within "
+                                    f"tf - coast = {tf - c.coast:g} s; ask for fewer steps, a longer "
+                                    f"move, or a finer switch_grid")
         return checked
 
-    def handle_fields(self, f: RequestFields) -> PlanResult:
-        """Validate and serve one request; never raises."""
+    @staticmethod
+    def _box(f: RequestFields, uncertain: Sequence[str]) -> Optional[dict[str, float]]:
+        """The request's box (± fraction per uncertain parameter) or None (the default box)."""
+        names, fracs = [str(n) for n in f.box_names], [float(x) for x in f.box_fractions]
+        if len(names) != len(fracs):
+            raise PlanningError(f"{len(names)} box names but {len(fracs)} box fractions; give one "
+                                f"fraction per name")
+        if not names:
+            return None
+        if len(set(names)) != len(names):
+            raise PlanningError(f"box names repeat: {names}")
+        extra = [n for n in names if n not in uncertain]
+        if extra:
+            raise PlanningError(f"box names {extra} are not uncertain parameters of this request; "
+                                f"uncertain are {list(uncertain)} (name them in `uncertain` too)")
+        for n, x in zip(names, fracs):
+            if not (math.isfinite(x) and 0.0 < x < 1.0):
+                raise PlanningError(f"box fraction of {n} must be a finite number in (0, 1) "
+                                    f"(0.2 = ±20 %), got {x}")
+        return dict(zip(names, fracs))
+
+    def _grid(self, f: RequestFields, objective: str, model: str) -> Optional[float]:
+        """The switch-time grid (s) of a request, or None: 0 = the node's switch_grid, negative =
+        none; only the 1-DOF planners of ``gridded.GRID_OBJECTIVES`` place switches on a grid."""
+        g = float(f.switch_grid)
+        if not math.isfinite(g):
+            raise PlanningError(f"switch_grid must be a finite number of seconds (0 = node default, "
+                                f"negative = no grid), got {g}")
+        if g == 0.0:
+            g = float(self.config.switch_grid)
+        if g <= 0.0 or not applies(model, objective):
+            return None
+        if g >= float(f.move_time):
+            raise PlanningError(f"switch_grid {g:g} s must be shorter than the move time {f.move_time:g} s")
+        return g
+
+    def handle_fields(self, f: RequestFields, progress: Optional[Callable[[dict], None]] = None,
+                      cancel: Optional[threading.Event] = None) -> PlanResult:
+        """Validate and serve one request; never raises. ``progress`` gets dicts (``stage`` and the
+        planner's own keys: ``starts_done``, ``best`` ...); ``cancel`` set = stop and answer
+        "canceled" (``extra["canceled"]``)."""
         t0 = time.monotonic()
         try:
             req = self.make_request(f)
@@ -304,41 +484,59 @@ class PlannerService:
             res = failure(None if code == "INTERNAL_ERROR" else _partial(f), code, str(exc))
             res.extra = {"source": "invalid", "latency": elapsed}
             return res
-        return self.handle(req, received=t0)
+        try:
+            wanted = float(f.switch_grid) or float(self.config.switch_grid)
+        except (TypeError, ValueError):
+            wanted = 0.0
+        return self.handle(req, received=t0, progress=progress, cancel=cancel, grid=max(0.0, wanted))
 
-    def handle(self, checked: CheckedRequest, received: Optional[float] = None) -> PlanResult:
+    def handle(self, checked: CheckedRequest, received: Optional[float] = None,
+               progress: Optional[Callable[[dict], None]] = None,
+               cancel: Optional[threading.Event] = None, grid: float = 0.0) -> PlanResult:
         """Serve a checked request (see module docstring; ``received``: time.monotonic() of its
-        arrival, default now); never raises."""
+        arrival, default now; ``grid``: the switch grid asked for, s, 0 = none: an answer whose
+        switch times are off it says so); never raises."""
         t0 = received if received is not None else time.monotonic()
         request = checked.request
         deadline = t0 + float(request.time_budget)
         try:
-            result, source = self._serve(checked, deadline)
+            result, source = self._serve(checked, deadline, progress, cancel)
         except Exception as exc:  # noqa: BLE001 - the node must keep serving
             tb = traceback.format_exception_only(type(exc), exc)[-1].strip()
             self.log(f"internal error: {traceback.format_exc()}")
             result, source = failure(request, "INTERNAL_ERROR", f"planner node error: {tb}"), "error"
         elapsed = time.monotonic() - t0
         result.extra = dict(result.extra or {}, source=source, latency=elapsed)
+        if result.profile is not None:
+            result.extra["predicted_rest"] = predicted_rest(result, checked.params)
+            if grid > 0.0 and not on_grid(result.profile, grid):
+                result.message = ((result.message + "; ") if result.message else "") + (
+                    f"switch times are not on the {grid:g} s switch_grid (the {request.model} "
+                    f"{request.objective} planner places them freely; the drive applies each at its "
+                    f"next SYNC)")
         self._count(source, result.error_code, elapsed)
         if result.success and self.config.motion_dir and result.profile is not None:
             self._write_motion(request, result)
         return result
 
-    def _serve(self, checked: CheckedRequest, deadline: float) -> tuple[PlanResult, str]:
+    def _serve(self, checked: CheckedRequest, deadline: float,
+               progress: Optional[Callable[[dict], None]] = None,
+               cancel: Optional[threading.Event] = None) -> tuple[PlanResult, str]:
         request = checked.request
         lib = self.library
+        tell = progress or (lambda d: None)
         warm_from: Optional[tuple[float, MotionRecord]] = None
         if lib is not None:
+            tell({"stage": "library"})
             rec = lib.lookup(request)
             if rec is not None and self._usable(rec, request):
-                return rec.to_result(request, message=self._hit_message(rec, False)), "hit"
+                return _from_record(rec, request, self._hit_message(rec, False), False), "hit"
             near = lib.nearest(request, k=1, max_distance=self.config.warm_max_distance,
                                time_weight=self.config.time_weight)
             if near:
                 dist, rec = near[0]
                 if dist < SHIFT_EPS and self._usable(rec, request):
-                    return rec.to_result(request, message=self._hit_message(rec, True), shift=True), "shift"
+                    return _from_record(rec, request, self._hit_message(rec, True), True), "shift"
                 cur = rec.currents()
                 if (request.objective.startswith("robust") and cur is not None
                         and cur.shape == (request.n_steps(), len(request.q0))):
@@ -346,8 +544,9 @@ class PlannerService:
         note = ""
         if warm_from is not None and (request.model, request.objective) not in self._no_warm:
             dist, rec = warm_from
+            tell({"stage": "warm-start"})
             try:
-                result = self._run(checked, deadline, rec.currents())
+                result = self._run(checked, deadline, rec.currents(), progress, cancel)
             except WarmStartUnavailable as exc:   # this model's planner cannot start from currents
                 self._no_warm.add((request.model, request.objective))
                 self.log(f"warm starts off for {request.model} {request.objective}: {exc}")
@@ -359,18 +558,25 @@ class PlannerService:
                                       + (result.message or ""))
                     self._store(request, result, "warm", rec.task_key)
                     return result, "warm"
-                if result.error_code == "TIME_BUDGET_EXHAUSTED" or time.monotonic() >= deadline:
-                    return result, "warm"
+                if (result.error_code == "TIME_BUDGET_EXHAUSTED" or time.monotonic() >= deadline
+                        or result.extra.get(CANCELED)):
+                    return result, ("canceled" if result.extra.get(CANCELED) else "warm")
                 note = f"warm start from {rec.task_key} failed ({result.message}); "
-        result = self._run(checked, deadline, None)
+        tell({"stage": "multistart"})
+        result = self._run(checked, deadline, None, progress, cancel)
         if note:
             result.message = note + (result.message or "")
         result.warm_start = False
+        if result.extra.get(CANCELED):
+            return result, "canceled"
         self._store(request, result, "cold", None)
         return result, ("refused" if result.extra.get("refused") else "cold")
 
     def _usable(self, rec: MotionRecord, request: PlanRequest) -> bool:
-        """May a stored row answer this request without solving?"""
+        """May a stored row answer this request without solving? (A solved row must also fit the
+        request's switch grid and, for robust-box, its box and coast_max.)"""
+        if rec.status == "solved" and not _fits(rec, request):
+            return False
         if rec.status == "solved":
             return rec.robust or not request.objective.startswith("robust") or rec.starts_tried >= request.starts
         if rec.status == "infeasible":
@@ -384,12 +590,16 @@ class PlannerService:
             return f"from the motion library ({what} {rec.task_key}, solved {rec.solved_how})"
         return f"known from the motion library: no plan here ({rec.error_code}): {rec.reason}"
 
-    def _run(self, checked: CheckedRequest, deadline: float, initial: Optional[np.ndarray]) -> PlanResult:
-        """Run one plan in the pool, with admission control and the deadline enforced.
+    def _run(self, checked: CheckedRequest, deadline: float, initial: Optional[np.ndarray],
+             progress: Optional[Callable[[dict], None]] = None,
+             cancel: Optional[threading.Event] = None) -> PlanResult:
+        """Run one plan in the pool, with admission control, the deadline and ``cancel`` enforced.
 
         Raises WarmStartUnavailable (from the worker) when ``initial`` currents cannot be used.
         """
         request = checked.request
+        if cancel is not None and cancel.is_set():
+            return _canceled(request)
         pool = self._pool
         if pool is None or self._closed:
             return failure(request, "INTERNAL_ERROR", "planner workers are not running")
@@ -415,11 +625,30 @@ class PlannerService:
                     return failure(request, "TIME_BUDGET_EXHAUSTED",
                                    f"all long-plan workers stayed busy for the whole time budget of "
                                    f"{request.time_budget:.3g} s; retry later or raise time_budget")
+            channel = self._channel
+            tag: Optional[int] = None
             try:
-                fut = pool.schedule(_solve, args=(checked, deadline, initial, self.plan_fn),
+                report_to = None
+                if progress is not None and channel is not None:
+                    report_to = channel.register(progress)
+                    tag = report_to[1]
+                fut = pool.schedule(_solve, args=(checked, deadline, initial, self.plan_fn, report_to),
                                     timeout=max(0.0, deadline - time.monotonic()) + 2 * self.config.grace)
                 try:
-                    return fut.result(timeout=max(0.0, deadline - time.monotonic()) + self.config.grace)
+                    end = deadline + self.config.grace
+                    while True:
+                        if cancel is not None and cancel.is_set():
+                            fut.cancel()  # pebble: a running task's worker is killed and replaced
+                            with self._lock:
+                                self._stats["canceled"] += 1
+                            return _canceled(request)
+                        wait = min(CANCEL_POLL, end - time.monotonic()) if cancel is not None \
+                            else end - time.monotonic()
+                        try:
+                            return fut.result(timeout=max(0.0, wait))
+                        except FutureTimeout:
+                            if fut.done() or time.monotonic() >= end:
+                                raise
                 except WarmStartUnavailable:
                     raise
                 except FutureTimeout:
@@ -432,6 +661,8 @@ class PlannerService:
                 except Exception as exc:  # noqa: BLE001 - a dead worker, pickling error ...
                     return failure(request, "INTERNAL_ERROR", f"planner worker failed: {exc!r}")
             finally:
+                if tag is not None and channel is not None:
+                    channel.unregister(tag)
                 if long:
                     self._long_slots.release()
         finally:
@@ -487,6 +718,99 @@ class PlannerService:
             except Exception:  # noqa: BLE001
                 pass
         return out
+
+
+def _canceled(request: PlanRequest) -> PlanResult:
+    r = failure(request, "TIME_BUDGET_EXHAUSTED", "canceled by the caller before a plan was found")
+    r.extra = {CANCELED: True}
+    return r
+
+
+def _fits(rec: MotionRecord, request: PlanRequest) -> bool:
+    """Does a stored plan fit what ``request`` asks beyond its task key: switch times on its grid;
+    a certificate (when the row has one) over the request's box, and no box of its own asked
+    when the row has none; for robust-box a coast within coast_max?"""
+    prof = rec.profile()
+    grid = getattr(request, "grid", None)
+    if prof is not None and grid is not None and not on_grid(prof, float(grid)):
+        return False
+    cert = (rec.motion or {}).get("certificate")
+    if not cert and request.box:
+        return False
+    if cert and request.uncertain:
+        want = box_fractions(list(request.uncertain), request.box)
+        have = {str(k): float(v) for k, v in (cert.get("box") or {}).items()}
+        if set(have) != set(want) or any(abs(have[k] - want[k]) > 1e-12 for k in want):
+            return False
+    if request.objective == "robust-box" and prof is not None \
+            and prof.coast > float(request.coast_max) + 1e-12:
+        return False
+    return True
+
+
+def _certificate_from_dict(d: Mapping[str, Any]) -> Optional[RobustnessCertificate]:
+    """A RobustnessCertificate from its motion-file form (``RobustnessCertificate.to_dict``)."""
+    try:
+        return RobustnessCertificate(
+            box={str(k): float(v) for k, v in d["box"].items()},
+            worst_rest_error=float(d["worst_rest_error"]),
+            worst_at={str(k): float(v) for k, v in d["worst_at"].items()},
+            per_parameter={str(k): float(v) for k, v in d["per_parameter"].items()},
+            moving_at_tf=float(d["moving_at_tf"]),
+            switch_timing=[float(x) for x in d["switch_timing_per_100us"]],
+            samples=int(d["samples"]))
+    except (KeyError, TypeError, ValueError, AttributeError):
+        return None
+
+
+def _from_record(rec: MotionRecord, request: PlanRequest, message: str, shift: bool) -> PlanResult:
+    """A library row as the answer to ``request``, with the certificate and the rest position
+    the row's motion carries (the rest position moved with a shifted copy)."""
+    result = rec.to_result(request, message=message, shift=shift)
+    motion = rec.motion or {}
+    cert = motion.get("certificate")
+    if isinstance(cert, Mapping):
+        result.certificate = _certificate_from_dict(cert)
+    rest = (motion.get("predicted") or {}).get("rest_position")
+    if rest is not None:
+        try:
+            r = np.asarray(rest, dtype=float).ravel()
+            if shift:
+                r = r + (float(request.q0[0]) - float(rec.q0[0]))
+            result.extra["rest_position"] = [float(x) for x in r]
+        except (TypeError, ValueError):
+            pass
+    return result
+
+
+def predicted_rest(result: PlanResult, params: Optional[Params] = None) -> list[float]:
+    """Where the plan leaves the arm at rest (rad per joint, nominal parameters); [] = unknown.
+
+    1-DOF: the position where it stops with zero current after tf (``extra["rest_position"]`` of
+    the facade, else simulated); 2-DOF: ``q_final`` when the plan is at rest at tf (|qd(tf)| below
+    REST_SPEED), else the facade's rest position if it has one."""
+    prof = result.profile
+    if prof is None:
+        return []
+    known = (result.extra or {}).get("rest_position")
+    if result.model == "arm1dof":
+        if known is not None and len(known) == 1 and all(math.isfinite(float(x)) for x in known):
+            return [float(x) for x in known]
+        p = params if params is not None else result.params
+        try:
+            rest = rest_position(p if p is not None else default_params("arm1dof"), prof,
+                                 [float(x) for x in result.q0])
+        except (ValueError, ArithmeticError, TypeError):
+            return []
+        return [float(x) for x in rest] if np.all(np.isfinite(rest)) else []
+    qd = np.asarray(result.qd_final, dtype=float).ravel()
+    q = np.asarray(result.q_final, dtype=float).ravel()
+    if q.size == len(result.q0) and qd.size == q.size and np.all(np.isfinite(q)) \
+            and np.all(np.abs(qd) <= REST_SPEED):
+        return [float(x) for x in q]
+    if known is not None and all(math.isfinite(float(x)) for x in known):
+        return [float(x) for x in known]
+    return []
 
 
 def _partial(f: RequestFields) -> PlanRequest:

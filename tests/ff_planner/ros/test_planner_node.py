@@ -238,3 +238,35 @@ def test_diagnostics_report_solve_statistics(client):
     values = {kv.key: kv.value for kv in status[-1].values}
     assert int(values["requests"]) >= 1
     assert "latency_cold_p50" in values and "library_solved" in values
+
+
+def test_box_grid_certificate_and_predicted_rest_over_the_service(client):
+    from ff_msgs.srv import PlanTrajectory
+
+    fields = dict(model="arm1dof", q0=[0.0], qf=[0.6], move_time=1.0, uncertain=["pv", "pc", "pt"],
+                  steps=7, starts=100, seed=3, box_names=["pc"], box_fractions=[0.3])
+    res = _call(client, **fields)
+    assert res.success and res.robust, res.message
+    times = list(res.profile.step_times)
+    assert all(abs(t * 1e3 - round(t * 1e3)) < 1e-6 for t in times), times     # the node's 1 ms grid
+    assert len({round((b - a) * 1e3) for a, b in zip(times, times[1:])}) > 1   # 950 ms / 7: not uniform
+    cert = res.certificate
+    assert cert.certified and list(cert.box_names) == ["pv", "pc", "pt"]
+    assert list(cert.box_fractions) == [0.2, 0.3, 0.2]
+    assert len(cert.worst_at) == len(cert.per_parameter) == 3 and cert.samples > 0
+    assert len(cert.switch_timing) == res.profile.n_steps
+    assert cert.worst_rest_error >= max(cert.per_parameter) - 1e-12
+    assert len(res.profile.predicted_rest) == 1 and abs(res.profile.predicted_rest[0] - 0.6) < 1e-4
+    again = _call(client, **fields)                     # from the library: the same certificate
+    assert again.warm_start and again.certificate.certified
+    assert again.certificate.worst_rest_error == cert.worst_rest_error
+    assert list(again.profile.predicted_rest) == list(res.profile.predicted_rest)
+    free = _call(client, **dict(fields, switch_grid=-1.0, box_names=[], box_fractions=[]))
+    assert free.success and "from the motion library" not in free.message, free.message  # the row does not fit
+    assert list(free.certificate.box_fractions) == [0.2, 0.2, 0.2]
+    assert len({round(b - a, 12) for a, b in zip(free.profile.step_times, free.profile.step_times[1:])}) == 1
+    bad = _call(client, **dict(fields, box_names=["pq"], box_fractions=[0.1]))
+    assert not bad.success and bad.error_code == PlanTrajectory.Response.INVALID_REQUEST
+    assert "not uncertain" in bad.message and not bad.certificate.certified
+    baseline = _call(client, **dict(ONE_DOF, qf=[0.45]))
+    assert baseline.success and "switch_grid" in baseline.message     # said, not silently ignored

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ff_planner.library.gridded import on_grid
 from ff_planner.library.store import MotionLibrary, record_from_result
 from ff_planner.service.planner_service import (PlannerService, RequestFields, ServiceConfig,
                                                 ServiceConfigError, config_from_mapping)
@@ -46,7 +47,7 @@ def test_configured_parameters_reach_the_plan(tmp_path):
 @pytest.mark.integration
 def test_service_warm_starts_from_the_nearest_stored_plan(tmp_path):
     cfg = ServiceConfig(library_path=str(tmp_path / "lib.sqlite"), workers=2, warmup=False,
-                        warm_max_distance=0.2)
+                        warm_max_distance=0.2, switch_grid=0.0)     # the stub plans off any grid
     svc = PlannerService(cfg, plan_fn=stub_plan)
     svc.start()
     try:
@@ -124,6 +125,7 @@ GRID = {
     "model": "arm1dof", "preset": "table2", "objective": "robust-derivative", "uncertain": ["pc"],
     "starts": 200, "seed": 3, "time_budget": 60,
     "q0": [0.0, 0.25], "qf": {"start": 0.5, "stop": 1.25, "step": 0.25}, "tf": [0.9, 1.0],
+    "switch_grid": 0.001,      # the node's default grid: its rows answer the node's requests
 }
 
 
@@ -142,6 +144,8 @@ def test_planner_service_answers_grid_requests_warm_from_the_library(tmp_path):
                                                   uncertain=["pc"], starts=200))
             assert res.success and res.warm_start, res.message
             assert res.extra["source"] in ("hit", "shift") and "motion library" in res.message
+            assert on_grid(res.profile, 0.001) and res.certificate is not None
+            assert len(res.extra["predicted_rest"]) == 1 and abs(res.extra["predicted_rest"][0] - qf) < 1e-4
             assert res.extra["latency"] < 5.0
         # a request between grid points: re-optimised from the nearest stored plan (worker process)
         svc.start()
