@@ -57,17 +57,33 @@ def profile_id(profile: CurrentProfile, model: str, q0: Sequence[float] | np.nda
 
 def profile_to_msg(profile: CurrentProfile, model: str, q0: Sequence[float] | np.ndarray,
                    qf: Sequence[float] | np.ndarray, joint_names: Sequence[str] | None = None,
-                   pid: str | None = None) -> CurrentProfileMsg:
-    """CurrentProfile dataclass -> ff_msgs/msg/CurrentProfile (currents flattened row-major)."""
+                   pid: str | None = None,
+                   predicted_rest: Sequence[float] | np.ndarray | None = None) -> CurrentProfileMsg:
+    """CurrentProfile dataclass -> ff_msgs/msg/CurrentProfile (currents flattened row-major).
+
+    ``predicted_rest`` (rad, one per joint, the model's rest position for this profile) fills the
+    message's ``predicted_rest``; None, or a length other than the joint count, leaves it empty
+    (= unknown)."""
     names = (list(joint_names) if joint_names is not None
              else default_joint_names(model, profile.n_joints))
     if len(names) != profile.n_joints:
         raise ValueError(f"{len(names)} joint names for a {profile.n_joints}-joint profile")
+    rest = [float(x) for x in np.ravel(predicted_rest)] if predicted_rest is not None else []
     return CurrentProfileMsg(
         profile_id=pid or profile_id(profile, model, q0, qf), model=model, joint_names=names,
         q0=[float(x) for x in q0], qf=[float(x) for x in qf],
         step_times=profile.step_times.tolist(), currents=profile.currents.ravel().tolist(),
-        n_steps=profile.n_steps, coast=float(profile.coast), move_time=float(profile.tf))
+        n_steps=profile.n_steps, coast=float(profile.coast), move_time=float(profile.tf),
+        predicted_rest=rest if len(rest) == profile.n_joints and np.all(np.isfinite(rest)) else [])
+
+
+def predicted_rest_of(msg: Any) -> list[float]:
+    """The profile message's ``predicted_rest`` (rad per joint), [] when unknown (empty, wrong
+    length or not finite)."""
+    rest = [float(x) for x in getattr(msg, "predicted_rest", [])]
+    if len(rest) != len(msg.joint_names) or not all(np.isfinite(rest)):
+        return []
+    return rest
 
 
 def msg_to_profile(msg: Any) -> CurrentProfile:
@@ -143,7 +159,8 @@ def result_to_response(result: PlanResult, response: Any, joint_names: Sequence[
     response.error_code = ERROR_CODES.get(result.error_code, ERROR_CODES["INTERNAL_ERROR"])
     response.message = str(result.message)
     if result.profile is not None:
-        response.profile = profile_to_msg(result.profile, result.model, result.q0, result.qf, joint_names)
+        response.profile = profile_to_msg(result.profile, result.model, result.q0, result.qf, joint_names,
+                                          predicted_rest=result.extra.get("predicted_rest"))
     response.q_final = [float(x) for x in np.ravel(result.q_final)]
     response.qd_final = [float(x) for x in np.ravel(result.qd_final)]
     response.sensitivity_names = list(result.sensitivities)
@@ -182,4 +199,6 @@ def response_to_result(response: Any, request: PlanRequest) -> PlanResult:
         robust=bool(response.robust), error_code=names.get(int(response.error_code), "INTERNAL_ERROR"),
         best_effort=prof is not None and not bool(response.success),
         starts_tried=int(response.starts_tried), iterations=int(response.iterations),
-        solve_time=float(response.solve_time), warm_start=bool(response.warm_start))
+        solve_time=float(response.solve_time), warm_start=bool(response.warm_start),
+        extra=({"predicted_rest": predicted_rest_of(response.profile)}
+               if prof is not None and predicted_rest_of(response.profile) else {}))

@@ -9,13 +9,14 @@
    127.0.0.1, bridge, planner, executor; loopback-only ROS on a free domain, or ROS_DOMAIN_ID when set).
 2. Asks the planner SERVICE for a robust 1-DOF motion 0 → 1 rad in 1 s (robust-derivative,
    uncertain pv, pc, pt) and for a non-robust baseline (energy-optimal, paper section 6.5).
-3. Executes both through the executor ACTION on the simulated arm, whose true friction differs from
-   the planner's model, resetting the arm to 0 rad before each.
-4. Prints the final errors side by side, saves a PNG (ground-truth positions vs time, commanded
-   and measured currents) and exits 0 when both moves ran, the robust one landed within
-   ``--tolerance`` (default 0.01 rad: a few mrad of the simulated stack's switch-timing jitter come
-   on top of the plan's own finite-change error) and missed at least ``--min-ratio`` (5) times
-   less than the baseline; 1 otherwise. (The CI end-to-end test holds the robust move to 0.005 rad.)
+3. Executes each once (every run counts: no repeats) through the executor ACTION on the simulated
+   arm, whose true friction differs from the planner's model, resetting the arm to 0 rad before each.
+4. Prints the final errors side by side with the model's predicted rest position for each profile,
+   saves a PNG (ground-truth positions vs time, commanded and measured currents) and exits 0 when
+   both moves ran, the robust one landed within ``--tolerance`` (default 0.02 rad: the Python-timed
+   stack's switch-timing jitter and the drive's current steps come on top of the plan's own
+   finite-change error, docs/timing.md; the end-to-end test holds the same bound) and missed at
+   least ``--min-ratio`` (3) times less than the baseline; 1 otherwise.
 """
 from __future__ import annotations
 
@@ -33,7 +34,9 @@ from ff_executor.bringup.stack import (BringupError, Stack, StackOptions, add_en
                                       environment_options, parse_key_values, print_config)
 from ff_executor.ros.client import StackCallError, StackClient
 from ff_msgs.srv import PlanTrajectory
-from ff_planner.model.params import ParameterError
+from ff_msgs_py.convert import msg_to_profile
+from ff_planner.model.params import ParameterError, default_params
+from ff_planner.model.simulate import rest_position
 
 MOTIONS = (("robust", "robust-derivative"), ("baseline", "energy-optimal"))
 
@@ -46,15 +49,16 @@ def plan_request(objective: str, qf: float = 1.0, tf: float = 1.0, starts: int =
                                   starts=starts, seed=seed)
 
 
-def run_motions(client: StackClient, qf: float = 1.0, tf: float = 1.0, motions=MOTIONS, log=print,
-                attempts: int = 1, max_spread: Optional[float] = None) -> dict:
-    """Plan each motion via the service and execute it on the simulated arm; returns a summary.
+def nominal_rest(profile_msg) -> list[float]:
+    """The planner's nominal model's rest position (rad per joint) for a profile message."""
+    return [float(x) for x in rest_position(default_params(profile_msg.model or "arm1dof"),
+                                            msg_to_profile(profile_msg), list(profile_msg.q0))]
 
-    Timing gate (robust plans only): a move whose relative switch timing at the bridge (max − min of applied − stamp
-    over its current switches) exceeds ``max_spread`` s was disturbed by the machine, not by
-    friction; it is repeated (up to ``attempts`` runs) and every run is kept in ``runs``. The
-    summary's figures are those of the first run within the gate (else the last run).
-    """
+
+def run_motions(client: StackClient, qf: float = 1.0, tf: float = 1.0, motions=MOTIONS, log=print) -> dict:
+    """Plan each motion via the service and execute it once on the simulated arm (every run
+    counts: no repeats); returns a summary per motion, with the model's predicted rest position
+    for the profile (``predicted_position``, from the executor's result) beside the measured one."""
     out = {}
     for label, objective in motions:
         t0 = time.monotonic()
@@ -65,21 +69,16 @@ def run_motions(client: StackClient, qf: float = 1.0, tf: float = 1.0, motions=M
         log(f"  planned {label} ({objective}): success={resp.success} robust={resp.robust} "
             f"{resp.profile.n_steps} steps, {plan_s * 1e3:.0f} ms"
             + ("" if resp.success else f" — {resp.message}"))
-        runs = []
-        gate = max_spread if resp.robust else None   # friction dominates a non-robust move's error
-        for k in range(max(1, attempts) if gate is not None else 1):
-            client.reset_arm([0.0])
-            mv = client.execute(resp.profile)
-            final_truth = float(mv.rest_truth[0]) if mv.rest_truth is not None else math.nan
-            timing_ok = gate is None or mv.switch_spread <= gate
-            runs.append({"error_truth": final_truth - qf, "switch_spread_s": mv.switch_spread,
-                         "timing_ok": bool(timing_ok)})
-            log(f"  executed {label}: {mv.result.message}; switch spread "
-                f"{mv.switch_spread * 1e6:.0f} us" + ("" if timing_ok else " (over the gate, repeating)"
-                                                      if k + 1 < attempts else ""))
-            if timing_ok:
-                break
+        client.reset_arm([0.0])
+        mv = client.execute(resp.profile)
+        final_truth = float(mv.rest_truth[0]) if mv.rest_truth is not None else math.nan
         r = mv.result
+        predicted, source = list(r.predicted_position), "executor result"
+        if not predicted:        # a profile without predicted_rest: the nominal model, here
+            predicted = [float(x) for x in nominal_rest(resp.profile)]
+            source = "nominal model (client)"
+        log(f"  executed {label}: {mv.result.message}; switch spread {mv.switch_spread * 1e6:.0f} us"
+            + (f"; model predicted {predicted[0]:+.6f} rad" if predicted else ""))
         out[label] = {
             "objective": objective, "plan_success": bool(resp.success), "robust": bool(resp.robust),
             "steps": int(resp.profile.n_steps), "plan_time_s": plan_s,
@@ -87,11 +86,14 @@ def run_motions(client: StackClient, qf: float = 1.0, tf: float = 1.0, motions=M
             "executed": mv.succeeded, "message": r.message,
             "final_position": list(r.final_position), "final_velocity": list(r.final_velocity),
             "error": float(r.position_error[0]) if len(r.position_error) else math.nan,
-            "error_truth": runs[-1]["error_truth"],
+            "error_truth": final_truth - qf,
+            "predicted_position": predicted, "predicted_source": source,
+            "measured_minus_predicted": (final_truth - predicted[0]) if predicted else math.nan,
+            "missed_cycles": int(r.missed_cycles), "sync_period_s": float(r.sync_period),
             "setpoints_sent": int(r.setpoints_sent), "start_delay_s": float(r.start_delay),
             "switch_error_s": {"p50": r.switch_error_p50, "p99": r.switch_error_p99,
                                "max": r.switch_error_max},
-            "switch_spread_s": mv.switch_spread, "timing_ok": runs[-1]["timing_ok"], "runs": runs,
+            "switch_spread_s": mv.switch_spread,
             "feedback_messages": mv.feedback, "feedback_gap_max_s": mv.feedback_period_max,
             "feedback_rate_hz": mv.feedback_rate,
             "_profile": resp.profile, "_outcome": mv,
@@ -156,16 +158,12 @@ def build_parser() -> argparse.ArgumentParser:
                     help="absolute true parameter of the simulated arm (SI units)")
     ap.add_argument("--qf", type=float, default=1.0, help="goal, rad (start 0)")
     ap.add_argument("--tf", type=float, default=1.0, help="move time, s")
-    ap.add_argument("--tolerance", type=float, default=0.01, help="rad, robust move must land within")
-    ap.add_argument("--min-ratio", type=float, default=5.0,
+    ap.add_argument("--tolerance", type=float, default=0.02, help="rad, robust move must land within")
+    ap.add_argument("--min-ratio", type=float, default=3.0,
                     help="the baseline must miss at least this many times more than the robust move")
     ap.add_argument("--plot", default="ff-demo.png", help="PNG to write")
     ap.add_argument("--json", default=None, help="also write the summary as JSON here")
     add_environment_arguments(ap)
-    ap.add_argument("--max-spread", type=float, default=300.0,
-                    help="us; a move whose switch timing at the bridge spreads more than this was "
-                         "disturbed by the machine and is repeated (0 = accept every run)")
-    ap.add_argument("--attempts", type=int, default=3, help="runs per motion at most (timing gate)")
     ap.add_argument("--rt-priority", type=int, default=10, metavar="N",
                     help="SCHED_FIFO priority of the simulated driver and the bridge's scheduler "
                          "thread where permitted (else nice -10); 0 = normal scheduling")
@@ -195,19 +193,19 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     try:
         with Stack(opts) as stack:
             with StackClient(stack.env, "ff_demo") as client:
-                summary = run_motions(client, a.qf, a.tf, attempts=a.attempts,
-                                      max_spread=a.max_spread * 1e-6 if a.max_spread > 0 else None)
+                summary = run_motions(client, a.qf, a.tf)
     except (BringupError, StackCallError, RuntimeError) as exc:
         print(f"ff-demo: failed: {exc}", file=sys.stderr)
         return 1
     print()
     print(f"{'motion':<10} {'objective':<18} {'plan robust':>11} {'final (rad)':>12} "
-          f"{'error (rad)':>12} {'truth err':>11} {'switch spread':>14} {'runs':>5}")
+          f"{'error (rad)':>12} {'truth err':>11} {'model nom.':>11} {'switch spread':>14}")
     for label, s in summary.items():
         fp = s["final_position"][0] if s["final_position"] else math.nan
         print(f"{label:<10} {s['objective']:<18} {str(s['robust']):>11} {fp:>12.6f} "
               f"{s['error']:>+12.6f} {s['error_truth']:>+11.6f} "
-              f"{s['switch_spread_s'] * 1e6:>12.0f}us {len(s['runs']):>5}")
+              f"{(s['predicted_position'] or [math.nan])[0] - a.qf:>+11.6f} "
+              f"{s['switch_spread_s'] * 1e6:>12.0f}us")
     rob, base = summary["robust"], summary["baseline"]
     ratio = abs(base["error_truth"]) / max(abs(rob["error_truth"]), 1e-12)
     print(f"\nbaseline misses by {ratio:.0f}x the robust motion's error")

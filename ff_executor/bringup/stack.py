@@ -35,8 +35,9 @@ for each run in the run folder: the sim driver's and bridge's parameter files an
 config (remote bus on the hub). Its timing differs from ``config/bridge_*.yaml`` (1 ms SYNC, 10 ms
 heartbeats, 40-100 ms timeouts: for a real bus on a dedicated machine) on purpose: 10 ms SYNC
 (setpoints are applied at their stamps; SYNC only paces feedback), 50 ms drive heartbeats with a
-1 s timeout on both sides (lenient for shared machines); a bridge that fails its enable sequence
-is restarted once.
+3 s timeout on both sides and 3 s for the executor's joint-state watchdog (above the scheduling
+gaps of a normal-priority process on a loaded shared machine, measured up to 1.4 s); a bridge
+that fails its enable sequence is restarted once.
 """
 from __future__ import annotations
 
@@ -88,9 +89,12 @@ NOMINAL_CURRENT = float(_SIM.get("nominal_current", 3.0))     # A, motor nominal
 # machine. Setpoints are asynchronous RPDOs (applied at their stamps), so SYNC only paces feedback.
 SYNC_PERIOD = 0.01         # s
 HEARTBEAT_PRODUCER_MS = 50  # ms, the drives' heartbeat
-HEARTBEAT_TIMEOUT = 1.0    # s, the bridge's timeout on the drives' heartbeat; the drives' on the
-MASTER_HEARTBEAT_TIMEOUT_MS = 1000   # bridge's (100 ms) heartbeat: 1 s too (the default 3 x 100 ms
-                                     # tripped on a loaded 2-core machine)
+# Watchdog timeouts above the longest scheduling gap measured here for a normal-priority process
+# on the loaded 2-core machine (a 1 ms sleep loop woke up to 1.4 s late at load average 6-8, while
+# a SCHED_FIFO one never missed by 0.1 s; docs/timing.md): 1 s tripped there.
+HEARTBEAT_TIMEOUT = 3.0    # s, the bridge's timeout on the drives' heartbeat; the drives' on the
+MASTER_HEARTBEAT_TIMEOUT_MS = 3000   # bridge's (100 ms) heartbeat: 3 s too
+JOINT_STATE_TIMEOUT = 3.0  # s, the executor stops a move whose joint states stop this long
 EXECUTOR_FILES = ("executor.yaml", "executor_sim.yaml")   # config/ files layered for the executor
 
 
@@ -314,9 +318,10 @@ class Stack:
 
     def executor_files(self) -> tuple[list[str], dict[str, object]]:
         """(parameter files in order, overrides written after them) for the executor: by default
-        config/executor.yaml, then config/executor_sim.yaml, then the model's joint names."""
+        config/executor.yaml, then config/executor_sim.yaml, then the model's joint names and the
+        simulated stack's joint-state watchdog (``JOINT_STATE_TIMEOUT``)."""
         o = self.options
-        ep: dict[str, object] = {}
+        ep: dict[str, object] = {"joint_state_timeout": JOINT_STATE_TIMEOUT}
         if o.executor_params is None:   # the default file's joints are the 1-DOF arm's
             files = [str(CONFIG_DIR / f) for f in EXECUTOR_FILES if (CONFIG_DIR / f).is_file()]
             ep["joint_names"] = [j["name"] for j in bridge_config(o.model, self.hub_url)["joints"]]

@@ -17,7 +17,8 @@ Modules (plain functions / dataclasses, driven by an injected clock so tests run
   :class:`StreamRunner` (the publishing loop, with a tick hook for feedback and a cancel check).
 - :mod:`.settle`    — :class:`SettleDetector`: when the arm has come to rest after the move.
 - :mod:`.timing`    — :func:`timing_stats` / :func:`estimate_applied_times`: switch-time error
-  statistics from the bridge's reports of applied times, or estimated from measured currents.
+  statistics from the bridge's reports of applied times, or estimated from measured currents;
+  :func:`missed_cycles`: SYNC cycles lost by setpoints that took effect late.
 
 Units: s and ns (integers, ``*_ns``), A, rad, rad/s.
 """
@@ -26,7 +27,7 @@ from ff_executor.engine.config import NS, EngineConfig, ProfileRejected
 from ff_executor.engine.setpoints import Setpoint, build_setpoints
 from ff_executor.engine.settle import SettleDetector
 from ff_executor.engine.stream import Published, Stream, StreamRunner
-from ff_executor.engine.timing import TimingStats, estimate_applied_times, timing_stats
+from ff_executor.engine.timing import TimingStats, estimate_applied_times, missed_cycles, timing_stats
 
 __all__ = [
     "NS",
@@ -43,6 +44,7 @@ __all__ = [
     "check_profile",
     "check_start_state",
     "estimate_applied_times",
+    "missed_cycles",
     "resolve_start",
     "timing_stats",
 ]

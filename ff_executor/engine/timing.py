@@ -74,3 +74,20 @@ def estimate_applied_times(setpoints: Sequence[Setpoint], sample_ns: ArrayLike,
                 break
         prev = new
     return pairs
+
+
+def missed_cycles(stamps_ns: Iterable[int], applied_ns: Iterable[int], sync_period: float,
+                  tolerance: float = 0.1) -> int:
+    """SYNC cycles lost by setpoints that took effect late (SYNC-latched drives).
+
+    A drive latching setpoints at SYNC applies a setpoint at the first SYNC at or after its stamp,
+    i.e. less than one ``sync_period`` (s) after it; each whole period beyond that (applied − stamp
+    ≥ (k + ``tolerance``)·period, the tolerance absorbing SYNC jitter) is one missed cycle.
+    ``sync_period`` <= 0 (setpoints applied on receipt): 0.
+    """
+    if not sync_period > 0.0:
+        return 0
+    late = (np.asarray(list(applied_ns), dtype=float) - np.asarray(list(stamps_ns), dtype=float)) / NS
+    if late.size == 0:
+        return 0
+    return int(np.sum(np.maximum(np.floor(late / sync_period + 1.0 - tolerance) - 1.0, 0.0)))

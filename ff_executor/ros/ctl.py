@@ -45,6 +45,7 @@ from ff_planner.cli import plan as plan_cli
 from ff_planner.export.motion_file import MotionFileError, read_motion
 from ff_planner.model.params import ParameterError
 from ff_planner.model.profile import PlanningError, PlanRequest
+from ff_planner.model.simulate import rest_position
 
 PROG = "ff-ctl"
 #: PlanTrajectory errors that mean "change the request" (exit 2, as ff-plan), not "planning failed"
@@ -347,6 +348,15 @@ def plan(s: Session, a: argparse.Namespace) -> int:
     return _plan(s, a, _plan_request(a))[1]
 
 
+def _file_rest(motion: Any) -> Optional[np.ndarray]:
+    """Where the motion file's model says the arm comes to rest (rad per joint), None if unknown."""
+    try:
+        rest = rest_position(motion.params, motion.profile, motion.q0)
+    except (ParameterError, ValueError):
+        return None
+    return rest if np.all(np.isfinite(rest)) else None
+
+
 def execute(s: Session, a: argparse.Namespace) -> int:
     """Send a motion file (or a fresh plan) to the executor action; live feedback; the result."""
     if a.motion is not None:
@@ -357,7 +367,8 @@ def execute(s: Session, a: argparse.Namespace) -> int:
             motion = read_motion(a.motion)
         except MotionFileError as exc:
             raise UsageError(str(exc)) from None
-        msg = profile_to_msg(motion.profile, motion.model, motion.q0, motion.qf, a.joint_names)
+        msg = profile_to_msg(motion.profile, motion.model, motion.q0, motion.qf, a.joint_names,
+                             predicted_rest=_file_rest(motion))
         print(f"{PROG}: {a.motion}: {motion.model} {_fmt(motion.q0)} -> {_fmt(motion.qf)} rad in "
               f"{motion.tf:g} s, {motion.profile.n_steps} steps")
     else:
@@ -424,6 +435,21 @@ def _print_result(res: Any) -> None:
         print(f"  {r.setpoints_sent} setpoints, start delay {r.start_delay * 1e3:.0f} ms, switch timing "
               f"|applied - stamp| p50 {r.switch_error_p50 * 1e6:.0f} us, p99 {r.switch_error_p99 * 1e6:.0f} us, "
               f"max {r.switch_error_max * 1e6:.0f} us")
+        sync = (f"SYNC {r.sync_period * 1e3:g} ms, {r.missed_cycles} setpoint(s) missed their cycle"
+                if r.sync_period > 0 else "setpoints applied on receipt (no SYNC latching)")
+        print(f"  {sync}")
+    print("  " + predicted_vs_measured(list(r.predicted_position), list(r.final_position)))
+
+
+def predicted_vs_measured(predicted: list[float], measured: list[float]) -> str:
+    """One line: the model's rest position for the profile beside the measured one (rad)."""
+    if not predicted:
+        return "model's predicted rest position: unknown (the profile carries none)"
+    if len(measured) != len(predicted):
+        return f"model's predicted rest position {_fmt(predicted, 6)} rad; measured: none"
+    diff = [m - p for m, p in zip(measured, predicted)]
+    return (f"predicted rest {_fmt(predicted, 6)} rad, measured {_fmt(measured, 6)} rad, "
+            f"measured - predicted {_fmt([d * 1e3 for d in diff], 3)} mrad")
 
 
 # --- the command line -------------------------------------------------------------------------

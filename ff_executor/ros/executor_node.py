@@ -27,6 +27,17 @@ Switch-time statistics come from the bridge's reports of applied setpoints on ``
 (ff_msgs/msg/CurrentSetpoint whose stamp is the moment it was applied) when it publishes them,
 else they are estimated from the measured currents (JointState effort, A) — coarse, bounded by the
 joint-state period — and labelled so in the log.
+
+The result also carries the model's rest position for the profile (``predicted_position``, from
+``profile.predicted_rest``; empty when the profile does not say), the drives' SYNC period
+(``sync_period``, s) and the setpoints that took effect one or more SYNC cycles late
+(``missed_cycles``). Both come from the bridge's drive-group status on ``/diagnostics``:
+``sync_period`` from ``sync_period_s``, else ``sync_period_us`` when ``synchronous`` is 1 (0 =
+setpoints applied on receipt, also when neither is there); ``missed_cycles`` is counted from the
+the increase over the goal of the status counter ``missed_setpoints`` (or ``missed_cycles``), read
+from a status sent after the last applied report (the result waits up to ``DIAG_WAIT`` s for one);
+without a counter it is counted from the applied reports, whose stamps are then SYNC instants
+(applied − stamp ≥ 1.1 SYNC periods: :func:`ff_executor.engine.missed_cycles`).
 """
 from __future__ import annotations
 
@@ -38,6 +49,7 @@ from typing import Any, Callable, Optional
 
 import numpy as np
 import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
 from lifecycle_msgs.srv import GetState
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
@@ -51,15 +63,17 @@ from sensor_msgs.msg import JointState
 
 from ff_executor.engine import (NS, EngineConfig, Motion, ProfileRejected, Setpoint, SettleDetector, Stream,
                                 StreamRunner, TimingStats, build_setpoints, check_profile, check_start_state,
-                                estimate_applied_times, resolve_start, timing_stats)
+                                estimate_applied_times, missed_cycles, resolve_start, timing_stats)
 from ff_msgs.action import ExecuteProfile
 from ff_msgs.msg import CurrentSetpoint
-from ff_msgs_py.convert import msg_to_profile, setpoint_msg, time_to_ns
+from ff_msgs_py.convert import msg_to_profile, predicted_rest_of, setpoint_msg, time_to_ns
 from ff_msgs_py.threads import in_thread
 
 READY_LINE = "ff_executor ready"
 
 INF = float("inf")
+#: s, the longest the result waits for a bridge status newer than the last applied report
+DIAG_WAIT = 0.6
 #: name: (default, description with units, (from, to) range or None, read_only). Read-only ones go
 #: into the engine's configuration (or a subscription) when the node starts; the others are read
 #: for each goal, so ``ff-ctl param set`` changes them at once.
@@ -90,6 +104,15 @@ PARAMETERS: dict[str, tuple[Any, str, Optional[tuple[float, float]], bool]] = {
                             (0.0, 600.0), False),
     "refuse_mode": ("abort", "'abort': accept, then abort with the reason; 'reject': reject the goal", None, False),
 }
+
+
+def _number(values: dict[str, str], key: str, default: Optional[float] = 0.0) -> Any:
+    """A finite number from a diagnostics key/value map, else ``default``."""
+    try:
+        x = float(values[key])
+    except (KeyError, ValueError):
+        return default
+    return x if np.isfinite(x) else default
 
 
 def descriptor(name: str) -> ParameterDescriptor:
@@ -137,6 +160,10 @@ class ExecutorNode(Node):
         self._effort_log: Optional[deque[tuple[int, np.ndarray]]] = None  # (t ns, effort A) while a move runs
         self._applied: dict[tuple[str, int], int] = {}
         self._active_stream: Optional[Stream] = None
+        self._sync_period = 0.0                   # s, the bridge's SYNC period for setpoints (0 = on receipt)
+        self._bridge_missed: Optional[int] = None  # the bridge's missed-cycle counter, when it reports one
+        self._applied_rx_ns = 0                   # ns (ROS clock): the last applied report arrived
+        self._diag_rx_ns = 0                      # ns: the last status of the bridge arrived
 
         sensor_qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT,
                                 history=HistoryPolicy.KEEP_LAST)
@@ -149,8 +176,11 @@ class ExecutorNode(Node):
                                  sensor_qos, callback_group=self._io_group)
         self.create_subscription(CurrentSetpoint, g("applied_topic"), self._on_applied,
                                  setpoint_qos, callback_group=self._io_group)
+        self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10,
+                                 callback_group=self._io_group)
         self._state_client = self.create_client(GetState, f"/{g('bridge_node')}/get_state",
                                                 callback_group=self._client_group)
+        self.config_bridge = str(g("bridge_node"))
         self._wake = self.create_guard_condition(lambda: None)   # resumes awaited work (ff_msgs_py.threads)
         self._server = ActionServer(
             self, ExecuteProfile, "~/execute", execute_callback=self._execute_in_thread,
@@ -184,8 +214,29 @@ class ExecutorNode(Node):
                 self._effort_log.append((stamp, eff))
 
     def _on_applied(self, msg: CurrentSetpoint) -> None:
+        now = self._now_ns()
         with self._state_lock:
             self._applied[(msg.profile_id, int(msg.seq))] = time_to_ns(msg.stamp)
+            self._applied_rx_ns = now
+
+    def _on_diagnostics(self, msg: DiagnosticArray) -> None:
+        prefix = f"{self.config_bridge}:"
+        for status in msg.status:
+            if not status.name.startswith(prefix):
+                continue
+            values = {kv.key: kv.value for kv in status.values}
+            period = _number(values, "sync_period_s")
+            if not period and _number(values, "synchronous") == 1.0:   # the player's SYNC watch, µs
+                period = _number(values, "sync_period_us") * 1e-6
+            counter = _number(values, "missed_setpoints", None)
+            if counter is None:
+                counter = _number(values, "missed_cycles", None)
+            missed = None if counter is None else int(counter)
+            now = self._now_ns()
+            with self._state_lock:
+                self._sync_period = period if period > 0.0 and np.isfinite(period) else 0.0
+                self._bridge_missed = missed
+                self._diag_rx_ns = now
 
     def _state(self) -> tuple[Optional[np.ndarray], Optional[np.ndarray], int]:
         with self._state_lock:
@@ -252,9 +303,11 @@ class ExecutorNode(Node):
 
     def _finish(self, goal_handle: Any, success: bool, message: str, motion: Optional[Motion] = None,
                 stream: Optional[Stream] = None, start_delay: float = 0.0,
-                how: str = "succeed") -> ExecuteProfile.Result:
-        """End the goal (``how``: succeed / abort / canceled) with a result carrying the final state."""
+                how: str = "succeed", missed_before: Optional[int] = None) -> ExecuteProfile.Result:
+        """End the goal (``how``: succeed / abort / canceled) with a result carrying the final state,
+        the model's predicted rest position and the SYNC figures."""
         res = ExecuteProfile.Result(success=success, message=message)
+        res.predicted_position = predicted_rest_of(goal_handle.request.profile)
         pos, vel, _ = self._state()
         if motion is not None and pos is not None and vel is not None:
             back = [list(self.config.joint_names).index(n) for n in goal_handle.request.profile.joint_names]
@@ -267,12 +320,34 @@ class ExecutorNode(Node):
             stats = self._timing(stream)
             res.switch_error_p50, res.switch_error_p99, res.switch_error_max = (
                 stats.p50, stats.p99, stats.max)
+            res.sync_period, res.missed_cycles = self._sync_figures(stream, missed_before)
         getattr(goal_handle, how)()
         if success:
             self.get_logger().info(f"goal ended: {message}")
         else:
             self.get_logger().warn(f"goal ended: {message}")
         return res
+
+    def _sync_figures(self, stream: Stream, missed_before: Optional[int]) -> tuple[float, int]:
+        """(SYNC period s, setpoints of this stream that missed their cycle).
+
+        The bridge's own counter when it reports one (it counts in SYNCs seen, so SYNC jitter is
+        not a miss), from a status sent after the last applied report (waited for at most
+        ``DIAG_WAIT`` s); else counted from the applied SYNC instants."""
+        end = self._now_ns() + int(DIAG_WAIT * NS)
+        while True:
+            with self._state_lock:
+                fresh = self._diag_rx_ns > self._applied_rx_ns
+                applied = dict(self._applied)
+                period, counter = self._sync_period, self._bridge_missed
+            if fresh or counter is None or missed_before is None or self._now_ns() >= end:
+                break
+            time.sleep(0.01)
+        if missed_before is not None and counter is not None and counter >= missed_before:
+            return period, counter - missed_before
+        pairs = [(p.setpoint.stamp_ns, applied[(p.setpoint.profile_id, p.setpoint.seq)])
+                 for p in stream.published if (p.setpoint.profile_id, p.setpoint.seq) in applied]
+        return period, missed_cycles([a for a, _ in pairs], [b for _, b in pairs], period)
 
     def _timing(self, stream: Stream) -> TimingStats:
         sent = [p.setpoint for p in stream.published]
@@ -325,6 +400,7 @@ class ExecutorNode(Node):
         with self._state_lock:
             self._effort_log = deque(maxlen=200_000)
             self._applied = {}
+            missed_before = self._bridge_missed
         back = [list(cfg.joint_names).index(n) for n in goal.profile.joint_names]
         lost = {"flag": False}
 
@@ -363,21 +439,27 @@ class ExecutorNode(Node):
             self._wait_settled(feedback, period, timeout=1.0)
             if goal_handle.is_cancel_requested:
                 return self._finish(goal_handle, False, "cancelled: zero current sent at once",
-                                    motion, stream, start_delay, how="canceled")
+                                    motion, stream, start_delay, how="canceled",
+                                    missed_before=missed_before)
             return self._finish(goal_handle, False, "aborted: joint states stopped during the move; "
-                                "zero current sent", motion, stream, start_delay, how="abort")
+                                "zero current sent", motion, stream, start_delay, how="abort",
+                                missed_before=missed_before)
         settled = self._wait_settled(feedback, period, timeout=float(self._p("settle_timeout")))
         pos, _vel, _ = self._state()
         if pos is None:
             return self._finish(goal_handle, False, "no joint state to judge the move",
-                                motion, stream, start_delay, how="abort")
+                                motion, stream, start_delay, how="abort", missed_before=missed_before)
         err = pos - motion.qf
         late = stream.late()
         text = (f"{'settled' if settled else 'NOT settled'} at {np.round(pos, 6).tolist()} rad, "
                 f"error {np.round(err, 6).tolist()} rad")
+        predicted = predicted_rest_of(goal.profile)
+        if predicted:
+            text += f"; the model predicted {np.round(predicted, 6).tolist()} rad"
         if late:
             text += f"; {len(late)} setpoint(s) reached the bridge after their stamp"
-        return self._finish(goal_handle, True, text, motion, stream, start_delay, how="succeed")
+        return self._finish(goal_handle, True, text, motion, stream, start_delay, how="succeed",
+                            missed_before=missed_before)
 
     def _wait_settled(self, feedback: Callable[[int], None], period: float, timeout: float) -> bool:
         """Wait until the arm has settled (True) or ``timeout`` s passed (False), sending feedback."""

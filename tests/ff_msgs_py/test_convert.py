@@ -107,3 +107,21 @@ def test_error_names_are_exactly_the_interface_constants():
     assert len(set(constants.values())) == len(constants), "two error names share a code"
     assert sorted(constants, key=constants.__getitem__) == list(ERROR_NAMES)   # ERROR_NAMES in code order
     assert convert.ERROR_CODES == constants
+
+
+def test_predicted_rest_travels_with_the_profile_and_the_plan_answer():
+    prof = CurrentProfile.uniform([1.0, -1.0], 1.0)
+    profile_to_msg, predicted_rest_of = convert.profile_to_msg, convert.predicted_rest_of
+    msg = profile_to_msg(prof, "arm1dof", [0.0], [0.5], predicted_rest=[0.4999])
+    assert list(msg.predicted_rest) == [0.4999] and predicted_rest_of(msg) == [0.4999]
+    # unknown, wrong length or not finite: empty
+    assert list(profile_to_msg(prof, "arm1dof", [0.0], [0.5]).predicted_rest) == []
+    assert list(profile_to_msg(prof, "arm1dof", [0.0], [0.5], predicted_rest=[1.0, 2.0]).predicted_rest) == []
+    assert list(profile_to_msg(prof, "arm1dof", [0.0], [0.5], predicted_rest=[float("nan")]).predicted_rest) == []
+    result = PlanResult(success=True, message="ok", profile=prof, model="arm1dof", params=None,
+                        q0=np.zeros(1), qf=np.full(1, 0.5), uncertain=[], objective="energy-optimal",
+                        extra={"predicted_rest": [0.501]})
+    res = convert.result_to_response(result, PlanTrajectory.Response())
+    assert list(res.profile.predicted_rest) == [0.501]
+    back = convert.response_to_result(res, PlanRequest(model="arm1dof", q0=[0.0], qf=[0.5], tf=1.0))
+    assert back.extra["predicted_rest"] == [0.501]

@@ -1,9 +1,9 @@
 """The whole chain across processes.
 
 planner SERVICE → executor ACTION → bridge (lifecycle node) → CAN hub on 127.0.0.1 → simulated EPOS
-+ arm whose true Coulomb friction is 20 % above the planner's model. The robust plan must land
-within ROBUST_TOL of the goal; the non-robust baseline (energy-optimal) must miss by at least 5×
-more.
++ arm whose true Coulomb friction is 20 % above the planner's model. Each motion runs once (every
+run counts, no repeats). The robust plan must land within ROBUST_TOL of the goal; the non-robust
+baseline (energy-optimal) must miss by more than BASELINE_MIN and by at least 3x the robust move.
 """
 from __future__ import annotations
 
@@ -17,11 +17,14 @@ from ff_executor.ros.client import StackClient
 
 pytestmark = pytest.mark.integration
 
-#: rad. The model predicts +2.2 mrad for this plan and friction; measured on the stack, runs whose
-#: switch timing spread stayed under 0.3 ms landed +2.0 … +5.8 mrad (Python-timed setpoints: each
-#: 100 µs of switch delay at 10 A moves the arm ~4 mrad), so 5 mrad does not hold on a loaded
-#: 2-core machine; 0.01 rad does, and the baseline's −112 mrad stays > 5× worse.
-ROBUST_TOL = 0.01
+#: rad. The model predicts +2.2 mrad for this plan and friction (+3.7 mrad with the EPOS4's 3 mA
+#: current steps, docs/timing.md). Setpoints are applied on receipt, timed by Python (each 100 µs
+#: of relative switch delay moves the rest position by up to 2.7 mrad): 24 consecutive runs without
+#: repeats, SCHED_FIFO 10 as here, on the 2-core machine under load average 5-6 (other test suites,
+#: two busy processes) landed -0.8 ... +9.4 mrad; 20 mrad leaves 2x margin.
+ROBUST_TOL = 0.02
+#: rad. The baseline's own error for this friction: -115 mrad by the model, -112 measured.
+BASELINE_MIN = 0.06
 
 
 @pytest.fixture(scope="module")
@@ -41,11 +44,8 @@ def stack_client(tmp_path_factory):
 
 def test_robust_lands_and_baseline_misses_with_coulomb_20_percent_off(stack_client):
     stack, client = stack_client
-    # timing gate: a robust move whose switch timing at the bridge spread more than 0.3 ms was
-    # disturbed by the (shared) machine, not by friction; it is repeated, at most 5 runs
-    s = run_motions(client, 1.0, 1.0, MOTIONS, log=lambda _m: None, attempts=5, max_spread=3e-4)
+    s = run_motions(client, 1.0, 1.0, MOTIONS, log=lambda _m: None)
     rob, base = s["robust"], s["baseline"]
-    assert rob["timing_ok"], f"no run met the 0.3 ms switch-timing gate (machine overloaded?): {rob['runs']}"
     for m in (rob, base):
         assert m["executed"], m["message"]
         assert m["setpoints_sent"] >= m["steps"] // 2
@@ -54,10 +54,14 @@ def test_robust_lands_and_baseline_misses_with_coulomb_20_percent_off(stack_clie
         assert m["feedback_gap_max_s"] < 1.0, m
         # the executor's figure (bridge joint states) agrees with the simulator's ground truth
         assert m["error"] == pytest.approx(m["error_truth"], abs=2e-4)
+        assert m["missed_cycles"] == 0, m
+        # the model's rest position for the profile, beside the measured one
+        assert len(m["predicted_position"]) == 1 and np.isfinite(m["measured_minus_predicted"]), m
     assert rob["plan_success"] and rob["robust"]
     assert abs(rob["error_truth"]) <= ROBUST_TOL, rob
     assert abs(rob["error"]) <= ROBUST_TOL, rob
-    assert abs(base["error_truth"]) >= 5 * abs(rob["error_truth"]), (rob["error_truth"],
+    assert abs(base["error_truth"]) >= BASELINE_MIN, base
+    assert abs(base["error_truth"]) >= 3 * abs(rob["error_truth"]), (rob["error_truth"],
                                                                       base["error_truth"])
     assert np.isfinite(rob["switch_error_s"]["p99"])
     assert all(p.alive() for p in stack.procs)

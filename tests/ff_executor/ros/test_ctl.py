@@ -80,3 +80,12 @@ def test_plan_options_are_ff_plans():
     assert req.model == "arm1dof" and list(req.qf) == [0.5] and req.tf == 0.8 and list(req.uncertain) == ["pc"]
     assert req.resolved_params().pc == 0.2
     assert isinstance(a, argparse.Namespace) and a.plan_service == "/ff_planner/plan"
+
+
+def test_execute_prints_the_models_prediction_beside_the_measured_rest():
+    from ff_executor.ros.ctl import predicted_vs_measured
+
+    line = predicted_vs_measured([1.0022], [1.0037])
+    assert "predicted rest [1.002200] rad" in line and "measured [1.003700] rad" in line
+    assert "[1.500] mrad" in line
+    assert "unknown" in predicted_vs_measured([], [1.0])

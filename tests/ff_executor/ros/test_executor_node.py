@@ -2,7 +2,11 @@
 
 The stand-in answers the lifecycle get_state service, applies each setpoint exactly at its stamp
 to the planner's exact 1-DOF model (so the final position is predictable to ~1e-9 rad), reports
-applied setpoints, and publishes joint states at 200 Hz.
+applied setpoints, and publishes joint states at 200 Hz. In SYNC mode (``sync_period`` > 0) it
+behaves like a drive latching setpoints at SYNC: each takes effect at the first SYNC at or after its
+stamp (those in ``miss_seqs`` one cycle later, as if the RPDO had missed its cycle), the applied
+report carries that SYNC instant, and /diagnostics carries the setpoint player's keys
+(``synchronous``, ``sync_period_us``, ``missed_setpoints``).
 """
 from __future__ import annotations
 
@@ -15,6 +19,7 @@ import rclpy
 from action_msgs.msg import GoalStatus
 from lifecycle_msgs.msg import State
 from lifecycle_msgs.srv import GetState
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -48,11 +53,15 @@ class FakeBridge(Node):
         self.pending: list[tuple] = []
         self.received: list[tuple] = []   # (receive ns, stamp ns, currents, seq, pid, last)
         self.applied: list[tuple] = []    # (stamp ns, currents)
+        self.missed_count = 0             # SYNC mode: setpoints applied late, never reset (a counter)
         self.create_service(GetState, "~/get_state", self._get_state)
         qos = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
         self.create_subscription(CurrentSetpoint, "~/setpoints", self._on_setpoint, qos)
         self.js_pub = self.create_publisher(JointState, "~/joint_states", 10)
         self.applied_pub = self.create_publisher(CurrentSetpoint, "~/applied", qos)
+        self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.sync_period = 0.0            # s; > 0: setpoints latched at SYNC
+        self.miss_seqs: set[int] = set()  # SYNC mode: these take effect one cycle late
         self.running = True
         self.thread = threading.Thread(target=self._loop, daemon=True)
         self.thread.start()
@@ -68,7 +77,11 @@ class FakeBridge(Node):
         stamp, cur, seq, pid, last = setpoint_to_tuple(msg)
         with self.lock:
             self.received.append((self.now(), stamp, cur.tolist(), seq, pid, last))
-            self.pending.append((stamp, seq, float(cur[0]), pid, msg))
+            at = stamp
+            if self.sync_period > 0:
+                period = int(round(self.sync_period * 1e9))
+                at = -(-stamp // period) * period + (period if seq in self.miss_seqs else 0)
+            self.pending.append((at, seq, float(cur[0]), pid, msg))
             self.pending.sort(key=lambda x: (x[0], x[1]))
 
     def reset(self, q=0.0):
@@ -93,8 +106,13 @@ class FakeBridge(Node):
                                               (t_apply - self.t_sim) / 1e9)
                     self.t_sim, self.current = t_apply, cur
                     self.applied.append((stamp, cur))
-                    self.applied_pub.publish(CurrentSetpoint(stamp=ns_to_time(now), currents=[cur],
-                                                             seq=seq, profile_id=pid))
+                    sync = self.sync_period > 0
+                    self.missed_count += int(sync and seq in self.miss_seqs)
+                    # SYNC mode: the SYNC instant it was latched at, taken from its stamp, so
+                    # that a late loop here does not count as a missed cycle
+                    self.applied_pub.publish(CurrentSetpoint(
+                        stamp=ns_to_time(stamp if sync else now), currents=[cur],
+                        seq=seq, profile_id=pid))
                 self.q, self.qd = advance(PARAMS, self.q, self.qd, self.current,
                                           (now - self.t_sim) / 1e9)
                 self.t_sim = now
@@ -104,7 +122,17 @@ class FakeBridge(Node):
                 js = JointState(name=["joint1"], position=[q], velocity=[qd], effort=[cur])
                 js.header.stamp = ns_to_time(now)
                 self.js_pub.publish(js)
+            if k % 100 == 0:
+                self._publish_diagnostics()
             time.sleep(0.001)
+
+    def _publish_diagnostics(self):
+        values = {"synchronous": int(self.sync_period > 0), "sync_period_us": self.sync_period * 1e6,
+                  "missed_setpoints": self.missed_count}
+        st = DiagnosticStatus(name="fake_bridge: drive group", level=DiagnosticStatus.OK,
+                              message="operation enabled",
+                              values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+        self.diag_pub.publish(DiagnosticArray(status=[st]))
 
 
 @pytest.fixture(scope="module")
@@ -157,9 +185,10 @@ def wait(future, timeout=15.0):
     return future.result()
 
 
-def goal_for(currents=CUR, names=("joint1",), q0=0.0, qf=1.0):
+def goal_for(currents=CUR, names=("joint1",), q0=0.0, qf=1.0, predicted_rest=None):
     prof = CurrentProfile.uniform(currents, 1.0)
-    return ExecuteProfile.Goal(profile=profile_to_msg(prof, "arm1dof", [q0], [qf], list(names))), prof
+    msg = profile_to_msg(prof, "arm1dof", [q0], [qf], list(names), predicted_rest=predicted_rest)
+    return ExecuteProfile.Goal(profile=msg), prof
 
 
 def run_goal(client, goal, feedback=None, timeout=15.0):
@@ -195,6 +224,30 @@ def test_executes_and_lands_where_the_model_says(stack):
     seen = {round(m.commanded_currents[0], 2) for _, m in fb}
     assert {-3.7, 6.94} <= seen
     assert all(len(m.measured_positions) == 1 for _, m in fb[3:])
+    # no predicted rest in the profile: none in the result; setpoints applied on receipt
+    assert list(result.predicted_position) == []
+    assert result.sync_period == 0.0 and result.missed_cycles == 0
+    assert proc.alive()
+
+
+def test_sync_latched_bridge_result_carries_prediction_sync_period_and_missed_cycles(stack):
+    bridge, client, proc = stack
+    bridge.sync_period, bridge.miss_seqs = 0.004, {2}
+    try:
+        time.sleep(0.5)                      # the executor hears the bridge's SYNC period
+        bridge.reset(0.0)
+        time.sleep(0.2)
+        goal, prof = goal_for(predicted_rest=[0.9876])
+        status, result = run_goal(client, goal)
+        assert status == GoalStatus.STATUS_SUCCEEDED, result.message
+        assert list(result.predicted_position) == [pytest.approx(0.9876)]
+        assert result.sync_period == pytest.approx(0.004)
+        assert result.missed_cycles == 1     # seq 2 took effect one SYNC cycle late
+        # every switch but the late one within a SYNC period of its stamp
+        assert 0.0 <= result.switch_error_p50 < 0.004 <= result.switch_error_max < 0.008
+    finally:
+        bridge.sync_period, bridge.miss_seqs = 0.0, set()
+        time.sleep(0.3)
     assert proc.alive()
 
 
