@@ -15,6 +15,9 @@ Figures:
 - ``transport_us``: arrival at the drive − the master's send time (hub + simulated drive);
 - ``feedback``: TPDO statusword/position frames the master received vs SYNCs sent.
 
+``--timing on_receipt`` (default): setpoint RPDOs of transmission type 255 sent at each stamp,
+the event-driven path; the synchronous path (latched at SYNC) is ``benchmarks/bench_sync.py``.
+
 Master-side options: ``--rt-priority`` (SCHED_FIFO of the player's thread), ``--switch-interval``
 (this process's thread switch interval), ``--spin-margin``, ``--prepare on|off`` (clamp + unit
 conversion before the stamp, as the bridge node does, or all at the stamp).
@@ -69,6 +72,9 @@ def main() -> int:
     ap.add_argument("--hub", default="sim", choices=("sim", "process"),
                     help="host the hub in the simulator process (as ff_sim_driver does) or in "
                          "a process of its own")
+    ap.add_argument("--timing", default="on_receipt", choices=("on_receipt", "sync"),
+                    help="setpoint_timing of the master: on_receipt (RPDO at each stamp, what this "
+                         "benchmark measures) or sync (latched at SYNC: benchmarks/bench_sync.py)")
     a = ap.parse_args()
     if a.switch_interval > 0:
         sys.setswitchinterval(a.switch_interval)
@@ -91,7 +97,8 @@ def main() -> int:
         settings = {"sync_period": a.sync_period, "heartbeat_producer_ms": 10,
                     # a timing benchmark, not a safety test: tolerate a loaded machine holding
                     # a process off
-                    "heartbeat_timeout": 1.0, "feedback_timeout": 1.0, "setpoint_timeout": 1.0}
+                    "heartbeat_timeout": 1.0, "feedback_timeout": 1.0, "setpoint_timeout": 1.0,
+                    "setpoint_timing": a.timing}
         if a.spin_margin is not None:
             settings["spin_margin"] = a.spin_margin
         cfg = rig_master_config(url, a.family, 10.0, **settings)

@@ -95,6 +95,10 @@ HEARTBEAT_PRODUCER_MS = 50  # ms, the drives' heartbeat
 HEARTBEAT_TIMEOUT = 3.0    # s, the bridge's timeout on the drives' heartbeat; the drives' on the
 MASTER_HEARTBEAT_TIMEOUT_MS = 3000   # bridge's (100 ms) heartbeat: 3 s too
 JOINT_STATE_TIMEOUT = 3.0  # s, the executor stops a move whose joint states stop this long
+# The simulated stack applies setpoints on receipt at their stamps (RPDO transmission type 255),
+# as measured in docs/timing.md; the SYNC-latched path (the drives' default, "sync") runs in the
+# hwbridge tests and benchmarks/bench_sync.py.
+SETPOINT_TIMING = "on_receipt"
 EXECUTOR_FILES = ("executor.yaml", "executor_sim.yaml")   # config/ files layered for the executor
 
 
@@ -174,7 +178,7 @@ def bridge_config(model: str, hub_url: str) -> dict:
     return {"bus": {"interface": "remote", "channel": hub_url, "bitrate": 1_000_000},
             "sync_period": SYNC_PERIOD, "heartbeat_producer_ms": HEARTBEAT_PRODUCER_MS,
             "heartbeat_timeout": HEARTBEAT_TIMEOUT, "master_heartbeat_timeout_ms": MASTER_HEARTBEAT_TIMEOUT_MS,
-            "setpoint_timeout": 0.5, "joints": joints}
+            "setpoint_timeout": 0.5, "setpoint_timing": SETPOINT_TIMING, "joints": joints}
 
 
 class Stack:

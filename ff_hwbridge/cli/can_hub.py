@@ -1,19 +1,47 @@
-"""``ff-can-hub [--port P] [--host 127.0.0.1]``: serve the loopback CAN hub until SIGINT/SIGTERM.
+"""``ff-can-hub [--port P] [--host 127.0.0.1] [--sync-period S]``: serve the loopback CAN hub
+until SIGINT/SIGTERM, optionally producing SYNC itself.
 
 Prints ``CAN hub on ws://127.0.0.1:PORT/`` once serving and ``CAN hub stopped`` on the way out.
+With ``--sync-period`` (s, e.g. 0.001) the hub produces SYNC (COB-ID 0x80) from a timer thread
+(SCHED_FIFO ``--sync-rt-priority`` when permitted; the hub's forwarding threads one below it,
+so that none of them is preempted while holding the GIL the timer needs) and prints its jitter as one JSON line
+``{"sync": {...}}`` (count, skipped, jitter_p50_us / p99 / max, period_us, realtime) every
+``--sync-report`` s (0 = never), on SIGUSR1, and at exit.
 """
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import signal
 import sys
 import threading
 from typing import Optional, Sequence
 
 from ff_hwbridge.drive.bus import LOOPBACK, CanConfigError
-from ff_hwbridge.sim.can_hub import start_hub
+from ff_hwbridge.sim.can_hub import CanHub, start_hub
 
 __all__ = ["main"]
+
+#: s, the interpreter's thread switch interval in the hub (default 5 ms): the SYNC timer thread
+#: gets the GIL back from the hub's forwarding threads within this
+SWITCH_INTERVAL = 0.0001
+
+
+def _realtime_process(priority: int) -> None:
+    """SCHED_FIFO for this thread and so every thread it starts (the hub's forwarding threads):
+    no thread holding the GIL is ever preempted by ordinary processes, which would stall the
+    SYNC timer thread (one priority above) waiting for the GIL. A warning when not permitted."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
+    except (AttributeError, OSError) as exc:
+        print(f"ff-can-hub: cannot use SCHED_FIFO ({exc}); the hub runs at normal priority, "
+              "expect SYNC jitter under load", file=sys.stderr, flush=True)
+
+
+def _report(hub: CanHub) -> None:
+    if hub.sync is not None:
+        print(json.dumps({"sync": hub.sync.stats().as_dict()}), flush=True)
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
@@ -23,18 +51,47 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                                              "on loopback only.")
     ap.add_argument("--port", type=int, default=54701, help="TCP port on 127.0.0.1 (0 = any free)")
     ap.add_argument("--host", default=LOOPBACK, help="loopback address to bind (default 127.0.0.1)")
+    ap.add_argument("--sync-period", type=float, default=0.0,
+                    help="s, produce SYNC (0x80) at this period (0 = no SYNC from the hub)")
+    ap.add_argument("--sync-rt-priority", type=int, default=50,
+                    help="SCHED_FIFO priority of the SYNC timer thread (0 = normal; falls back "
+                         "with a warning when not permitted)")
+    ap.add_argument("--sync-report", type=float, default=0.0,
+                    help="s, print the SYNC jitter as a JSON line this often (0 = at exit and "
+                         "on SIGUSR1 only)")
     args = ap.parse_args(argv)
+    if args.sync_period and not 0.0001 <= args.sync_period <= 1.0:
+        print(f"ff-can-hub: --sync-period must be 0.0001..1 s, got {args.sync_period}", file=sys.stderr)
+        return 2
+    if not 0 <= args.sync_rt_priority <= 99:
+        print(f"ff-can-hub: --sync-rt-priority must be 0..99, got {args.sync_rt_priority}",
+              file=sys.stderr)
+        return 2
+    if args.sync_period:
+        sys.setswitchinterval(SWITCH_INTERVAL)
+        if args.sync_rt_priority > 1:
+            _realtime_process(args.sync_rt_priority - 1)
     try:
-        hub = start_hub(args.port, args.host)
+        hub = start_hub(args.port, args.host, sync_period=args.sync_period,
+                        sync_rt_priority=args.sync_rt_priority)
     except CanConfigError as exc:
         print(f"ff-can-hub: {exc}", file=sys.stderr)
         return 2
     stop = threading.Event()
+    report = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
-    print(f"CAN hub on {hub.url}", flush=True)
+    signal.signal(signal.SIGUSR1, lambda *_: report.set())
+    print(f"CAN hub on {hub.url}" + (f", SYNC every {args.sync_period * 1000.0:g} ms"
+                                      if args.sync_period else ""), flush=True)
+    waited = 0.0
     while not stop.wait(0.2):
-        pass
+        waited += 0.2
+        if report.is_set() or (args.sync_report and waited >= args.sync_report):
+            report.clear()
+            waited = 0.0
+            _report(hub)
+    _report(hub)
     hub.close()
     print("CAN hub stopped", flush=True)
     return 0

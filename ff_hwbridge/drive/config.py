@@ -32,9 +32,21 @@ Example (``config/bridge_epos4_1dof.yaml``)::
     check_identity: true          # 0x1000 device profile 402, 0x1018:01 vendor maxon (0xFB)
     setpoint_timeout: 0.5         # s, no fresh setpoint this long during a motion -> safe state
     spin_margin: 0.0003           # s, the setpoint scheduler sleeps until this long before a stamp
-    scheduler_rt_priority: 0      # 1..99: SCHED_FIFO for the scheduler thread (needs CAP_SYS_NICE)
+    scheduler_rt_priority: -1     # 1..99: SCHED_FIFO for the setpoint player's thread and the bus
+                                  #   receiver (needs CAP_SYS_NICE; falls back with a warning);
+                                  #   0 = normal; -1 = auto: 50 with setpoint_timing sync, else 0
     feedback_timeout: 0.04        # s, no TPDO this long while SYNC runs -> safe state
                                   #    (default: max(heartbeat_timeout, 20 SYNC periods))
+    setpoint_timing: sync         # 'sync': setpoint RPDO transmission type 1, latched by the drive
+                                  #   at the next SYNC, sent during the cycle before (0x60C2 =
+                                  #   sync_period); 'on_receipt': type 255, applied on arrival
+    sync_producer: master         # 'master': this bridge produces SYNC (canopen network.sync:
+                                  #   the kernel's broadcast manager on socketcan); 'external':
+                                  #   another node does (the simulation's CAN hub, a PLC)
+    sync_timeout: 0.1             # s, no SYNC seen this long -> safe state
+                                  #   (default: max(heartbeat_timeout, 20 SYNC periods))
+    missed_cycle_tolerance: 1     # cycles: a setpoint that takes effect more than this many
+                                  #   SYNC cycles after its own -> safe state (every miss counts)
     joints:
       - name: joint1
         node_id: 1
@@ -128,6 +140,9 @@ OPTION_RANGES = (("rpdo_timeout_ms", 0, 65535), ("quick_stop_option", 0, 8),
                  ("fault_reaction_option", 0, 4), ("abort_connection_option", 0, 3),
                  ("communication_error_behaviour", 0, 2))
 SCALING_SOURCES = ("check", "drive", "config")
+SETPOINT_TIMINGS = ("sync", "on_receipt")
+AUTO_RT_PRIORITY = 50       # SCHED_FIFO priority of the synchronous player (scheduler_rt_priority -1)
+SYNC_PRODUCERS = ("master", "external")
 
 
 @dataclass(frozen=True)
@@ -158,8 +173,24 @@ class BridgeConfig:
     state_timeout: float = 1.0
     monitor_period: float = 0.002
     spin_margin: float = 0.0003
-    scheduler_rt_priority: int = 0
+    scheduler_rt_priority: int = -1
     reset_communication: bool = True
+    setpoint_timing: str = "sync"
+    sync_producer: str = "master"
+    sync_timeout: float = 0.0
+    missed_cycle_tolerance: int = 1
+
+    @property
+    def rt_priority(self) -> int:
+        """SCHED_FIFO priority of the player's thread and the bus receiver (0 = normal)."""
+        if self.scheduler_rt_priority >= 0:
+            return self.scheduler_rt_priority
+        return AUTO_RT_PRIORITY if self.synchronous else 0
+
+    @property
+    def synchronous(self) -> bool:
+        """Setpoint RPDOs are synchronous (transmission type 1, latched at SYNC)."""
+        return self.setpoint_timing == "sync"
 
     def __post_init__(self) -> None:
         if not self.joints:
@@ -173,8 +204,21 @@ class BridgeConfig:
         if self.feedback_timeout == 0.0:   # default: the heartbeat timeout, >= 20 SYNC periods
             object.__setattr__(self, "feedback_timeout",
                                max(float(self.heartbeat_timeout), 20.0 * float(self.sync_period)))
+        if self.sync_timeout == 0.0:       # default: as patient as with the TPDOs
+            object.__setattr__(self, "sync_timeout",
+                               max(float(self.heartbeat_timeout), 20.0 * float(self.sync_period)))
+        if self.setpoint_timing not in SETPOINT_TIMINGS:
+            raise ConfigError(f"setpoint_timing must be one of {SETPOINT_TIMINGS}, got "
+                              f"{self.setpoint_timing!r}")
+        if self.sync_producer not in SYNC_PRODUCERS:
+            raise ConfigError(f"sync_producer must be one of {SYNC_PRODUCERS}, got "
+                              f"{self.sync_producer!r}")
+        if not (isinstance(self.missed_cycle_tolerance, int) and not isinstance(self.missed_cycle_tolerance, bool)
+                and 0 <= self.missed_cycle_tolerance <= 1000):
+            raise ConfigError("missed_cycle_tolerance must be an integer 0..1000 cycles, got "
+                              f"{self.missed_cycle_tolerance!r}")
         for key in ("sync_period", "heartbeat_timeout", "setpoint_timeout", "feedback_timeout", "sdo_timeout",
-                    "boot_timeout", "state_timeout", "monitor_period"):
+                    "boot_timeout", "state_timeout", "monitor_period", "sync_timeout"):
             v = getattr(self, key)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ConfigError(f"{key} must be a number of seconds > 0, got {v!r}")
@@ -230,7 +274,7 @@ class BridgeConfig:
 
 
 INTEGER_KEYS = frozenset({"heartbeat_producer_ms", "master_heartbeat_ms", "master_node_id",
-                          "master_heartbeat_timeout_ms"} | {k for k, _, _ in OPTION_RANGES})
+                          "master_heartbeat_timeout_ms", "missed_cycle_tolerance"} | {k for k, _, _ in OPTION_RANGES})
 
 
 def _joint(i: int, data: Any) -> JointConfig:
@@ -325,11 +369,12 @@ def config_from_mapping(data: Mapping[str, Any]) -> BridgeConfig:
         v = data[f.name]
         if f.name in ("reset_communication", "check_identity"):
             kw[f.name] = bool(v)
-        elif f.name == "scaling_source":
+        elif f.name in ("scaling_source", "setpoint_timing", "sync_producer"):
             kw[f.name] = str(v).lower()
         elif f.name == "scheduler_rt_priority":
-            if not isinstance(v, int) or isinstance(v, bool) or not 0 <= v <= 99:
-                raise ConfigError(f"scheduler_rt_priority must be an integer 0..99 (0 = off), got {v!r}")
+            if not isinstance(v, int) or isinstance(v, bool) or not -1 <= v <= 99:
+                raise ConfigError("scheduler_rt_priority must be an integer -1..99 (0 = off, -1 = "
+                                  f"auto), got {v!r}")
             kw[f.name] = v
         elif f.name in INTEGER_KEYS:
             if isinstance(v, float) and v.is_integer():

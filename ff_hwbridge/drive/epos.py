@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import struct
 import threading
 import time
@@ -48,6 +49,7 @@ import numpy as np
 from ff_hwbridge.drive.bus import open_bus
 from ff_hwbridge.drive.config import BridgeConfig, JointConfig
 from ff_hwbridge.drive.safety import SafeCommand, SafetyGuard
+from ff_hwbridge.drive.sync_watch import SyncWatch
 from ff_hwbridge.protocol import cia402
 from ff_hwbridge.protocol.cia402 import SW_INTERNAL_LIMIT, SW_WARNING, State
 from ff_hwbridge.protocol.epos_errors import EMCY_CLASSES, describe  # noqa: F401  (EMCY_CLASSES re-exported)
@@ -59,6 +61,10 @@ from ff_hwbridge.protocol.units import DriveUnits
 log = logging.getLogger(__name__)
 
 NMT_STATES = {0x00: "BOOTUP", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
+# python-can interfaces that echo the bus's own frames back with their bus timestamp
+# (``receive_own_messages``): the master sees its SYNC and which RPDOs were on the bus before it
+ECHO_INTERFACES = frozenset({"socketcan", "virtual", "remote", "kvaser"})
+SYNC_COB_ID = 0x80               # CiA 301 default 0x1005 COB-ID SYNC
 # SDO abort codes meaning "this drive has no such object" (CiA 301)
 ABORT_NO_OBJECT = (0x06020000, 0x06090011)
 
@@ -119,6 +125,9 @@ class _Drive:
     seen_operational: bool = False
     tpdo_seen: bool = False
     last_tx: float = 0.0          # monotonic s of the latest RPDO
+    tx_seq: int = 0               # setpoint RPDOs handed to the bus
+    echo_seq: int = 0             # of those, echoed back by the bus (receive_own_messages)
+    echo_log: deque = field(default_factory=lambda: deque(maxlen=1024))  # (echo_seq, bus ns)
     emcy: deque = field(default_factory=lambda: deque(maxlen=20))   # recent EMCY texts
     warnings: deque = field(default_factory=lambda: deque(maxlen=20))  # recent warning EMCYs
     history_wanted: bool = False  # read 0x1003 / 0x603F (monitor thread) after a fault
@@ -152,6 +161,9 @@ class EposMaster:
         self._sdo_lock = threading.RLock()     # one SDO user at a time (configure, error history)
         self.events: deque[tuple[float, str]] = deque(maxlen=200)   # (monotonic s, text)
         self.tx_errors = 0
+        self.sync_watch = SyncWatch(config.sync_period)
+        self.echo = False                 # the bus echoes our frames (set at connect)
+        self._sync_expected_since: Optional[float] = None   # monotonic s: SYNC must come
 
     # --- properties ---------------------------------------------------------------------------
     @property
@@ -214,7 +226,14 @@ class EposMaster:
         if self.network is not None:
             return
         if bus is None:
-            bus = open_bus(self.config.bus.as_dict())   # checks loopback-only remotes
+            cfg = self.config.bus.as_dict()
+            if self.config.synchronous and cfg["interface"] in ECHO_INTERFACES:
+                cfg.setdefault("receive_own_messages", True)
+            self.echo = bool(cfg.get("receive_own_messages", False))
+            bus = open_bus(cfg)   # checks loopback-only remotes
+        else:
+            self.echo = bool(getattr(bus, "receive_own_messages", False)
+                             or getattr(bus, "_recv_own", False))
         net = canopen.Network(bus)
         net.NOTIFIER_CYCLE = 0.1        # bounds how long disconnect() waits for the receiver
         net.connect()
@@ -232,6 +251,7 @@ class EposMaster:
             d.raw_limit = d.units.setpoint_limit(d.cfg.current_limit)
             net.subscribe(0x700 + d.node_id, self._make_heartbeat_cb(d))
             node.emcy.add_callback(self._make_emcy_cb(d))
+        net.subscribe(SYNC_COB_ID, self._on_sync)
 
     def disconnect(self) -> None:
         """Zero current, disable voltage, stop SYNC and the monitor, close the bus (idempotent)."""
@@ -243,6 +263,9 @@ class EposMaster:
                 d.target = State.SWITCH_ON_DISABLED
                 if d.operational:
                     self._send_rpdo(d, cia402.CONTROLWORD[cia402.Command.DISABLE_VOLTAGE], 0)
+            if self.config.synchronous and self._sync_running:
+                # a synchronous RPDO takes effect at the next SYNC: keep SYNC for two more
+                time.sleep(2.5 * self.config.sync_period)
         finally:
             self.stop_sync()
             self.stop_master_heartbeat()
@@ -381,7 +404,9 @@ class EposMaster:
             optional(index, sub, value, what)
         self._apply_scaling(d, sdo_read, sdo_write, optional)
         try:
-            self._map_pdo(node.rpdo[RPDO_SETPOINT], 0x200 + nid, 255, rpdo_layout(fam))
+            # synchronous (1): the drive latches the setpoint at the next SYNC; 255: on receipt
+            self._map_pdo(node.rpdo[RPDO_SETPOINT], 0x200 + nid, 1 if c.synchronous else 255,
+                          rpdo_layout(fam))
             self._map_pdo(node.tpdo[TPDO_STATUS], 0x180 + nid, 1, tpdo1_layout(fam))
             self._map_pdo(node.tpdo[TPDO_MOTION], 0x280 + nid, 1, tpdo2_layout(fam))
         except Exception as exc:  # noqa: BLE001
@@ -400,6 +425,8 @@ class EposMaster:
                 net.unsubscribe(cob)
         net.subscribe(0x180 + nid, self._make_tpdo1_cb(d))
         net.subscribe(0x280 + nid, self._make_tpdo2_cb(d))
+        if self.echo:
+            net.subscribe(0x200 + nid, self._make_echo_cb(d))
         d.target = State.SWITCH_ON_DISABLED
         d.controlword = 0
         d.setpoint = 0
@@ -505,12 +532,70 @@ class EposMaster:
                 self._master_hb = None
 
     def start_sync(self) -> None:
-        """Start the SYNC producer (``sync_period``)."""
-        if self.network is not None and not self._sync_running:
+        """Start the SYNC producer (``sync_period``) when this master produces SYNC
+        (``sync_producer: master``); from now on SYNC must arrive (``sync_timeout``)."""
+        if self.network is None:
+            return
+        if self.config.sync_producer == "master" and not self._sync_running:
             self.network.sync.start(self.config.sync_period)
             self._sync_running = True
+        if self._sync_expected_since is None:
+            self._sync_expected_since = self.clock()
+
+    @property
+    def sync_expected(self) -> bool:
+        """SYNC runs on the bus (produced here or, ``external``, by another node)."""
+        return self._sync_running or self._sync_expected_since is not None
+
+    def set_receiver_priority(self, priority: int) -> bool:
+        """SCHED_FIFO ``priority`` for the master's own threads: the canopen Network's bus
+        receiver (it delivers SYNC and the echoes), the monitor (watchdogs, RPDO refresh) and a
+        thread-based heartbeat sender. No thread of the master that takes the GIL is then
+        preempted by ordinary processes while a FIFO thread (the player) waits for the GIL.
+        False with a logged warning where not permitted."""
+        net = self.network
+        notifier = getattr(net, "notifier", None)
+        threads = [t for t in getattr(notifier, "_readers", []) if isinstance(t, threading.Thread)]
+        for extra in (self._monitor, getattr(self._master_hb, "thread", None)):
+            if isinstance(extra, threading.Thread) and extra.is_alive():
+                threads.append(extra)
+        ok = bool(threads)
+        for t in threads:
+            try:
+                os.sched_setscheduler(t.native_id or 0, os.SCHED_FIFO, os.sched_param(priority))
+            except (AttributeError, OSError) as exc:
+                log.warning("bus receiver: cannot use SCHED_FIFO priority %d (%s); running at "
+                            "normal priority", priority, exc)
+                ok = False
+        return ok
+
+    def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
+        """A SYNC on the bus (receiver thread): its bus instant and the echoes before it."""
+        echoes = tuple(d.echo_seq for d in self._drives) if self.echo else None
+        self.sync_watch.observe(timestamp, echoes)
+
+    def _make_echo_cb(self, d: _Drive) -> Callable[[int, bytearray, float], None]:
+        def on_echo(can_id: int, data: bytearray, timestamp: float) -> None:
+            d.echo_seq += 1
+            d.echo_log.append((d.echo_seq, int(round(timestamp * 1e9)) if timestamp else time.time_ns()))
+        return on_echo
+
+    def echo_time(self, marks: Sequence[int]) -> Optional[int]:
+        """Bus instant (wall ns) by which the RPDOs numbered ``marks`` (``send_prepared``'s
+        return, per joint) were all on the bus, from their echoes; None while one is missing."""
+        latest = 0
+        for d, m in zip(self._drives, marks):
+            if m <= 0:
+                continue
+            log_ = list(d.echo_log)        # a copy: the receiver thread appends meanwhile
+            i = m - log_[0][0] if log_ else -1     # echo numbers are consecutive
+            if not 0 <= i < len(log_):
+                return None
+            latest = max(latest, log_[i][1])
+        return latest
 
     def stop_sync(self) -> None:
+        self._sync_expected_since = None
         if self.network is not None and self._sync_running:
             try:
                 self.network.sync.stop()
@@ -571,6 +656,9 @@ class EposMaster:
         """Heartbeat / feedback timeouts and the setpoint watchdog at ``now``; returns a new
         fault reason if this call latched the safe state."""
         timeout = self.config.heartbeat_timeout
+        reason = self._check_sync(now)     # first: without SYNC the TPDOs stop too
+        if reason:
+            return self.trip(reason)
         for d in self._drives:
             if not d.operational:
                 continue
@@ -583,7 +671,7 @@ class EposMaster:
                                  f"{(now - d.last_heartbeat) * 1000.0:.0f} ms (timeout "
                                  f"{hb_limit * 1000.0:.0f} ms)")
             fb_limit = self.config.feedback_timeout if d.tpdo_seen else max(self.config.feedback_timeout, grace)
-            if self._sync_running and now - d.feedback.stamp > fb_limit:
+            if self.sync_expected and now - d.feedback.stamp > fb_limit:
                 return self.trip(f"feedback lost: no TPDO from node {d.node_id} ({d.cfg.name}) for "
                                  f"{(now - d.feedback.stamp) * 1000.0:.0f} ms (timeout "
                                  f"{fb_limit * 1000.0:.0f} ms)")
@@ -595,6 +683,24 @@ class EposMaster:
             self._react(reason)
             return reason
         return None
+
+    def _check_sync(self, now: float) -> Optional[str]:
+        """SYNC loss: none for ``sync_timeout`` s (before the first: ``state_timeout`` as well)."""
+        since = self._sync_expected_since
+        if since is None or not any(d.operational for d in self._drives):
+            return None
+        limit = self.config.sync_timeout
+        age = self.sync_watch.age_s()
+        if age is None:
+            age, limit = now - since, max(limit, self.config.state_timeout)
+        else:
+            age = min(age, now - since)
+        if age <= limit:
+            return None
+        who = ("this master's SYNC producer" if self.config.sync_producer == "master"
+               else "the external SYNC producer")
+        return (f"SYNC lost: no SYNC (COB-ID 0x{SYNC_COB_ID:02X}) for {age * 1000.0:.0f} ms "
+                f"(sync_timeout {limit * 1000.0:.0f} ms, {who}); the drives latch no setpoint")
 
     def _envelope(self, d: _Drive) -> Optional[str]:
         """The joint's position / velocity envelope (config), judged on the latest TPDOs."""
@@ -718,7 +824,11 @@ class EposMaster:
             now = self.clock()
             fb.stamp = now
             d.tpdo_seen = True
+            if proxy:
+                # no echo of our own SYNC: the first drive's synchronous TPDO1 marks the cycle
+                self.sync_watch.observe(timestamp, None)
             self._step(d, now)
+        proxy = (d is self._drives[0] and self.config.sync_producer == "master" and not self.echo)
         return on_tpdo1
 
     def _make_tpdo2_cb(self, d: _Drive) -> Callable[[int, bytearray, float], None]:
@@ -782,6 +892,7 @@ class EposMaster:
             d.last_tx = self.clock()
             try:
                 self._connected_network().send_message(0x200 + d.node_id, data)
+                d.tx_seq += 1
             except Exception:  # noqa: BLE001 - a full bus must not kill the caller's thread
                 self.tx_errors += 1
                 log.exception("RPDO to node %d failed", d.node_id)
@@ -871,9 +982,11 @@ class EposMaster:
                      for d, a in zip(self._drives, cmd.currents))
         return PreparedCommand(cmd, raws)
 
-    def send_prepared(self, prepared: PreparedCommand) -> None:
+    def send_prepared(self, prepared: PreparedCommand) -> tuple[int, ...]:
         """Send prepared setpoints (one RPDO per joint). Zero while latched or when a drive is
-        not (to be) in Operation enabled; the raw value is clamped to the limit once more."""
+        not (to be) in Operation enabled; the raw value is clamped to the limit once more.
+        Returns per joint the RPDO count including these (``rpdo_marks`` right after each)."""
+        marks = []
         for d, raw in zip(self._drives, prepared.raw):
             with self._send_lock:
                 if (self.guard.latched or d.feedback.state is not State.OPERATION_ENABLED
@@ -881,6 +994,8 @@ class EposMaster:
                     raw = 0
                 if d.operational:
                     self._send_rpdo(d, d.controlword, raw)
+                marks.append(d.tx_seq)
+        return tuple(marks)
 
     def command_currents(self, amps: Sequence[float]) -> SafeCommand:
         """Send motor currents (A, one per joint) through the guard now; returns what was sent."""
@@ -898,6 +1013,11 @@ class EposMaster:
     def note_setpoint(self, motion_running: bool) -> None:
         """Feed the setpoint watchdog (a fresh setpoint arrived)."""
         self.guard.feed(self.clock(), motion_running)
+
+    def rpdo_marks(self) -> tuple[int, ...]:
+        """Per joint, how many setpoint RPDOs have been handed to the bus (compare with the
+        echo counts of a :class:`~ff_hwbridge.drive.sync_watch.SyncEvent`)."""
+        return tuple(d.tx_seq for d in self._drives)
 
     def applied_currents(self) -> np.ndarray:
         """A, the currents last sent (from the raw setpoints)."""

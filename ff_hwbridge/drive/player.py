@@ -14,18 +14,28 @@ goes through:
    sent − stamp for the switch-time statistics; the setpoint is reported as an
    :class:`AppliedSetpoint` (``take_applied()``).
 
+Synchronous setpoints (``setpoint_timing: sync``, the default): the drives latch RPDOs at SYNC,
+so a :class:`~ff_hwbridge.drive.cycle.CycleScheduler` replaces the stamp scheduler: each setpoint
+is assigned to the first SYNC at or after its stamp, guarded, converted and sent as soon as the
+SYNC before that one has been seen (up to one period early), and reported once its SYNC has come:
+``AppliedSetpoint.sent_ns`` is then the SYNC's bus instant (when the drive applied it),
+``rpdo_sent_ns`` the send and ``missed_cycles`` how many SYNCs late it took effect (counted;
+more than ``missed_cycle_tolerance`` latches the safe state).
+
 A latched safe state drops every pending setpoint; ``stop()`` drops them, stops the thread and
 commands zero current. Stamps are integer ns on ``clock_ns`` (default ``time.time_ns``, the ROS
 system clock).
 """
 from __future__ import annotations
 
+import sys
 import time
 from collections import deque
 from dataclasses import dataclass
-from typing import Callable, Optional, Sequence
+from typing import Any, Callable, Optional, Sequence
 
 from ff_hwbridge.drive.config import BridgeConfig
+from ff_hwbridge.drive.cycle import CycleScheduler, Resolved
 from ff_hwbridge.drive.epos import EposMaster, PreparedCommand
 from ff_hwbridge.drive.scheduler import StampScheduler, SwitchStats
 
@@ -36,6 +46,7 @@ class SetpointRejected(ValueError):
     """A setpoint the player does not queue (wrong number of currents, safe state latched)."""
 
 
+SWITCH_INTERVAL = 0.0002  # s, thread switch interval of a process running a synchronous player
 LATE_THRESHOLD = 0.0005   # s: a setpoint sent more than this after its stamp counts as late
 MAX_RECORDS = 200_000     # (stamp, sent) pairs the statistics keep
 MAX_REPORTS = 10_000      # applied setpoints waiting for ``take_applied()`` (oldest dropped)
@@ -49,16 +60,20 @@ class PlayerConfig:
     rt_priority:    1..99: SCHED_FIFO for the thread (needs CAP_SYS_NICE); 0 = normal.
     prepare_ahead:  guard + unit conversion before the stamp (True) or at it, together with the
                     send (False: a little later, for measuring what the early step gains).
+
+    cycle_tolerance: fraction of the SYNC period a stamp may lie after a SYNC and still be
+                    assigned to it (float rounding, SYNC jitter).
     """
 
     spin_margin: float = 0.0003
     rt_priority: int = 0
     prepare_ahead: bool = True
+    cycle_tolerance: float = 0.1
 
     @classmethod
     def from_bridge(cls, config: BridgeConfig) -> "PlayerConfig":
         """The timing of a bridge configuration (``spin_margin``, ``scheduler_rt_priority``)."""
-        return cls(spin_margin=config.spin_margin, rt_priority=config.scheduler_rt_priority)
+        return cls(spin_margin=config.spin_margin, rt_priority=config.rt_priority)
 
 
 @dataclass(frozen=True)
@@ -74,6 +89,8 @@ class AppliedSetpoint:
     last: bool
     reason: Optional[str]        # None: sent as requested; else why the guard changed it
     latched: bool                # the safe state was latched when it was prepared
+    rpdo_sent_ns: int = 0        # when its RPDO was sent (sync: before ``sent_ns``, the SYNC)
+    missed_cycles: int = 0       # sync: SYNC cycles after its own that it took effect (0 = on time)
 
 
 @dataclass(frozen=True)
@@ -101,7 +118,16 @@ class SetpointPlayer:
         self._clock_ns = clock_ns
         self._n_joints = len(master.joint_names)
         self._reports: deque[AppliedSetpoint] = deque(maxlen=MAX_REPORTS)
-        self._scheduler = StampScheduler(self._apply, clock_ns=clock_ns,
+        self.synchronous = master.config.synchronous
+        self._cycle: Optional[CycleScheduler] = None
+        if self.synchronous:
+            self._cycle = CycleScheduler(
+                master.sync_watch, self._send_cycle, self._report_cycle, echo_time=master.echo_time,
+                prepare=self._prepare, on_beyond=master.trip,
+                tolerance=self.config.cycle_tolerance,
+                missed_tolerance=master.config.missed_cycle_tolerance,
+                rt_priority=self.config.rt_priority, max_records=MAX_RECORDS, name=name)
+        self._scheduler: StampScheduler | CycleScheduler = self._cycle or StampScheduler(self._apply, clock_ns=clock_ns,
                                          spin_margin=self.config.spin_margin,
                                          max_records=MAX_RECORDS,
                                          late_threshold=LATE_THRESHOLD, name=name,
@@ -112,7 +138,14 @@ class SetpointPlayer:
 
     # --- control ----------------------------------------------------------------------------
     def start(self) -> "SetpointPlayer":
-        """Start the scheduler thread (idempotent)."""
+        """Start the scheduler thread (idempotent). Synchronous: the process's thread switch
+        interval at most ``SWITCH_INTERVAL`` (the bus receiver and this thread get the GIL back
+        from busy threads that fast) and the bus receiver under the thread's SCHED_FIFO."""
+        if self._cycle is not None:
+            if sys.getswitchinterval() > SWITCH_INTERVAL:
+                sys.setswitchinterval(SWITCH_INTERVAL)
+            if self.config.rt_priority > 0:
+                self.master.set_receiver_priority(self.config.rt_priority)
         self._scheduler.start()
         return self
 
@@ -145,6 +178,8 @@ class SetpointPlayer:
     def close(self) -> None:
         """``stop()`` and detach from the master (its safe state no longer reaches the player)."""
         self.stop()
+        if self._cycle is not None:
+            self._cycle.close()
         self.master.remove_fault_listener(self._on_fault)
         self.master.pending_fn = lambda: False
 
@@ -165,12 +200,20 @@ class SetpointPlayer:
         return self._scheduler.stats()
 
     def records(self) -> list[tuple[int, int]]:
-        """(stamp ns, sent ns) of each applied setpoint, oldest first (up to ``MAX_RECORDS``)."""
+        """(stamp ns, sent ns) of each applied setpoint, oldest first (up to ``MAX_RECORDS``);
+        synchronous: (stamp ns, bus instant of the SYNC it took effect at)."""
         return list(self._scheduler.records)
 
     def reset_stats(self) -> None:
-        """Forget the recorded switch times and the late / stale counts."""
+        """Forget the recorded switch times and the late / stale / missed counts."""
         self._scheduler.reset_stats()
+        if self._cycle is not None:
+            self.master.sync_watch.reset_stats()
+
+    def sync_grid(self) -> Optional[tuple[int, int]]:
+        """(bus instant ns of the latest SYNC, SYNC period ns), on the stamps' clock, for
+        aligning a profile's start to the SYNC grid; None when not synchronous or before SYNC."""
+        return self._cycle.grid() if self._cycle is not None else None
 
     def take_applied(self) -> list[AppliedSetpoint]:
         """The setpoints applied since the last call, oldest first."""
@@ -180,12 +223,26 @@ class SetpointPlayer:
         return out
 
     def diagnostics(self) -> dict[str, float]:
-        """Flat timing summary: switch count, late count, p50 / p99 / max of sent − stamp (µs),
-        pending setpoints, and 1 when the thread runs under SCHED_FIFO (else 0)."""
+        """Flat timing summary: switch count, late count, p50 / p99 / max of sent − stamp (µs;
+        synchronous: SYNC instant − stamp), pending setpoints, 1 when the thread runs under
+        SCHED_FIFO (else 0); synchronous also: missed setpoints and the worst miss (cycles),
+        SYNC count, period, jitter p99 / max, missing SYNCs (µs / counts), send after SYNC p99."""
         s = self.stats()
-        return {"switch_count": s.count, "switch_late": s.late, "switch_p50_us": s.p50_us,
-                "switch_p99_us": s.p99_us, "switch_max_us": s.max_us,
-                "pending_setpoints": self.pending, "scheduler_realtime": int(self._scheduler.rt_active)}
+        out: dict[str, float] = {
+            "switch_count": s.count, "switch_late": s.late, "switch_p50_us": s.p50_us,
+            "switch_p99_us": s.p99_us, "switch_max_us": s.max_us,
+            "pending_setpoints": self.pending, "scheduler_realtime": int(self._scheduler.rt_active),
+            "synchronous": int(self.synchronous)}
+        if self._cycle is not None:
+            c = self._cycle.cycle_stats()
+            w = self.master.sync_watch.stats()
+            out.update({"missed_setpoints": c.missed, "missed_cycles_max": c.missed_max_cycles,
+                        "superseded_setpoints": c.superseded,
+                        "send_after_sync_p99_us": c.send_after_sync_p99_us,
+                        "sync_count": w.count, "sync_period_us": w.period_us,
+                        "sync_jitter_p99_us": w.jitter_p99_us, "sync_jitter_max_us": w.jitter_max_us,
+                        "sync_missing": w.missing, "sync_age_ms": w.age_ms})
+        return out
 
     # --- the scheduler thread ---------------------------------------------------------------
     def _prepare(self, queued: _Queued) -> _Prepared:
@@ -204,6 +261,23 @@ class SetpointPlayer:
         currents = tuple(float(a) for a in master.applied_currents())
         self._reports.append(AppliedSetpoint(sent_ns, stamp_ns, currents, q.seq, q.profile_id,
                                              q.last, cmd.reason, cmd.latched))
+
+    def _send_cycle(self, stamp_ns: int, prepared: _Prepared) -> tuple[Optional[tuple[int, ...]], Any]:
+        """During the cycle before its SYNC: send the RPDOs (the drives latch them at it)."""
+        master = self.master
+        marks = master.send_prepared(prepared.command)
+        if prepared.queued.last:
+            master.guard.end_motion()
+        token = (prepared, tuple(float(a) for a in master.applied_currents()))
+        return (marks if master.echo else None), token
+
+    def _report_cycle(self, r: Resolved) -> None:
+        """Its SYNC has come: report it applied at the SYNC's bus instant."""
+        prepared, currents = r.token
+        q, cmd = prepared.queued, prepared.command.command
+        self._reports.append(AppliedSetpoint(r.applied_ns, r.stamp_ns, currents, q.seq, q.profile_id,
+                                             q.last, cmd.reason, cmd.latched, r.sent_ns,
+                                             r.missed_cycles))
 
     def _on_fault(self, reason: str) -> None:
         """Safe state latched (master's thread): nothing pending may be applied any more."""

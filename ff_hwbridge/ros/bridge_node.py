@@ -55,7 +55,7 @@ from std_srvs.srv import Trigger
 
 from ff_hwbridge.drive.config import BridgeConfig, ConfigError, config_from_mapping, load_config, with_bus
 from ff_hwbridge.drive.epos import EposError, EposMaster
-from ff_hwbridge.drive.player import AppliedSetpoint, SetpointPlayer, SetpointRejected
+from ff_hwbridge.drive.player import SWITCH_INTERVAL, AppliedSetpoint, SetpointPlayer, SetpointRejected
 from ff_hwbridge.protocol.cia402 import State
 from ff_msgs.msg import CurrentSetpoint
 from ff_msgs_py.threads import in_thread
@@ -92,6 +92,12 @@ PARAMS: dict[str, tuple[Any, str]] = {
     "communication_error_behaviour": (0, "0x1029:01: 0 pre-operational, 1 unchanged, 2 stopped"),
     "scaling_source": ("check", "motor data: 'check' against the drive, 'drive' (use its), 'config' (write ours)"),
     "scaling_tolerance": (0.01, "relative tolerance of the motor data check"),
+    "setpoint_timing": ("sync", "'sync': setpoint RPDOs latched by the drives at SYNC (transmission "
+                                "type 1, sent the cycle before); 'on_receipt': type 255"),
+    "sync_producer": ("master", "'master': this bridge produces SYNC; 'external': another node "
+                                "(the simulation's CAN hub)"),
+    "sync_timeout": (0.0, "s, no SYNC this long -> safe state (0 = max(heartbeat_timeout, 20 periods))"),
+    "missed_cycle_tolerance": (1, "SYNC cycles a setpoint may take effect late before the safe state"),
     "boot_timeout": (2.0, "s per NMT reset communication waiting for the boot-up frame"),
     "boot_wait": (10.0, "s in all waiting for a drive to boot (retries every boot_timeout)"),
     "check_identity": (True, "0x1000 profile 402 and 0x1018:01 vendor maxon"),
@@ -99,7 +105,8 @@ PARAMS: dict[str, tuple[Any, str]] = {
     "velocity_limits": ([0.0], "rad/s per joint, 0 = none"),
     "setpoint_timeout": (0.5, "s, no fresh setpoint during a motion -> safe state"),
     "spin_margin": (0.0003, "s, the scheduler sleeps until this long before a stamp, then spins"),
-    "scheduler_rt_priority": (0, "1..99: SCHED_FIFO for the scheduler thread (needs CAP_SYS_NICE); 0 = off"),
+    "scheduler_rt_priority": (-1, "1..99: SCHED_FIFO for the setpoint player and bus receiver "
+                              "(needs CAP_SYS_NICE); 0 = off; -1 = auto (50 when synchronous)"),
     "joint_state_rate": (100.0, "Hz"),
     "diagnostics_rate": (2.0, "Hz"),
 }
@@ -136,7 +143,8 @@ def _flat_config(get: Callable[[str], Any]) -> dict[str, Any]:
 FLAT_DRIVE_KEYS = ("master_heartbeat_timeout_ms", "rpdo_timeout_ms", "quick_stop_option",
                    "fault_reaction_option", "abort_connection_option",
                    "communication_error_behaviour", "scaling_source", "scaling_tolerance",
-                   "boot_timeout", "boot_wait", "check_identity")
+                   "boot_timeout", "boot_wait", "check_identity", "setpoint_timing", "sync_producer",
+                   "sync_timeout", "missed_cycle_tolerance")
 
 
 def _envelopes(get: Callable[[str], Any], n: int) -> list[dict[str, Any]]:
@@ -519,6 +527,9 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
     ap.add_argument("--config", default="", help="bridge YAML (overrides the config_file parameter)")
     ap.add_argument("--channel", default="", help="bus channel override, e.g. ws://127.0.0.1:54701/")
     args = ap.parse_args(remove_ros_args(argv)[1:])
+    # the bus receiver and the setpoint player get the GIL back from the executor's threads
+    # within this (python's default 5 ms would be five SYNC cycles)
+    sys.setswitchinterval(SWITCH_INTERVAL)
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:

@@ -3,7 +3,11 @@
 There is no kernel CAN device here (no vcan). The hub is a python-can-remote server on
 127.0.0.1 serving a python-can ``virtual`` channel; every process that opens
 ``{"interface": "remote", "channel": "ws://127.0.0.1:PORT/"}`` (``ff_hwbridge.drive.bus.open_bus``)
-sees the same frames. It is for tests and demos: a product on socketcan / pcan / kvaser needs
+sees the same frames. With ``sync_period`` > 0 the hub also produces SYNC itself
+(:class:`~ff_hwbridge.sim.sync.SyncSource`, a timer thread putting the frame straight on the
+virtual channel), the simulation's stand-in for the kernel's SYNC timer. Every frame's bus
+timestamp is the hub's wall clock at the moment it was put on the channel; clients receive it
+with the frame. It is for tests and demos: a product on socketcan / pcan / kvaser needs
 none of it. Command line: ``ff-can-hub`` (``ff_hwbridge.cli.can_hub``).
 """
 from __future__ import annotations
@@ -14,6 +18,7 @@ from dataclasses import dataclass, field
 from typing import Any, Optional
 
 from ff_hwbridge.drive.bus import DEFAULT_BITRATE, LOOPBACK, CanConfigError, check_loopback
+from ff_hwbridge.sim.sync import SyncSource
 
 __all__ = ["CanHub", "start_hub"]
 
@@ -27,6 +32,25 @@ class CanHub:
     channel: str
     _server: Any = field(repr=False, default=None)
     _thread: Optional[threading.Thread] = field(repr=False, default=None)
+    sync: Optional[SyncSource] = field(repr=False, default=None)
+    _sync_bus: Any = field(repr=False, default=None)
+
+    def start_sync(self, period: float, rt_priority: int = 0) -> SyncSource:
+        """Produce SYNC every ``period`` s on the hub's channel (idempotent)."""
+        if self.sync is None:
+            import can
+            self._sync_bus = can.Bus(interface="virtual", channel=self.channel,
+                                     bitrate=DEFAULT_BITRATE)
+            self.sync = SyncSource(self._sync_bus, period, rt_priority=rt_priority).start()
+        return self.sync
+
+    def stop_sync(self) -> None:
+        if self.sync is not None:
+            self.sync.stop()
+            self.sync = None
+        if self._sync_bus is not None:
+            self._sync_bus.shutdown()
+            self._sync_bus = None
 
     @property
     def url(self) -> str:
@@ -48,7 +72,8 @@ class CanHub:
         return str(host), int(port)
 
     def close(self) -> None:
-        """Stop serving and close the listening socket (idempotent)."""
+        """Stop SYNC, stop serving and close the listening socket (idempotent)."""
+        self.stop_sync()
         if self._server is not None:
             self._server.shutdown()
             self._server.server_close()
@@ -64,11 +89,13 @@ class CanHub:
 
 
 def start_hub(port: int = 0, host: str = LOOPBACK, channel: Optional[str] = None,
-              bitrate: int = DEFAULT_BITRATE) -> CanHub:
+              bitrate: int = DEFAULT_BITRATE, sync_period: float = 0.0,
+              sync_rt_priority: int = 0) -> CanHub:
     """Start a hub in a background thread of this process; ``port`` 0 picks a free one.
 
     ``channel`` is the name of the virtual channel behind the hub (default ``ff-hub-PORT``);
-    processes joining through the hub never see it. ``bitrate`` in bit/s.
+    processes joining through the hub never see it. ``bitrate`` in bit/s. ``sync_period`` > 0 s:
+    the hub produces SYNC (``sync_rt_priority`` > 0: SCHED_FIFO for its timer thread).
     """
     # python-can-remote's server pulls in its web stack: imported only when a hub is started
     from can_remote.server import RemoteServer
@@ -90,4 +117,6 @@ def start_hub(port: int = 0, host: str = LOOPBACK, channel: Optional[str] = None
     hub._thread = threading.Thread(target=server.serve_forever, kwargs={"poll_interval": 0.1},
                                    name=f"can-hub-{hub.port}", daemon=True)
     hub._thread.start()
+    if sync_period > 0:
+        hub.start_sync(sync_period, sync_rt_priority)
     return hub

@@ -7,8 +7,17 @@ What it does, per the suite's CANopen contract (CiA 301/402):
 - SDO server for the objects below; PDO communication/mapping objects written over SDO in the
   standard way (COB-ID bit 31 set, count 0, entries, count, COB-ID re-enabled) are validated and
   the PDO maps RELOADED at once.
-- RPDOs applied the moment they arrive (transmission type 254/255; types 0-240 wait for the next
-  SYNC); the controlword drives the CiA 402 state machine (the tables of ``cia402``, plus the
+- RPDOs applied the moment they arrive (transmission type 254/255); synchronous RPDOs (types
+  0-240) are latched at the next SYNC, as an EPOS4 in a cyclic mode does. Timing model: every
+  frame carries its BUS timestamp (the instant the hub, or python-can's virtual channel, put it
+  on the bus; wall clock). A synchronous RPDO takes effect at the BUS instant of the first SYNC
+  whose bus timestamp is later than its own (an RPDO on the bus after a SYNC waits for the next
+  one), converted to ``time.monotonic_ns`` for the plant, and not when this process got around
+  to reading the SYNC frame; the arm plant runs behind the frames (its own clock), so the
+  current steps at that exact past instant. TPDOs are sampled at the SYNC's bus instant too.
+  What is not modelled: the drive's own latching delay after SYNC (EPOS4: within its current
+  loop, tens of µs, a constant) and current-loop dynamics; the setpoint is a current step.
+  The controlword drives the CiA 402 state machine (the tables of ``cia402``, plus the
   EPOS's "switch on & enable operation" 0x000F from READY TO SWITCH ON = transitions 3+4, and
   the quick stop option code 0x605A: 0 = disable at once, 1-4 = current 0 then SWITCH ON
   DISABLED once the motor stands still, 5-8 = stay in QUICK STOP ACTIVE), the setpoint becomes
@@ -126,7 +135,8 @@ class DriveConfig:
 
 @dataclass(frozen=True)
 class SetpointRecord:
-    """One received setpoint: arrival (monotonic ns, wall ns), raw value, current (A)."""
+    """One applied setpoint: when (monotonic ns, wall ns: the arrival, or for a synchronous RPDO
+    the bus instant of the SYNC that latched it), raw value, current (A)."""
 
     mono_ns: int
     wall_ns: int
@@ -299,6 +309,7 @@ class _Link:
         self.rx_by_id: dict[int, int] = {}        # frames seen per COB-ID (diagnostics)
         self.rx_mono_ns = 0
         self.rx_wall_ns = 0
+        self.rx_bus_ns = 0            # the frame's bus timestamp (wall ns; arrival if none)
         self._wrappers: dict[tuple[int, Any], Callable] = {}
         self._rng = random.Random(seed)
         self._dispatch = threading.RLock()
@@ -351,6 +362,7 @@ class _Link:
             if stamps is None:
                 stamps = (time.monotonic_ns(), time.time_ns())
             self.rx_mono_ns, self.rx_wall_ns = stamps
+            self.rx_bus_ns = int(round(timestamp * 1e9)) if timestamp else stamps[1]
             cb(cid, bytearray(data), timestamp)
 
     def unsubscribe(self, can_id: int, callback: Optional[Callable] = None) -> None:
@@ -769,7 +781,7 @@ class SimEpos:
         self._rpdo_seen[no] = time.monotonic()
         self._rpdo_tripped.discard(no)
         if pdo_map.trans_type is not None and pdo_map.trans_type <= 240:
-            self._pending_sync_rpdo.append((pdo_map, bytes(pdo_map.data)))
+            self._pending_sync_rpdo.append((pdo_map, bytes(pdo_map.data), link.rx_bus_ns))
             return
         self._take_rpdo(pdo_map, bytes(pdo_map.data), t_ns, wall)
 
@@ -804,10 +816,15 @@ class SimEpos:
         link = self._link
         if link is None or self.node.nmt.state != "OPERATIONAL":
             return
-        t_ns, wall = link.rx_mono_ns, link.rx_wall_ns
-        pending, self._pending_sync_rpdo = self._pending_sync_rpdo, []
-        for m, d in pending:
-            self._take_rpdo(m, d, t_ns, wall)
+        # the SYNC's bus instant, on the plant's clock (monotonic): when the drive latches
+        bus = link.rx_bus_ns
+        t_ns = bus - (time.time_ns() - time.monotonic_ns())
+        wall = bus
+        pending = self._pending_sync_rpdo
+        self._pending_sync_rpdo = [p for p in pending if p[2] > bus]   # on the bus after it
+        for m, d, ts in pending:
+            if ts <= bus:
+                self._take_rpdo(m, d, t_ns, wall)
         live: Optional[dict] = None
         for m in _maps(self.node.tpdo).values():
             if not m.enabled or m.trans_type is None or not 1 <= m.trans_type <= 240:

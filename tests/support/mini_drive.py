@@ -38,6 +38,8 @@ class MiniEpos:
         self.drop_rx = False
         self.rx_log: list[tuple[int, int]] = []           # (controlword, raw setpoint) per RPDO
         self.rx_wall_ns: list[int] = []                   # time.time_ns() at each RPDO's arrival
+        self.sync_pending: list[tuple[bytes, int]] = []   # synchronous RPDOs waiting for SYNC
+        self.rpdo_type = 255
         self.transitions: list[int] = []
         self.lock = threading.Lock()
         self.dirty = False
@@ -62,6 +64,7 @@ class MiniEpos:
             self.tpdo1_map = self._mapping(0x1A00)
             self.tpdo2_map = self._mapping(0x1A01)
             self.rpdo_cob = int(self.node.sdo[0x1400][1].raw)
+            self.rpdo_type = int(self.node.sdo[0x1400][2].raw)
             self.tpdo_cobs = [int(self.node.sdo[0x1800][1].raw), int(self.node.sdo[0x1801][1].raw)]
         if 0x200 + self.id in self.net.subscribers:
             self.net.unsubscribe(0x200 + self.id)
@@ -92,6 +95,12 @@ class MiniEpos:
             return
         if self.node.nmt.state != "OPERATIONAL" or self.rpdo_cob & 0x80000000:
             return
+        if self.rpdo_type <= 240:            # synchronous: latched at the next SYNC
+            self.sync_pending.append((bytes(data), arrived))
+            return
+        self._take(data, arrived)
+
+    def _take(self, data: bytes, arrived: int) -> None:
         fmt = "<" + "".join(FMT[i] for i, _ in self.rpdo_map)
         vals = struct.unpack_from(fmt, data)
         rec = dict(zip([i for i, _ in self.rpdo_map], vals))
@@ -109,7 +118,12 @@ class MiniEpos:
         self.rx_wall_ns.append(arrived)
 
     def _on_sync(self, can_id: int, data: bytes, ts: float) -> None:
-        if self.node.nmt.state != "OPERATIONAL" or not self.answer_sync:
+        if self.node.nmt.state != "OPERATIONAL":
+            return
+        pending, self.sync_pending = self.sync_pending, []
+        for data_, arrived in pending:
+            self._take(data_, arrived)
+        if not self.answer_sync:
             return
         self.maps()
         self.rpm = int(self.setpoint_raw)                    # trivial "physics"

@@ -50,7 +50,8 @@ def test_configure_sets_mode_heartbeat_and_pdo_maps(rig):
         assert d.tpdo1_map == [(0x6041, 0), (0x6064, 0)]
         cur = (0x30D1, 2) if fam == "epos4" else (0x6078, 0)
         assert d.tpdo2_map == [(0x606C, 0), cur]
-        assert int(d.node.sdo[0x1400][2].raw) == 255
+        assert int(d.node.sdo[0x1400][2].raw) == 1             # synchronous: latched at SYNC
+        assert (int(d.node.sdo[0x60C2][1].raw), int(d.node.sdo[0x60C2][2].raw)) == (5, -3)  # 5 ms
         assert int(d.node.sdo[0x1800][2].raw) == 1 and int(d.node.sdo[0x1801][2].raw) == 1
         assert d.rpdo_cob == 0x200 + d.id and d.tpdo_cobs == [0x180 + d.id, 0x280 + d.id]
         limit = int(d.node.sdo[0x3001][2].raw if fam == "epos4" else d.node.sdo[0x6410][2].raw)
@@ -91,10 +92,12 @@ def test_emcy_latches_safe_state_and_fault_reset_recovers(rig):
     drives[0].raise_fault(0x2310)
     assert _wait(lambda: master.latched, 1.0)
     assert "EMCY" in master.fault_reason and "0x2310" in master.fault_reason
+    time.sleep(0.02)               # RPDOs sent before the latch take effect at the next SYNC
+    assert drives[0].setpoint_raw == 0
     n = len(drives[0].rx_log)
     master.command_currents([5.0])                           # refused while latched
     assert _wait(lambda: len(drives[0].rx_log) > n)
-    assert all(sp == 0 for _, sp in drives[0].rx_log[n - 1:])
+    assert all(sp == 0 for _, sp in drives[0].rx_log[n:])
     with pytest.raises(EposError):
         master.enable()
     master.fault_reset()

@@ -1,5 +1,6 @@
-"""SetpointPlayer (stamped setpoint -> safety guard -> units -> RPDO at its stamp) against the
-in-process stand-in drive (``MiniEpos``) on python-can's virtual bus; no rclpy."""
+"""SetpointPlayer with ``setpoint_timing: on_receipt`` (stamped setpoint -> safety guard -> units
+-> RPDO at its stamp) against the in-process stand-in drive (``MiniEpos``) on python-can's
+virtual bus; no rclpy. The synchronous player: ``test_sync_player.py``."""
 from __future__ import annotations
 
 import time
@@ -22,7 +23,7 @@ _wait = waiter(2.0)
 def player():
     channel = unique_channel("ff-player")
     # setpoint watchdog 1 s: the tests feed single setpoints, not a stream
-    cfg = mini_config(channel, setpoint_timeout=1.0)
+    cfg = mini_config(channel, setpoint_timeout=1.0, setpoint_timing="on_receipt")
     drive = MiniEpos(channel, 1, cfg.joints[0].units)
     master = EposMaster(cfg)
     master.connect()
@@ -44,6 +45,8 @@ def _arrival_of(drive: MiniEpos, raw: int) -> int:
 
 def test_config_follows_the_bridge_config():
     cfg = mini_config("unused", spin_margin=0.001, scheduler_rt_priority=0)
+    assert mini_config("unused").rt_priority == 50                        # auto, synchronous
+    assert mini_config("unused", setpoint_timing="on_receipt").rt_priority == 0
     assert PlayerConfig.from_bridge(cfg) == PlayerConfig(spin_margin=0.001, rt_priority=0)
 
 

@@ -1,0 +1,191 @@
+"""Benchmark: synchronous setpoints on the simulated stack: a setpoint every SYNC cycle, latched by
+the simulated EPOS at the SYNC's bus instant. Prints one JSON object.
+
+Processes: the CAN hub producing SYNC (``ff-can-hub --sync-period``, its timer thread under
+SCHED_FIFO when permitted), the simulated EPOS4 + arm (``ff-sim-rig --bus-url``, recording each
+latched setpoint with the SYNC instant it took effect at), and this one: the bridge's
+``EposMaster`` (``sync_producer: external``, RPDO transmission type 1) and ``SetpointPlayer``
+(default priorities unless ``--rt-priority``), stamps on the SYNC grid one period apart.
+
+Figures:
+- ``switch_error_us``: latched SYNC instant at the simulated drive − planned time (stamp), p50 /
+  p99 / max (goal p99 <= 20 µs quiet, <= 50 µs with ``--load 2``);
+- ``sync_jitter_us``: the hub's SYNC send instant − its nominal grid instant (the hub's report);
+  ``sync_interval_jitter_us``: |interval − period| of the SYNCs the master received;
+- ``missed_cycles``: setpoints that took effect after their own SYNC (player's count), and
+  ``late_at_drive``: those the drive latched at another SYNC than the one at their stamp;
+- ``lost``: setpoints sent minus setpoints the drive latched (goal 0 and 0);
+- ``send_after_sync_us``: how long after the SYNC before it each RPDO was sent (the margin used).
+
+    .venv/bin/python benchmarks/bench_sync.py --duration 60            # quiet
+    .venv/bin/python benchmarks/bench_sync.py --duration 60 --load 2   # two busy processes
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+
+import numpy as np
+
+from ff_hwbridge.drive.epos import EposMaster
+from ff_hwbridge.drive.player import PlayerConfig, SetpointPlayer, SetpointRejected
+from ff_hwbridge.protocol.cia402 import State
+from ff_hwbridge.sim.rig_process import RigProcess, free_port, rig_master_config
+
+
+def pct(a: np.ndarray) -> dict[str, float]:
+    if a.size == 0:
+        return {}
+    return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)),
+            "max": float(a.max()), "min": float(a.min()), "mean": float(a.mean())}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--duration", type=float, default=60.0, help="s of streaming")
+    ap.add_argument("--sync-period", type=float, default=0.001, help="s (one setpoint per SYNC)")
+    ap.add_argument("--load", type=int, default=0, help="busy processes to run beside it")
+    ap.add_argument("--hub-rt-priority", type=int, default=50,
+                    help="SCHED_FIFO priority of the hub's SYNC timer (ff-can-hub's default)")
+    ap.add_argument("--rt-priority", type=int, default=0,
+                    help="SCHED_FIFO priority of the player's thread (0 = default priority)")
+    ap.add_argument("--missed-tolerance", type=int, default=1,
+                    help="missed_cycle_tolerance of the master (beyond it: safe state)")
+    ap.add_argument("--process-rt", type=int, default=0,
+                    help="SCHED_FIFO for this whole process (every thread, as 'chrt -f N' would), "
+                         "to measure what a master process with no normal-priority thread gains")
+    a = ap.parse_args()
+
+    load = [subprocess.Popen(["sh", "-c", "while :; do :; done"]) for _ in range(a.load)]
+    port = free_port()
+    url = f"ws://127.0.0.1:{port}/"
+    record = os.path.join(tempfile.mkdtemp(prefix="ff-bench-sync-"), "sim.json")
+    load_before = os.getloadavg()
+    hub = subprocess.Popen([sys.executable, "-u", "-m", "ff_hwbridge.cli.can_hub", "--port", str(port),
+                            "--sync-period", str(a.sync_period),
+                            "--sync-rt-priority", str(a.hub_rt_priority)],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert hub.stdout is not None
+    hub.stdout.readline()
+    sim = RigProcess(["--record", record], port=port, host_hub=False, bus_url=url)
+    master = None
+    hub_sync: dict = {}
+    submitted = 0
+    try:
+        cfg = rig_master_config(url, "epos4", 10.0, sync_period=a.sync_period,
+                                sync_producer="external", heartbeat_producer_ms=10,
+                                # a timing benchmark, not a safety test
+                                heartbeat_timeout=1.0, feedback_timeout=1.0, sync_timeout=1.0,
+                                master_heartbeat_timeout_ms=5000, rpdo_timeout_ms=5000,
+                                setpoint_timeout=1.0, missed_cycle_tolerance=a.missed_tolerance)
+        if a.process_rt > 0:       # after the children started (they keep normal priority)
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(a.process_rt))
+        master = EposMaster(cfg)
+        master.connect()
+        master.configure()
+        master.enable()
+        if not master.wait_for_state(State.OPERATION_ENABLED, 3.0):
+            raise SystemExit(f"drive not enabled: {master.fault_reason}")
+        player = SetpointPlayer(master, PlayerConfig(rt_priority=a.rt_priority)).start()
+        while player.sync_grid() is None:
+            time.sleep(0.01)
+        time.sleep(0.2)
+        nominal, period = player.sync_grid()   # type: ignore[misc]
+        n = int(a.duration / a.sync_period)
+        pattern = [(((k * 37) % 61) - 30) * 0.01 for k in range(n)]   # |I| <= 0.3 A
+        t0 = nominal + (int(0.5e9) // period) * period                  # on the SYNC grid
+        stamps = [t0 + k * period for k in range(n)]
+        player.reset_stats()
+        while submitted < n:                       # feed ~100 ms ahead, like the bridge node
+            horizon = time.time_ns() + 100_000_000
+            try:
+                while submitted < n and stamps[submitted] < horizon:
+                    player.submit(stamps[submitted], [pattern[submitted]], seq=submitted,
+                                  profile_id="bench", last=submitted == n - 1)
+                    submitted += 1
+            except SetpointRejected:          # safe state: report what ran until then
+                break
+            time.sleep(0.02)
+        while player.pending:
+            time.sleep(0.01)
+        time.sleep(2.0)        # the simulated drive's process may lag the stream on a busy machine
+        diag = player.diagnostics()
+        applied = {r.stamp_ns: r for r in player.take_applied()}
+        player.close()
+        latched = master.fault_reason
+        master.disable()
+        time.sleep(0.05)
+    finally:
+        if master is not None:
+            master.disconnect()
+        sim.stop(20)
+        hub.send_signal(signal.SIGTERM)
+        out, _ = hub.communicate(timeout=10)
+        for line in out.splitlines():
+            if line.startswith("{"):
+                hub_sync = json.loads(line).get("sync", {})
+        for p in load:
+            p.kill()
+            p.wait()
+
+    with open(record) as fh:
+        rec = json.load(fh)
+    latched_log = rec["setpoints"]["1"]             # [mono_ns, wall_ns (SYNC instant), raw, A]
+    units = master.units[0]
+    want = [units.amps_to_setpoint(x, limit=10.0) for x in pattern]
+    raws = [r[2] for r in latched_log]
+    start = next((i for i in range(len(raws) - 20 + 1) if raws[i:i + 20] == want[:20]), None)
+    matched: list[tuple[int, list]] = []
+    if start is not None:
+        j = start
+        for k in range(submitted):
+            look = j
+            while look < len(raws) and look < j + 50 and raws[look] != want[k]:
+                look += 1
+            if look < len(raws) and raws[look] == want[k]:
+                matched.append((k, latched_log[look]))
+                j = look + 1
+    # only setpoints the player reported applied (after a safe state the rest were dropped)
+    matched = [(k, r) for k, r in matched if stamps[k] in applied]
+    err_us = np.array([(r[1] - stamps[k]) / 1000.0 for k, r in matched])
+    late_at_drive = int(np.sum(err_us > 0.5 * a.sync_period * 1e6)) if err_us.size else 0
+    lead = np.array([(applied[s].sent_ns - applied[s].rpdo_sent_ns) / 1000.0 for s in stamps
+                     if s in applied])
+    result = {"benchmark": "bench_sync", "host": platform.node(), "cpus": os.cpu_count(),
+              "duration_s": a.duration, "sync_period_s": a.sync_period, "busy_processes": a.load,
+              "transport": "python-can-remote hub on 127.0.0.1, SYNC from the hub's timer thread",
+              "player_rt_priority": a.rt_priority, "hub_rt_priority": a.hub_rt_priority,
+              "process_rt_priority": a.process_rt,
+              "loadavg_1min_before_after": [load_before[0], os.getloadavg()[0]],
+              "setpoints_planned": n, "setpoints_sent": submitted,
+              "setpoints_applied": len(applied), "setpoints_latched": len(matched),
+              "lost": len(applied) - len(matched),
+              "missed_cycles": diag.get("missed_setpoints"),
+              "missed_cycles_max": diag.get("missed_cycles_max"),
+              "late_at_drive": late_at_drive,
+              "switch_error_us": pct(err_us),
+              "sync_jitter_us": {k: hub_sync.get(k) for k in ("jitter_p50_us", "jitter_p99_us",
+                                                               "jitter_max_us", "count", "skipped",
+                                                               "realtime")},
+              "sync_interval_jitter_us": {"p99": diag.get("sync_jitter_p99_us"),
+                                          "max": diag.get("sync_jitter_max_us"),
+                                          "missing": diag.get("sync_missing")},
+              "rpdo_before_its_sync_us": pct(lead),
+              "safe_state": latched}
+    p99 = result["switch_error_us"].get("p99", float("inf"))   # type: ignore[union-attr]
+    result["goal_p99_us"] = 50.0 if a.load else 20.0
+    result["goal_met"] = bool(p99 <= result["goal_p99_us"] and result["lost"] == 0
+                              and result["missed_cycles"] == 0)
+    print(json.dumps(result, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

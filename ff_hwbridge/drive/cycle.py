@@ -1,0 +1,310 @@
+"""Stamped setpoints onto the SYNC grid: each one sent during the cycle before the SYNC it takes
+effect at, and its applied instant taken from that SYNC's bus timestamp.
+
+With synchronous RPDOs (transmission type 1, CiA 301) a drive latches the latest received
+setpoint at each SYNC. :class:`CycleScheduler` therefore
+
+1. assigns each stamped setpoint to the first SYNC at or after its stamp (``stamp − tolerance``,
+   the tolerance absorbing float rounding; the grid is predicted from the latest SYNC seen,
+   corrected for its lateness: ``SyncWatch.grid``, nominal + k · period);
+2. sends it (``send(stamp, payload) -> (marks, token)``, marks: per joint the RPDO count
+   including this one, None without an echo) as soon as the SYNC before that one has been seen,
+   i.e. up to one whole period early, so that the sender may be late by most of a cycle without
+   any error;
+3. resolves it at the first SYNC stamped at or after the RPDO's own bus instant (from the
+   bus's echo of our own frames, ``echo_time(marks)``; without an echo the local send time):
+   applied = that SYNC's bus instant, missed cycles = how many SYNCs after its own cycle that
+   was (counted in SYNCs seen, so SYNC jitter does not count). A setpoint that misses by more
+   than ``missed_tolerance`` cycles calls ``on_beyond(reason)``.
+
+Records are (stamp ns, applied SYNC instant ns); the switch error is applied − stamp.
+"""
+from __future__ import annotations
+
+import heapq
+import itertools
+import logging
+import math
+import os
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Any, Callable, Optional
+
+import numpy as np
+
+from ff_hwbridge.drive.scheduler import SwitchStats
+from ff_hwbridge.drive.sync_watch import SyncEvent, SyncWatch
+
+log = logging.getLogger(__name__)
+
+__all__ = ["CycleScheduler", "CycleStats", "Resolved"]
+
+
+@dataclass(order=True)
+class _Item:
+    stamp_ns: int
+    order: int
+    payload: Any = field(compare=False)
+
+
+@dataclass
+class _InFlight:
+    stamp_ns: int
+    target_ns: int            # predicted nominal instant of the SYNC it was meant for
+    target_count: int         # number of that SYNC (SyncEvent.count)
+    seen_count: int           # latest SYNC seen before the send
+    marks: Optional[tuple[int, ...]]
+    sent_wall_ns: int
+    lead_ns: int              # sent − bus instant of the SYNC seen before it
+    token: Any
+
+
+@dataclass(frozen=True)
+class Resolved:
+    """A setpoint latched by the drives: stamp, SYNC instant it took effect at (bus, wall ns),
+    RPDO send time (wall ns), SYNC cycles after its own (0 = on time), the sender's token."""
+
+    stamp_ns: int
+    applied_ns: int
+    sent_ns: int
+    missed_cycles: int
+    token: Any
+
+
+@dataclass(frozen=True)
+class CycleStats:
+    """Missed setpoints (took effect at least one SYNC late), the worst miss (cycles), setpoints
+    superseded within one cycle, and the send lead after the SYNC before (µs: p50/p99/max)."""
+
+    missed: int
+    missed_max_cycles: int
+    superseded: int
+    send_after_sync_p50_us: float
+    send_after_sync_p99_us: float
+    send_after_sync_max_us: float
+
+
+class CycleScheduler:
+    """A thread that puts stamped payloads on the SYNC grid (see the module docstring)."""
+
+    def __init__(self, watch: SyncWatch,
+                 send: Callable[[int, Any], tuple[Optional[tuple[int, ...]], Any]],
+                 report: Callable[[Resolved], None], *,
+                 echo_time: Callable[[tuple[int, ...]], Optional[int]] = lambda marks: None,
+                 prepare: Optional[Callable[[Any], Any]] = None,
+                 on_beyond: Callable[[str], object] = lambda reason: None,
+                 tolerance: float = 0.1, missed_tolerance: int = 1, rt_priority: int = 0,
+                 max_records: int = 200_000, name: str = "ff-cycle-scheduler") -> None:
+        self.watch = watch
+        self._send, self._report, self._prepare = send, report, prepare
+        self._echo_time = echo_time
+        self._on_beyond = on_beyond
+        self.period_ns = watch.period_ns
+        self._tol_ns = int(tolerance * self.period_ns)
+        self.missed_tolerance = int(missed_tolerance)
+        self.rt_priority = int(rt_priority)
+        self.rt_active = False
+        self._name = name
+        self._heap: list[_Item] = []
+        self._inflight: deque[_InFlight] = deque()
+        self._counter = itertools.count()
+        self._cond = threading.Condition(threading.RLock())
+        self._stop = False
+        self._thread: Optional[threading.Thread] = None
+        self._last_stamp: Optional[int] = None
+        self.records: deque[tuple[int, int]] = deque(maxlen=max_records)
+        self._leads: deque[int] = deque(maxlen=max_records)
+        self.late = self.stale = self.errors = 0
+        self.missed = self.missed_max = self.superseded = 0
+        self._last_applied_ns: Optional[int] = None
+        watch.add_listener(self._on_sync)
+
+    # --- control ------------------------------------------------------------------------------
+    def start(self) -> "CycleScheduler":
+        if self._thread is None or not self._thread.is_alive():
+            self._stop = False
+            self._thread = threading.Thread(target=self._run, name=self._name, daemon=True)
+            self._thread.start()
+        return self
+
+    def stop(self, timeout: float = 2.0) -> None:
+        with self._cond:
+            self._stop = True
+            self._heap.clear()
+            self._inflight.clear()
+            self._cond.notify_all()
+        if self._thread is not None:
+            self._thread.join(timeout)
+            self._thread = None
+
+    def close(self) -> None:
+        self.stop()
+        self.watch.remove_listener(self._on_sync)
+
+    def submit(self, stamp_ns: int, payload: Any) -> None:
+        with self._cond:
+            heapq.heappush(self._heap, _Item(int(stamp_ns), next(self._counter), payload))
+            self._cond.notify_all()
+
+    def clear(self) -> int:
+        """Drop pending setpoints and forget those on the bus waiting for their SYNC (a safe
+        state's zero current follows them); returns how many were not yet sent."""
+        with self._cond:
+            n = len(self._heap)
+            self._heap.clear()
+            self._inflight.clear()
+            self._cond.notify_all()
+            return n
+
+    @property
+    def pending(self) -> int:
+        return len(self._heap) + len(self._inflight)
+
+    def reset_stats(self) -> None:
+        self.records.clear()
+        self._leads.clear()
+        self.late = self.stale = self.missed = self.missed_max = self.superseded = 0
+
+    def grid(self) -> Optional[tuple[int, int]]:
+        """(nominal instant of the latest SYNC, period) in ns; None before the first SYNC."""
+        g = self.watch.grid()
+        return None if g is None else (g[1], self.period_ns)
+
+    def stats(self) -> SwitchStats:
+        """Switch error = SYNC instant − stamp (µs); ``late`` = missed setpoints."""
+        if not self.records:
+            nan = float("nan")
+            return SwitchStats(0, self.missed, self.stale, nan, nan, nan, nan)
+        err = np.array([a - t for t, a in self.records], dtype=float) / 1000.0
+        return SwitchStats(int(err.size), self.missed, self.stale, float(np.percentile(err, 50)),
+                           float(np.percentile(err, 99)), float(err.max()), float(err.min()))
+
+    def cycle_stats(self) -> CycleStats:
+        leads = np.array(self._leads, dtype=float) / 1000.0
+        if leads.size == 0:
+            leads = np.array([float("nan")])
+        return CycleStats(self.missed, self.missed_max, self.superseded,
+                          float(np.percentile(leads, 50)), float(np.percentile(leads, 99)),
+                          float(np.max(leads)))
+
+    # --- the thread ---------------------------------------------------------------------------
+    def _on_sync(self, ev: SyncEvent) -> None:
+        with self._cond:
+            self._cond.notify_all()
+
+    def _set_rt_priority(self) -> None:
+        if self.rt_priority <= 0:
+            return
+        try:
+            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.rt_priority))
+            self.rt_active = True
+        except (AttributeError, OSError) as exc:
+            log.warning("cycle scheduler: cannot use SCHED_FIFO priority %d (%s); running at "
+                        "normal priority", self.rt_priority, exc)
+
+    def _cycles_ahead(self, stamp_ns: int, nominal_ns: int) -> int:
+        """k: the stamp's SYNC is the k-th after the one at ``nominal_ns`` (<= 0: passed)."""
+        return math.ceil((stamp_ns - self._tol_ns - nominal_ns) / self.period_ns)
+
+    def _run(self) -> None:
+        self._set_rt_priority()
+        while not self._stop:
+            try:
+                if self._cycle():
+                    return
+            except Exception:  # noqa: BLE001 - the thread must survive whatever one cycle does
+                self.errors += 1
+                log.exception("setpoint cycle failed")
+                time.sleep(0.001)
+
+    def _cycle(self) -> bool:
+        """One pass: resolve what its SYNC has latched, send what is due; True when stopped."""
+        done: list[Resolved] = []
+        g: Optional[tuple[SyncEvent, int]] = None
+        with self._cond:
+            item: Optional[_Item] = None
+            while not self._stop:
+                done += self._resolve()
+                if done:
+                    break
+                g = self.watch.grid()
+                if self._heap and g is not None:
+                    k = self._cycles_ahead(self._heap[0].stamp_ns, g[1])
+                    if k <= 1:
+                        item = heapq.heappop(self._heap)
+                        break
+                self._cond.wait(0.05)
+            if self._stop:
+                return True
+        for r in done:
+            self._deliver(r)
+        if item is not None and g is not None:
+            self._send_item(item, *g)
+        return False
+
+    def _send_item(self, item: _Item, ev: SyncEvent, nominal_ns: int) -> None:
+        if self._last_stamp is not None and item.stamp_ns < self._last_stamp:
+            self.stale += 1
+            return
+        k = self._cycles_ahead(item.stamp_ns, nominal_ns)
+        target = nominal_ns + k * self.period_ns
+        payload = item.payload
+        try:
+            if self._prepare is not None:
+                payload = self._prepare(payload)
+            seen = self.watch.latest()
+            marks, token = self._send(item.stamp_ns, payload)
+        except Exception:  # noqa: BLE001 - the thread must survive a failing send
+            self.errors += 1
+            log.exception("sending a setpoint failed")
+            return
+        sent = time.time_ns()
+        self._last_stamp = item.stamp_ns
+        seen_count = seen.count if seen is not None else ev.count
+        lead = sent - (seen.bus_ns if seen is not None else ev.bus_ns)
+        with self._cond:
+            self._inflight.append(_InFlight(item.stamp_ns, target, ev.count + k, seen_count, marks,
+                                            sent, lead, token))
+            self._cond.notify_all()
+
+    def _resolve(self) -> list[Resolved]:
+        """In-flight setpoints whose SYNC has come (caller holds the lock)."""
+        out: list[Resolved] = []
+        while self._inflight:
+            f = self._inflight[0]
+            later = self.watch.since(f.seen_count)
+            # the RPDO's own bus instant from its echo (a drive latches it at the first SYNC
+            # stamped at or after it); without an echo (or one lost for 3 cycles) the send time
+            t_bus = self._echo_time(f.marks) if f.marks is not None else None
+            if t_bus is None and f.marks is not None and len(later) < 3:
+                break                              # its echo is still on the way
+            if t_bus is None:
+                t_bus = f.sent_wall_ns
+            hit = next((e for e in later if e.bus_ns >= t_bus), None)
+            if hit is None:
+                break
+            self._inflight.popleft()
+            missed = max(0, hit.count - f.target_count)
+            self._leads.append(f.lead_ns)
+            if self._last_applied_ns == hit.bus_ns:
+                self.superseded += 1
+            self._last_applied_ns = hit.bus_ns
+            out.append(Resolved(f.stamp_ns, hit.bus_ns, f.sent_wall_ns, missed, f.token))
+        return out
+
+    def _deliver(self, r: Resolved) -> None:
+        self.records.append((r.stamp_ns, r.applied_ns))
+        if r.missed_cycles:
+            self.missed += 1
+            self.missed_max = max(self.missed_max, r.missed_cycles)
+        try:
+            self._report(r)
+        except Exception:  # noqa: BLE001
+            log.exception("reporting a setpoint failed")
+        if r.missed_cycles > self.missed_tolerance:
+            self._on_beyond(f"setpoint missed its SYNC cycle: took effect {r.missed_cycles} "
+                            f"cycle(s) of {self.period_ns / 1e6:g} ms late (missed_cycle_tolerance "
+                            f"{self.missed_tolerance}); stamp {r.stamp_ns} ns, sent "
+                            f"{(r.sent_ns - r.stamp_ns) / 1e3:+.0f} µs from it")

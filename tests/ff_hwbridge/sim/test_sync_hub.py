@@ -1,0 +1,78 @@
+"""SYNC from the CAN hub's process (``ff-can-hub --sync-period``) across processes: the master
+(``sync_producer: external``) and its player in this process, the simulated EPOS + arm in
+another (``ff-sim-rig --bus-url``): each setpoint is latched at a SYNC bus instant the master
+saw, the one the player reports; the hub reports its SYNC jitter as JSON at exit."""
+from __future__ import annotations
+
+import json
+import os
+import re
+import tempfile
+
+import pytest
+
+from ff_hwbridge.drive.epos import EposMaster
+from ff_hwbridge.drive.player import SetpointPlayer
+from ff_hwbridge.sim.rig_process import RigProcess, free_port, rig_master_config
+from ff_msgs_py.launch import start_module, wait_for_line
+from tests.support.canopen_helpers import configure_and_enable, waiter
+
+pytestmark = pytest.mark.integration
+
+PERIOD = 0.005       # s; protocol checks only: they must hold on a loaded 2-core machine
+wait_for = waiter(5.0)
+
+
+def test_setpoints_latch_at_the_hub_sync_and_the_hub_reports_its_jitter(ros_env):
+    port = free_port()
+    hub = start_module("can_hub", "ff_hwbridge.cli.can_hub",
+                       ["--port", str(port), "--sync-period", str(PERIOD)], ros_env)
+    record = os.path.join(tempfile.mkdtemp(prefix="ff-sync-hub-"), "sim.json")
+    rig = master = player = None
+    syncs: list[int] = []
+    try:
+        assert wait_for_line(hub, "CAN hub on ws://", 20.0), hub.output()
+        url = f"ws://127.0.0.1:{port}/"
+        rig = RigProcess(["--record", record], port=port, host_hub=False, bus_url=url, env=ros_env)
+        master = EposMaster(rig_master_config(url, "epos4", 5.0, sync_period=PERIOD,
+                                              sync_producer="external", heartbeat_timeout=1.0,
+                                              feedback_timeout=1.0, sync_timeout=1.0,
+                                              setpoint_timeout=2.0))
+        master.connect()
+        master.network.subscribe(0x80, lambda cid, data, ts: syncs.append(int(round(ts * 1e9))))
+        configure_and_enable(master, 5.0)
+        assert not master._sync_running                 # external: the master sends no SYNC
+        player = SetpointPlayer(master).start()
+        assert wait_for(lambda: player.sync_grid() is not None)
+        nominal, period = player.sync_grid()
+        amps = [0.2, -0.3, 0.4, 0.0]
+        stamps = [nominal + (20 + 4 * k) * period for k in range(len(amps))]
+        for k, (s, a) in enumerate(zip(stamps, amps)):
+            player.submit(s, [a], seq=k, profile_id="sync-hub", last=k == len(amps) - 1)
+        got = []
+        assert wait_for(lambda: got.extend(player.take_applied()) or len(got) == len(amps))
+        assert [g.stamp_ns for g in got] == stamps
+        for g in got:
+            assert g.sent_ns in syncs                   # applied at a SYNC's bus instant
+            assert g.rpdo_sent_ns < g.sent_ns and g.sent_ns >= g.stamp_ns - 0.1 * period
+    finally:
+        if player is not None:
+            player.close()
+        if master is not None:
+            master.disconnect()
+        if rig is not None:
+            rig.stop(20)
+        code = hub.stop()
+    assert code == 0
+    with open(record) as fh:
+        log = json.load(fh)["setpoints"]["1"]            # [mono_ns, wall_ns, raw, A]
+    units = master.units[0]
+    for g, a in zip(got, amps[:3]):
+        raw = units.amps_to_setpoint(a, limit=5.0)
+        # the drive latched it at exactly the SYNC instant the player reported
+        assert [r[1] for r in log if r[2] == raw] == [g.sent_ns]
+    line = next(x for x in hub.output().splitlines() if x.startswith('{"sync"'))
+    st = json.loads(line)["sync"]
+    assert st["count"] > 50 and st["period_us"] == PERIOD * 1e6
+    assert 0.0 <= st["jitter_p50_us"] <= st["jitter_p99_us"] <= st["jitter_max_us"]
+    assert re.search(r"SYNC every 5 ms", hub.output())
