@@ -6,6 +6,13 @@ the full model as an independent check), final error, link-2 hold margin, rest-p
 with each friction parameter ±10 % / ±40 % off. Then 5 random tasks within reach.
 
 Usage: .venv/bin/python benchmarks/bench_planner_2dof.py [--seeds 5] [--tasks 5] [--budget 60]
+
+``--moving-study SECONDS``: only the question whether a task that moves link 2
+([0, 0] → [0.6, 0.3] rad) has a truly robust plan: ``robust2d_least_worst.robust_search`` for
+SECONDS per configuration over N = 8 … 24 steps per joint, equal and free step durations,
+tf = 1, 1.5, 2 s; then what the facade serves for the 1 s task (default request), with its box
+certificate. ``--box-study``: robust-derivative against robust-box on the section 4.2 task
+(seeds, N), with the 2-DOF box certificate and plan times.
 """
 from __future__ import annotations
 
@@ -30,7 +37,16 @@ def main() -> None:
                          "(evidence for issue 4's open question; 0 = skip)")
     ap.add_argument("--objective", default="robust-derivative",
                     choices=("robust-derivative", "robust-sampled"))
+    ap.add_argument("--moving-study", type=float, default=0.0,
+                    help="seconds per configuration of the link-2-moving study (0 = skip)")
+    ap.add_argument("--box-study", action="store_true")
     args = ap.parse_args()
+    if args.moving_study > 0:
+        moving_study(args.moving_study)
+        return
+    if args.box_study:
+        box_study(args.seeds)
+        return
 
     t_imp = time.perf_counter()
     from ff_planner.model import scara2
@@ -122,6 +138,93 @@ def main() -> None:
             out["moving_derivative_search"] = derivative_search(
                 P, mv[0][0], mv[0][1], 1.0, 8, args.moving_search)
     print(json.dumps(out, indent=1, default=float))
+
+
+MOVING_TASK = ((0.0, 0.0), (0.6, 0.3))
+#: (steps per joint, tf (s), free step durations, coast (s)) of the link-2-moving study
+MOVING_CONFIGS = ((8, 1.0, False, 0.05), (8, 1.0, True, 0.05), (12, 1.0, True, 0.05),
+                  (16, 1.0, False, 0.05), (16, 1.0, True, 0.05), (24, 1.0, True, 0.05),
+                  (12, 1.5, True, 0.05), (24, 1.5, True, 0.05), (12, 2.0, True, 0.05),
+                  (24, 2.0, True, 0.05), (12, 2.0, True, 0.25))
+
+
+def moving_study(seconds: float) -> None:
+    """Truly robust plans for a task that moves link 2: search evidence, and the served plan."""
+    from ff_planner.model import scara2
+    from ff_planner.model.params import Scara2Params
+    from ff_planner.model.profile import PlanRequest
+    from ff_planner.optimize.planner import plan
+    from ff_planner.optimize.robust2d_least_worst import robust_search
+
+    P = Scara2Params()
+    q0, qf = MOVING_TASK
+    out: dict = {"task": [list(q0), list(qf)], "seconds_per_config": seconds, "search": []}
+    for n, tf, free, coast in MOVING_CONFIGS:
+        r = robust_search(P, q0, qf, tf, n, seconds, seed=n, coast=coast, free_times=free)
+        r.pop("currents_A", None)
+        r["load_average_1min"] = os.getloadavg()[0]
+        out["search"].append(r)
+        print(json.dumps({k: r.get(k) for k in ("n_steps", "tf", "free_times", "coast", "starts",
+                                                "best_max_scaled_residual")}),
+              file=sys.stderr, flush=True)
+    served = {}
+    for obj in ("robust-derivative", "robust-box"):
+        t = time.perf_counter()
+        res = plan(PlanRequest(model="scara2", q0=q0, qf=qf, tf=1.0, objective=obj,
+                               uncertain=scara2.FRICTION_NAMES, seed=0))
+        c = res.certificate
+        served[obj] = {"wall_s": time.perf_counter() - t, "success": res.success,
+                       "robust": res.robust, "best_effort": res.best_effort,
+                       "error_code": res.error_code, "message": res.message,
+                       "method": res.extra.get("method"),
+                       "certificate": c.to_dict() if c is not None else None}
+    out["served_1s"] = served
+    out["load_average_1min"] = os.getloadavg()[0]
+    print(json.dumps(out, indent=1, default=float))
+
+
+def box_study(seeds: int) -> None:
+    """robust-derivative vs robust-box (link 2 held) on the section 4.2 task: the 2-DOF box
+    certificate (all six parameters ±20 %), plan and certificate times."""
+    from ff_planner.model import scara2
+    from ff_planner.model.profile import PlanRequest
+    from ff_planner.optimize.certificate2d import certify_scara2
+    from ff_planner.optimize.planner import plan
+
+    rows = []
+    for steps, obj in ((None, "robust-derivative"), (8, "robust-box"), (12, "robust-box"),
+                       (16, "robust-box")):
+        for seed in range(seeds):
+            t = time.perf_counter()
+            res = plan(PlanRequest(model="scara2", q0=(-0.5, 0.0), qf=(0.5, 0.0), tf=1.0,
+                                   uncertain=scara2.FRICTION_NAMES, seed=seed, objective=obj,
+                                   steps=steps))
+            wall = time.perf_counter() - t
+            c = res.certificate
+            t = time.perf_counter()
+            certify_scara2(res.params, res.profile, res.q0, res.qf, res.uncertain)
+            cert_s = time.perf_counter() - t
+            rows.append({"objective": obj, "steps": res.profile.n_steps if res.profile else None,
+                         "seed": seed, "robust": res.robust, "plan_wall_s": wall,
+                         "certificate_s": cert_s, "method": res.extra.get("method"),
+                         "worst_rest_error": c.worst_rest_error if c else None,
+                         "worst_per_joint": c.worst_per_joint if c else None,
+                         "per_parameter": c.per_parameter if c else None,
+                         "moving_at_tf": c.moving_at_tf if c else None,
+                         "samples": c.samples if c else None,
+                         "load_average_1min": os.getloadavg()[0]})
+            print(json.dumps({k: rows[-1][k] for k in ("objective", "steps", "seed",
+                                                       "worst_rest_error", "plan_wall_s")}),
+                  file=sys.stderr, flush=True)
+    summary = {}
+    for key in sorted({(r["objective"], r["steps"]) for r in rows}, key=str):
+        sel = [r for r in rows if (r["objective"], r["steps"]) == key]
+        summary[f"{key[0]} N={key[1]}"] = {
+            "robust": sum(r["robust"] for r in sel), "of": len(sel),
+            "median_worst_rest_error": statistics.median(r["worst_rest_error"] for r in sel),
+            "median_plan_wall_s": statistics.median(r["plan_wall_s"] for r in sel),
+            "median_certificate_s": statistics.median(r["certificate_s"] for r in sel)}
+    print(json.dumps({"rows": rows, "summary": summary}, indent=1, default=float))
 
 
 if __name__ == "__main__":

@@ -190,7 +190,7 @@ class PlanRequest:
 
 @dataclass
 class RobustnessCertificate:
-    """How far a 1-DOF plan's rest position strays over an uncertainty box (judged on the exact
+    """How far a plan's rest position strays over an uncertainty box (judged on the exact
     model, zero current after tf until the arm stops).
 
     box: ± fraction per uncertain parameter. worst_rest_error (rad): largest |rest − qf| found
@@ -199,7 +199,10 @@ class RobustnessCertificate:
     uniform samples still moving at tf. switch_timing (rad per 100 µs): change of the rest
     position when switch j (the start of step j + 1, the last one the start of the coast) comes
     100 µs late, by central differences (±10 µs) on the nominal model. samples: points
-    simulated.
+    simulated. Multi-joint plans (SCARA) also carry worst_per_joint (rad, each joint's own
+    worst |rest − qf| over the box) and switch_timing_per_joint (rad per 100 µs, rows per
+    switch, columns per joint); their worst_rest_error / per_parameter are the largest joint
+    error and switch_timing per switch the joint change of largest magnitude (signed).
     """
 
     box: dict[str, float]
@@ -210,16 +213,28 @@ class RobustnessCertificate:
     switch_timing: list[float]
     samples: int
     switch_timing_method: str = "central difference, ±10 us, nominal parameters"
+    worst_per_joint: list[float] = field(default_factory=list)
+    switch_timing_per_joint: list[list[float]] = field(default_factory=list)
 
     def to_dict(self) -> dict:
-        """JSON-able form (the motion file's ``certificate``)."""
-        return {"box": dict(self.box), "worst_rest_error": float(self.worst_rest_error),
-                "worst_at": dict(self.worst_at), "per_parameter": dict(self.per_parameter),
-                "moving_at_tf": float(self.moving_at_tf),
-                "switch_timing_per_100us": [float(x) for x in self.switch_timing],
-                "switch_timing_method": self.switch_timing_method, "samples": int(self.samples),
-                "units": {"worst_rest_error": "rad", "per_parameter": "rad",
-                          "worst_at": "scale factor", "switch_timing_per_100us": "rad"}}
+        """JSON-able form (the motion file's ``certificate``); the per-joint figures only for a
+        multi-joint plan."""
+        units = {"worst_rest_error": "rad", "per_parameter": "rad", "worst_at": "scale factor",
+                 "switch_timing_per_100us": "rad"}
+        d: dict = {"box": dict(self.box), "worst_rest_error": float(self.worst_rest_error),
+                   "worst_at": dict(self.worst_at), "per_parameter": dict(self.per_parameter),
+                   "moving_at_tf": float(self.moving_at_tf),
+                   "switch_timing_per_100us": [float(x) for x in self.switch_timing],
+                   "switch_timing_method": self.switch_timing_method,
+                   "samples": int(self.samples), "units": units}
+        if self.worst_per_joint:
+            d["worst_per_joint"] = [float(x) for x in self.worst_per_joint]
+            units["worst_per_joint"] = "rad"
+        if self.switch_timing_per_joint:
+            d["switch_timing_per_joint_per_100us"] = [[float(x) for x in row]
+                                                      for row in self.switch_timing_per_joint]
+            units["switch_timing_per_joint_per_100us"] = "rad"
+        return d
 
 
 @dataclass
@@ -246,4 +261,4 @@ class PlanResult:
     solve_time: float = 0.0          # s
     warm_start: bool = False
     extra: dict = field(default_factory=dict)   # objective-specific figures (e.g. sampled RMS)
-    certificate: Optional[RobustnessCertificate] = None   # 1-DOF: rest error over the box
+    certificate: Optional[RobustnessCertificate] = None   # rest error over the box

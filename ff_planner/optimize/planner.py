@@ -4,7 +4,8 @@
 reachability bound) and returns a ``CheckedRequest``; ``plan`` takes either a plain
 ``PlanRequest`` (checked first) or a ``CheckedRequest`` (not checked again — e.g. one checked by
 the planner service and handed to a worker process). Dispatch (``ROUTES``): robust-box ->
-``box_robust.plan_box_robust_1dof`` (arm1dof); robust-derivative /
+``box_robust.plan_box_robust_1dof`` (arm1dof) or ``robust2d_box.plan_box_robust_scara2``
+(scara2, link 2 held); robust-derivative /
 robust-sampled -> ``robust1d.plan_robust_1dof`` (arm1dof) or ``robust2d.plan_robust_scara2``
 (scara2); time-optimal / energy-optimal -> ``baselines.plan_baseline`` (arm1dof). Errors are
 ``PlanningError`` with the PlanTrajectory error name in ``.code``.
@@ -26,8 +27,10 @@ from ff_planner.model.simulate import rest_position
 from ff_planner.optimize.baselines import plan_baseline, reach_1dof
 from ff_planner.optimize.box_robust import plan_box_robust_1dof
 from ff_planner.optimize.certificate import certify_1dof
+from ff_planner.optimize.certificate2d import certify_scara2
 from ff_planner.optimize.robust1d import plan_robust_1dof
 from ff_planner.optimize.robust2d import plan_robust_scara2
+from ff_planner.optimize.robust2d_box import plan_box_robust_scara2
 
 Progress = Optional[Callable[[dict], None]]
 
@@ -113,6 +116,7 @@ ROUTES: dict[tuple[str, str], Route] = {
     ("arm1dof", "energy-optimal"): Route(plan_baseline, warm_start=False),
     ("scara2", "robust-derivative"): Route(plan_robust_scara2, warm_start=False),
     ("scara2", "robust-sampled"): Route(plan_robust_scara2, warm_start=False),
+    ("scara2", "robust-box"): Route(plan_box_robust_scara2, warm_start=False),
 }
 
 
@@ -284,6 +288,14 @@ def plan(request: Union[PlanRequest, CheckedRequest], progress: Progress = None,
                                               list(req.uncertain), req.box)
         except (ValueError, ArithmeticError):
             pass
+    scara = result.params if isinstance(result.params, Scara2Params) else checked.params
+    if (result.profile is not None and isinstance(scara, Scara2Params)
+            and req.uncertain and result.certificate is None):
+        try:
+            result.certificate = certify_scara2(scara, result.profile, list(result.q0),
+                                                list(result.qf), list(req.uncertain), req.box)
+        except (PlanningError, ValueError, ArithmeticError):
+            pass
     if not result.success:
         result.best_effort = result.profile is not None
         if result.error_code == "OK":
@@ -291,4 +303,9 @@ def plan(request: Union[PlanRequest, CheckedRequest], progress: Progress = None,
                                  else "NO_ROBUST_PLAN")
         if result.profile is not None and "best plan" not in result.message:
             result.message = f"{result.message} (best plan found, not meeting the tolerances)"
+        if result.certificate is not None and result.model == "scara2":
+            c = result.certificate
+            result.message = (f"{result.message}; worst rest error over the box "
+                              f"{c.worst_rest_error * 1e3:.3g} mrad (per joint "
+                              f"{', '.join(f'{w * 1e3:.3g}' for w in c.worst_per_joint)} mrad)")
     return result

@@ -17,7 +17,7 @@ from scipy.optimize import least_squares
 
 from ff_planner.model import scara2
 from ff_planner.model.params import Scara2Params
-from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult
+from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
 from ff_planner.optimize.sample_box import SAMPLE_LEVELS, one_at_a_time
 
 SAMPLE_FRACTION = SAMPLE_LEVELS[0]   # each uncertain parameter at ±10 % alone
@@ -220,3 +220,104 @@ def derivative_search(p: Scara2Params, q0, qf, tf: float, n_steps: int, seconds:
     return {"task": [q0.tolist(), qf.tolist()], "tf": tf, "n_steps": n_steps,
             "seconds": seconds, "starts": starts, "best_max_scaled_residual": best,
             "best_currents": None if best_x is None else best_x.reshape(n_steps, 2).tolist()}
+
+
+def robust_search(p: Scara2Params, q0, qf, tf: float, n_steps: int, seconds: float, *,
+                  seed: int = 0, coast: float = 0.05, free_times: bool = False,
+                  h: float = 2e-3, max_nfev: int = 40, spread: float = 3.0,
+                  initial: Optional[list] = None) -> dict:
+    """Evidence search for a truly robust plan of a task that moves link 2, as
+    ``derivative_search`` but with optional free (unequal) step durations: the N durations are
+    (tf − coast)·softmax(u), u ∈ [−2, 2]^N (ratios up to e^4 between steps). Multistart least
+    squares on [10·(q(tf) − qf), q̇(tf), ∂q_j(tf)/∂p_i · p_i (12)] over the 2N currents (and u),
+    complex-step sensitivities through the full model at substep ``h`` (s), forward-difference
+    Jacobian, until ``seconds`` have passed (at least one start). ``best_first_order_optimality``:
+    ‖Jᵀr‖∞ at the best point (≈ 0 with a residual ≠ 0: a local minimum that is not a robust plan).
+    The best point is re-simulated at the default substep:
+    its largest |scaled residual| (0 for a truly robust plan), goal error (rad), final speeds
+    (rad/s), largest |∂q/∂p| (rad per unit) and whether both links are at rest at tf.
+    ``initial``: start points (the search vector: 2N currents row-major, then u with free
+    times) tried before the random ones, e.g. for a continuation from a neighbouring task."""
+    q0 = np.asarray(q0, float)
+    qf = np.asarray(qf, float)
+    span = float(tf - coast)
+    base = scara2._pack(p)
+    y0 = np.r_[q0, 0.0, 0.0].astype(np.complex128)
+    order = (0, 2, 4, 1, 3, 5)       # pv1 pc1 pt1 pv2 pc2 pt2 in the packed vector
+    nc = 2 * n_steps
+
+    def profile_of(x: np.ndarray) -> CurrentProfile:
+        if free_times:
+            w = np.exp(x[nc:] - np.max(x[nc:]))
+            times = np.r_[0.0, np.cumsum(w / w.sum())] * span
+            times[-1] = span
+        else:
+            times = np.linspace(0.0, span, n_steps + 1)
+        return CurrentProfile(times, x[:nc].reshape(n_steps, 2), tf, coast)
+
+    def res(x: np.ndarray, step: float = h) -> np.ndarray:
+        prof = profile_of(x)
+        cur = prof.currents.astype(np.complex128)
+        y = scara2._run(base, prof, y0, step, currents=cur)[0]
+        r = [10 * (y[0].real - qf[0]), 10 * (y[1].real - qf[1]), y[2].real, y[3].real]
+        for i in order:
+            Pc = base.copy()
+            d = 1e-30 * abs(Pc[i].real)
+            Pc[i] += 1j * d
+            yc = scara2._run(Pc, prof, y0, step, currents=cur)[0]
+            r += [yc[0].imag / d * Pc[i].real, yc[1].imag / d * Pc[i].real]
+        return np.array(r)
+
+    def jac(x: np.ndarray) -> np.ndarray:
+        f0 = res(x)
+        J = np.zeros((f0.size, x.size))
+        for k in range(x.size):
+            xp = x.copy()
+            xp[k] += 1e-6
+            J[:, k] = (res(xp) - f0) / 1e-6
+        return J
+
+    rng = np.random.default_rng(seed)
+    lim = np.tile([p.i_max1, p.i_max2], n_steps)
+    lo, hi = -lim, lim
+    if free_times:
+        lo = np.r_[lo, np.full(n_steps, -2.0)]
+        hi = np.r_[hi, np.full(n_steps, 2.0)]
+    best, starts, t0 = math.inf, 0, time.perf_counter()
+    best_x: Optional[np.ndarray] = None
+    best_opt = math.nan
+    queue = [np.asarray(x, dtype=float) for x in (initial or [])]
+    while starts == 0 or time.perf_counter() - t0 < seconds:
+        starts += 1
+        if queue:
+            x0 = np.clip(queue.pop(0), lo, hi)
+        else:
+            x0 = rng.uniform(-spread, spread, nc)
+            if free_times:
+                x0 = np.r_[x0, np.zeros(n_steps)]
+        try:
+            sol = least_squares(res, x0, jac=jac, bounds=(lo, hi), method="trf",
+                                max_nfev=max_nfev, xtol=1e-12, ftol=1e-12)
+        except (PlanningError, ValueError, ArithmeticError):
+            continue
+        m = float(np.max(np.abs(sol.fun)))
+        if m < best:
+            best, best_x, best_opt = m, sol.x.copy(), float(sol.optimality)
+    out: dict = {"task": [q0.tolist(), qf.tolist()], "tf": tf, "coast": coast,
+                 "n_steps": n_steps, "free_times": free_times, "seconds": seconds,
+                 "starts": starts,
+                 "best_max_scaled_residual": best if math.isfinite(best) else None,
+                 "best_first_order_optimality": best_opt}
+    if best_x is not None:
+        prof = profile_of(best_x)
+        r = res(best_x, scara2.DEFAULT_H)
+        sim = scara2.simulate_detail(p, prof, q0)
+        out.update(best_max_scaled_residual_1ms=float(np.max(np.abs(r))),
+                   goal_error_rad=float(np.max(np.abs(sim.q_f - qf))),
+                   final_speed_rad_s=[float(v) for v in sim.qd_f],
+                   max_abs_sensitivity=float(np.max(np.abs(r[4:].reshape(6, 2) / np.array(
+                       [[float(base[i].real)] for i in order])))),
+                   at_rest_tf=bool(all(sim.stuck_tf)),
+                   step_times_s=[float(t) for t in prof.step_times], best_x=best_x.tolist(),
+                   currents_A=prof.currents.tolist())
+    return out

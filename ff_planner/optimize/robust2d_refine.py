@@ -75,3 +75,53 @@ def refine_sampled(hp: Joint1Problem, x0: np.ndarray, names: Sequence[str], dead
     if float(np.max(np.abs(fun))) > 0.1 * tol or obj(x2) >= f0:
         return None
     return x2
+
+
+BOX_ITER = 80            # SLSQP iterations of the held-link-2 box minimax
+HOLD_SLACK = 0.005       # the minimax keeps this much hold margin above hp.hold_min, so the
+#                          final least-squares polish onto the robust set meets hp.hold_min
+
+
+def refine_box(hp: Joint1Problem, x0: np.ndarray, scales: np.ndarray, deadline: float,
+               tol: float, maxiter: int = BOX_ITER) -> tuple[np.ndarray, float] | None:
+    """Minimax for the box: among joint-1 currents that keep every constraint of ``hp`` (zero
+    ∂q1(tf)/∂p_i, q1(tf) = q1f, stop inside the coast, link 2 held with ``hp.hold_min``), the
+    least worst joint-1 REST error over the friction ``scales`` (S, 3) of (pv, pc, pt) — the
+    box's corners, centre and face centres. Epigraph form: min w s.t. −w ≤ e_s ≤ w (w in mrad).
+    Returns (currents (A), worst sampled error (rad)) if it improved on ``x0``, else None."""
+    scales = np.ascontiguousarray(scales, dtype=float)
+    k = len(hp.names)
+    n = len(x0)
+    w0 = float(np.max(np.abs(rest_errors(hp, x0, scales))))
+
+    def errs(z):
+        if time.perf_counter() > deadline:
+            raise TimeoutError
+        return rest_errors(hp, z[:n], scales) * 1e3
+
+    def eq(z):
+        return hp.residuals(z[:n])[: 1 + k] * 1e2
+
+    def ineq(z):
+        xs = np.ascontiguousarray(z[:n], dtype=float)
+        _, vN, _, _ = hp.final_state(xs, hp.tN, hp.fr["pv"], hp.fr["pc"], hp.fr["pt"])
+        s = abs(vN)
+        _, frac = hp.hold(xs)
+        e = errs(z)
+        return np.concatenate([[s - hp.v_lo, hp.v_hi - s], frac - hp.hold_min - HOLD_SLACK,
+                               z[n] - e, z[n] + e])
+
+    z0 = np.append(np.asarray(x0, dtype=float), 1e3 * w0)
+    try:
+        res = minimize(lambda z: z[n], z0, jac=lambda z: np.eye(n + 1)[n], method="SLSQP",
+                       bounds=[(-hp.i_max, hp.i_max)] * n + [(0.0, None)],
+                       constraints=[{"type": "eq", "fun": eq}, {"type": "ineq", "fun": ineq}],
+                       options={"maxiter": maxiter, "ftol": 1e-6, "eps": 1e-7})
+        x = res.x[:n]
+    except TimeoutError:
+        return None
+    x2, fun, _ = hp.solve(x, max_nfev=40)
+    if float(np.max(np.abs(fun))) > 0.1 * tol:
+        return None
+    w = float(np.max(np.abs(rest_errors(hp, x2, scales))))
+    return (x2, w) if w < w0 else None
