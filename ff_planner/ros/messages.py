@@ -38,6 +38,8 @@ def certificate_msg(cert: Optional[RobustnessCertificate]) -> CertificateMsg:
         worst_at=[float(cert.worst_at.get(n, 1.0)) for n in names],
         per_parameter=[float(cert.per_parameter.get(n, math.nan)) for n in names],
         moving_at_tf=float(cert.moving_at_tf), switch_timing=[float(x) for x in cert.switch_timing],
+        worst_per_joint=[float(x) for x in (cert.worst_per_joint or [])],
+        switch_timing_per_joint=[float(x) for row in (cert.switch_timing_per_joint or []) for x in row],
         samples=int(cert.samples))
 
 

@@ -758,7 +758,10 @@ def _certificate_from_dict(d: Mapping[str, Any]) -> Optional[RobustnessCertifica
             per_parameter={str(k): float(v) for k, v in d["per_parameter"].items()},
             moving_at_tf=float(d["moving_at_tf"]),
             switch_timing=[float(x) for x in d["switch_timing_per_100us"]],
-            samples=int(d["samples"]))
+            samples=int(d["samples"]),
+            worst_per_joint=[float(x) for x in d.get("worst_per_joint", [])],
+            switch_timing_per_joint=[[float(x) for x in row]
+                                     for row in d.get("switch_timing_per_joint_per_100us", [])])
     except (KeyError, TypeError, ValueError, AttributeError):
         return None
 

@@ -60,3 +60,13 @@ def test_switch_grid_parameter_is_described_with_units_and_range():
     d = descriptor("switch_grid", 0.001)
     assert d.read_only and "SYNC" in d.description and d.description.startswith("s, ")
     assert (d.floating_point_range[0].from_value, d.floating_point_range[0].to_value) == (0.0, 1.0)
+
+
+def test_a_scara_certificate_carries_its_per_joint_figures():
+    from dataclasses import replace
+
+    cert = replace(CERT, worst_per_joint=[2e-3, 5e-4], switch_timing_per_joint=[[1e-4, 2e-5], [-3e-4, 0.0]])
+    c = certificate_msg(cert)
+    assert list(c.worst_per_joint) == [2e-3, 5e-4]
+    assert list(c.switch_timing_per_joint) == [1e-4, 2e-5, -3e-4, 0.0]     # row-major switches x joints
+    assert list(certificate_msg(CERT).worst_per_joint) == []
