@@ -472,6 +472,8 @@ class BridgeNode(LifecycleNode):
             msg.stamp.sec, msg.stamp.nanosec = divmod(a.sent_ns, 1_000_000_000)
             msg.currents, msg.seq, msg.profile_id, msg.last = list(a.currents), a.seq, a.profile_id, a.last
             self._pub_applied.publish(msg)
+            if a.last:                    # the executor's result waits for the move's timing counts
+                self._diag_now.set()
         if self._diag_now.is_set():
             self._diag_now.clear()
             self._publish_diagnostics()
