@@ -33,8 +33,10 @@ planner ``config/planner.yaml`` (its motion library moved into the run folder); 
 drive's encoder resolution and nominal current come from ``config/sim_arm1dof.yaml``. Generated
 for each run in the run folder: the sim driver's and bridge's parameter files and the bridge
 config (remote bus on the hub). Its timing differs from ``config/bridge_*.yaml`` (1 ms SYNC, 10 ms
-heartbeats, 40-100 ms timeouts: for a real bus on a dedicated machine) on purpose: 10 ms SYNC
-(setpoints are applied at their stamps; SYNC only paces feedback), 50 ms drive heartbeats with a
+heartbeats, 40-100 ms timeouts: for a real bus on a dedicated machine) on purpose: 10 ms SYNC,
+produced by the CAN hub's own timer (the hub runs in its own process; the drives latch each
+setpoint at a SYNC, the planner's switch grid is the SYNC period; ``--setpoint-timing on_receipt``
+applies setpoints when they arrive instead, with the bridge producing SYNC), 50 ms drive heartbeats with a
 3 s timeout on both sides and 3 s for the executor's joint-state watchdog (above the scheduling
 gaps of a normal-priority process on a loaded shared machine, measured up to 1.4 s); a bridge
 that fails its enable sequence is restarted once.
@@ -86,7 +88,8 @@ COUNTS_PER_REV = int(_SIM.get("counts_per_rev", 2048))        # encoder incremen
 NOMINAL_CURRENT = float(_SIM.get("nominal_current", 3.0))     # A, motor nominal current (EPOS4 per mille)
 # Deliberately more lenient than config/bridge_*.yaml (1 ms SYNC, 10 ms heartbeat with a 40-100 ms
 # timeout, for a real bus on a dedicated machine): the simulated stack shares a possibly busy
-# machine. Setpoints are asynchronous RPDOs (applied at their stamps), so SYNC only paces feedback.
+# machine (1 ms SYNC costs ~1.25 of the 2 cores across the hub, drive and bridge). Switch times sit on
+# this grid (the planner's switch_grid), so it costs no accuracy.
 SYNC_PERIOD = 0.01         # s
 HEARTBEAT_PRODUCER_MS = 50  # ms, the drives' heartbeat
 # Watchdog timeouts above the longest scheduling gap measured here for a normal-priority process
@@ -95,10 +98,6 @@ HEARTBEAT_PRODUCER_MS = 50  # ms, the drives' heartbeat
 HEARTBEAT_TIMEOUT = 3.0    # s, the bridge's timeout on the drives' heartbeat; the drives' on the
 MASTER_HEARTBEAT_TIMEOUT_MS = 3000   # bridge's (100 ms) heartbeat: 3 s too
 JOINT_STATE_TIMEOUT = 3.0  # s, the executor stops a move whose joint states stop this long
-# The simulated stack applies setpoints on receipt at their stamps (RPDO transmission type 255),
-# as measured in docs/timing.md; the SYNC-latched path (the drives' default, "sync") runs in the
-# hwbridge tests and benchmarks/bench_sync.py.
-SETPOINT_TIMING = "on_receipt"
 EXECUTOR_FILES = ("executor.yaml", "executor_sim.yaml")   # config/ files layered for the executor
 
 
@@ -130,7 +129,10 @@ class StackOptions:
     q0: Sequence[float] = ()                   # rad, initial arm position (default zeros)
     switch_interval: Optional[float] = 1e-4    # s, GIL switch interval of the sim driver and the
                                                # bridge (ff_executor.bringup.timed); None = Python's 5 ms
-    separate_hub: bool = False                 # CAN hub in its own process (else the sim driver hosts it)
+    separate_hub: bool = True                  # CAN hub in its own process (else the sim driver hosts it)
+    setpoint_timing: str = "sync"              # "sync": the drives latch setpoints at SYNC, produced
+                                               # by the hub's timer (separate hub) every SYNC_PERIOD;
+                                               # "on_receipt": applied when they arrive, at their stamps
     rt_priority: int = 0                       # 1..99: SCHED_FIFO for the sim driver process and the
                                                # bridge's scheduler thread (root/CAP_SYS_NICE); 0 = off
     timing_nice: Optional[int] = -10           # nice value for the sim driver and the bridge (the
@@ -178,7 +180,7 @@ def bridge_config(model: str, hub_url: str) -> dict:
     return {"bus": {"interface": "remote", "channel": hub_url, "bitrate": 1_000_000},
             "sync_period": SYNC_PERIOD, "heartbeat_producer_ms": HEARTBEAT_PRODUCER_MS,
             "heartbeat_timeout": HEARTBEAT_TIMEOUT, "master_heartbeat_timeout_ms": MASTER_HEARTBEAT_TIMEOUT_MS,
-            "setpoint_timeout": 0.5, "setpoint_timing": SETPOINT_TIMING, "joints": joints}
+            "setpoint_timeout": 0.5, "joints": joints}
 
 
 class Stack:
@@ -307,9 +309,17 @@ class Stack:
         sim.update(o.sim_overrides)
         return sim
 
+    @property
+    def hub_syncs(self) -> bool:
+        """The hub (its own process) produces SYNC: synchronous setpoints on a separate hub."""
+        return self.options.separate_hub and self.options.setpoint_timing == "sync"
+
     def bridge_data(self) -> dict:
         """The bridge's config file (ff_hwbridge.drive.config), written to <run_dir>/bridge.yaml."""
         bdata = bridge_config(self.options.model, self.hub_url)
+        bdata["setpoint_timing"] = self.options.setpoint_timing
+        if self.hub_syncs:
+            bdata["sync_producer"] = "external"
         if self.options.rt_priority:
             bdata["scheduler_rt_priority"] = int(self.options.rt_priority)
         return bdata
@@ -317,6 +327,8 @@ class Stack:
     def planner_files(self) -> tuple[list[str], dict[str, object]]:
         """(parameter files in order, overrides written after them) for the planner."""
         pp: dict[str, object] = {"library_path": str(self.run_dir / "motions.sqlite")}
+        if self.options.setpoint_timing == "sync":     # switch times on the drives' SYNC cycle
+            pp["switch_grid"] = SYNC_PERIOD
         pp.update(self.options.planner_overrides)
         return [self.options.planner_params or str(CONFIG_DIR / "planner.yaml")], pp
 
@@ -368,8 +380,10 @@ class Stack:
         self.log(f"  simulated arm: {model}, true friction differs from the model by {true or 'nothing'}")
         try:
             if o.separate_hub:
-                p = self._start("ff_can_hub", "ff_hwbridge.cli.can_hub", ["--port", str(self.hub_port)],
-                                timing=True)
+                hub_args = ["--port", str(self.hub_port)]
+                if self.hub_syncs:
+                    hub_args += ["--sync-period", str(SYNC_PERIOD)]
+                p = self._start("ff_can_hub", "ff_hwbridge.cli.can_hub", hub_args, timing=True)
                 self._wait(p, lambda: "CAN hub on" in p.output(), "serving on 127.0.0.1")
             sim = self.sim_parameters()
             pf = _params_file(self.run_dir / "sim_driver.yaml", "ff_sim_driver", sim)
@@ -537,6 +551,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--rt-priority", type=int, default=0, metavar="N",
                     help="SCHED_FIFO priority 1..99 for the simulated driver and the bridge's "
                          "scheduler thread (needs root/CAP_SYS_NICE; 0 = off, the default)")
+    ap.add_argument("--setpoint-timing", choices=("sync", "on_receipt"), default="sync",
+                    help="sync (default): the drives latch setpoints at SYNC, produced by the CAN hub's "
+                         "timer; on_receipt: applied when they arrive, at their stamps")
     return ap
 
 
@@ -547,7 +564,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         opts = StackOptions(model=a.model, true_scale=parse_key_values(a.true_scale, "--true-scale"),
                             true_params=parse_key_values(a.true_param, "--true-param"), planner=not a.no_planner,
                             hub_port=a.hub_port, start_timeout=a.start_timeout, rt_priority=a.rt_priority,
-                            **environment_options(a))
+                            setpoint_timing=a.setpoint_timing, **environment_options(a))
         opts.true_friction()
         if not 0 <= a.rt_priority <= 99:
             raise ValueError(f"--rt-priority must be 0..99, got {a.rt_priority}")

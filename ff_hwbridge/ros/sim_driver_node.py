@@ -23,6 +23,7 @@ applying their present current: 0 A unless enabled with a non-zero setpoint).
 from __future__ import annotations
 
 import sys
+import time
 from typing import Any, Optional
 
 import rclpy
@@ -183,9 +184,11 @@ class SimDriverNode(Node):
 
     # -- outputs ---------------------------------------------------------------------------------
     def _publish_truth(self) -> None:
-        s = self.rig.arm.state()
+        arm = self.rig.arm
+        s = arm.state()       # at the plant's horizon: never ahead of a switch still in flight
         msg = JointState()
-        msg.header.stamp = self.get_clock().now().to_msg()
+        stamp_ns = time.time_ns() - (arm.now() - s.t_ns)     # the sample's instant, ROS clock
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
         msg.name = list(self.joint_names)
         msg.position, msg.velocity, msg.effort = list(s.q), list(s.qd), list(s.current)
         self.pub_truth.publish(msg)

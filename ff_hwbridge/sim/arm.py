@@ -77,6 +77,7 @@ class SimArm:
         self._t_ns = clock()
         self._ticker: Optional[threading.Thread] = None
         self._tick_stop = threading.Event()
+        self._lag_ns = 0           # while the own clock runs: how far behind now readers look
 
     # -- own clock -----------------------------------------------------------------------------
     def start_clock(self, period: float = 0.002, lag: float = 0.01) -> None:
@@ -93,6 +94,7 @@ class SimArm:
         if self._ticker is not None and self._ticker.is_alive():
             return
         self._tick_stop.clear()
+        self._lag_ns = lag_ns
 
         def run() -> None:
             while not self._tick_stop.wait(period):
@@ -108,6 +110,7 @@ class SimArm:
         if self._ticker is not None:
             self._ticker.join(timeout=2.0)
             self._ticker = None
+        self._lag_ns = 0
 
     # -- helpers -------------------------------------------------------------------------------
     def _vec(self, x: Sequence[float] | float, name: str) -> np.ndarray:
@@ -136,6 +139,11 @@ class SimArm:
         """The plant's clock (ns)."""
         return self._clock()
 
+    def horizon(self) -> int:
+        """The latest instant (ns, plant clock) a reader may look at without getting ahead of the
+        CAN frames still being handled: now minus the own clock's lag (now when it does not run)."""
+        return self._clock() - self._lag_ns
+
     def set_current(self, joint: int, current: float, t_ns: Optional[int] = None) -> None:
         """Motor ``joint`` (0-based) carries ``current`` A from ``t_ns`` (default: now) on."""
         if not 0 <= joint < self.n_joints:
@@ -145,9 +153,11 @@ class SimArm:
             self._i[joint] = float(current)
 
     def state(self, t_ns: Optional[int] = None) -> ArmState:
-        """Ground truth at ``t_ns`` (default now; never earlier than the last event)."""
+        """Ground truth at ``t_ns`` (default: the ``horizon()``, so that reading the state never
+        moves the plant past a current change still in flight; never earlier than the last
+        event). ``ArmState.t_ns`` says which instant it is."""
         with self._lock:
-            self._advance_to(self._clock() if t_ns is None else t_ns)
+            self._advance_to(self.horizon() if t_ns is None else t_ns)
             return ArmState(self._t_ns, tuple(map(float, self._q)), tuple(map(float, self._qd)),
                             tuple(map(float, self._i)))
 
