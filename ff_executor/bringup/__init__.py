@@ -1,6 +1,6 @@
 """The simulated stack as processes, the demo, and the timing wrapper.
 
-- :mod:`.stack` — ``Stack`` / ``StackOptions``: sim driver (hosting the CAN hub), bridge, planner
+- :mod:`.stack` — ``Stack`` / ``StackOptions``: CAN hub (SYNC producer), sim driver, bridge, planner
   and executor started and stopped by PID; program ``ff-bringup`` / ``python -m ff_executor.bringup.stack``.
 - :mod:`.demo`  — ``run_motions``: robust vs baseline motion on the simulated arm; program ``ff-demo``.
 - :mod:`.timed` — ``python -m ff_executor.bringup.timed [--switch-interval S] MODULE [ARGS...]``.

@@ -5,8 +5,9 @@
     ff-demo --domain-id 42 --record demo_bag   # a fixed domain (else ROS_DOMAIN_ID, else a free one); a bag
     ff-demo --print-config                     # the effective configuration, nothing started
 
-1. Brings up the simulated stack (``ff_executor.bringup.stack.Stack``: sim driver hosting the CAN hub on
-   127.0.0.1, bridge, planner, executor; loopback-only ROS on a free domain, or ROS_DOMAIN_ID when set).
+1. Brings up the simulated stack (``ff_executor.bringup.stack.Stack``: CAN hub on
+   127.0.0.1 producing SYNC, sim driver, bridge, planner, executor; loopback-only ROS on a free
+   domain, or ROS_DOMAIN_ID when set).
 2. Asks the planner SERVICE for a robust 1-DOF motion 0 → 1 rad in 1 s (robust-derivative,
    uncertain pv, pc, pt) and for a non-robust baseline (energy-optimal, paper section 6.5).
 3. Executes each once (every run counts: no repeats) through the executor ACTION on the simulated

@@ -7,12 +7,13 @@
     ff-bringup --record run_bag             # also record the topics (ff-record, rosbag2/MCAP)
 
 Safe defaults, always: ROS traffic on loopback only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``),
-the CAN hub on 127.0.0.1, hosted by the simulated driver. The domain: ``--domain-id``, else
+the CAN hub on 127.0.0.1 in its own process (it also produces SYNC). The domain: ``--domain-id``, else
 ``ROS_DOMAIN_ID`` when set, else a free one per run; ROS logs: ``ROS_LOG_DIR`` when set, else the run
 folder (``ff_msgs_py.launch.ros_environment``). Start order and readiness (each waits for the
 previous one, checked in the ROS graph, not by sleeping):
 
-1. ``ff_sim_driver`` (ff_hwbridge.ros.sim_driver_node) hosting the CAN hub → service ``~/reset``;
+0. ``ff_can_hub`` (ff_hwbridge.cli.can_hub --sync-period 0.01) → "CAN hub on" (no ROS);
+1. ``ff_sim_driver`` (ff_hwbridge.ros.sim_driver_node) on the hub → service ``~/reset``;
 2. ``ff_hwbridge`` (ff_hwbridge.ros.bridge_node --autostart) on the hub → lifecycle state *active*;
 3. ``ff_planner`` (ff_planner.ros.planner_node) → service ``~/plan`` (its motion library in the run folder);
 4. ``ff_executor`` (ff_executor.ros.executor_node) → action ``~/execute``.

@@ -46,7 +46,8 @@ def test_stack_starts_all_four_and_stops_them_by_pid(tmp_path):
     stack.start()
     try:
         names = [p.name for p in stack.procs]
-        assert names == ["ff_sim_driver", "ff_hwbridge", "ff_planner", "ff_executor"]
+        # the CAN hub in its own process produces SYNC; then the four nodes
+        assert names == ["ff_can_hub", "ff_sim_driver", "ff_hwbridge", "ff_planner", "ff_executor"]
         assert all(p.alive() for p in stack.procs)
         env = stack.env
         assert env["ROS_AUTOMATIC_DISCOVERY_RANGE"] == "LOCALHOST"
@@ -59,7 +60,7 @@ def test_stack_starts_all_four_and_stops_them_by_pid(tmp_path):
         procs = list(stack.procs)
     finally:
         codes = stack.stop()
-    assert set(codes) == {"ff_sim_driver", "ff_hwbridge", "ff_planner", "ff_executor"}
+    assert set(codes) == {"ff_can_hub", "ff_sim_driver", "ff_hwbridge", "ff_planner", "ff_executor"}
     assert not any(p.alive() for p in procs)
 
 
