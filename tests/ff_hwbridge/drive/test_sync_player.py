@@ -100,8 +100,9 @@ def test_sync_rpdo_is_latched_at_a_sync_bus_instant_not_on_receipt(bench):
     bench.master.command_currents([1.2])          # sent now: applied at a later SYNC only
     assert wait_for(lambda: any(r.raw == raw for r in bench.drive.setpoint_log()))
     rec = next(r for r in bench.drive.setpoint_log() if r.raw == raw)
+    # this listener's receive thread may run behind the drive's: wait for it to see the frames
+    assert wait_for(lambda: rec.wall_ns in [t for c, t, _ in list(frames) if c == 0x80])  # a SYNC's bus instant
     rpdo_ts = next(t for c, t, d in frames if c == 0x201 and struct.unpack("<Hh", d)[1] == raw)
-    assert rec.wall_ns in [t for c, t, _ in frames if c == 0x80]    # at a SYNC's bus instant
     assert rec.wall_ns > rpdo_ts                                     # after the RPDO, not on it
 
 
