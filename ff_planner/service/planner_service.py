@@ -414,6 +414,10 @@ class PlannerService:
         if not (math.isfinite(coast_max) and coast_max >= 0.0):
             raise PlanningError(f"coast_max must be a finite number >= 0 s (0 = default), got {coast_max}")
         grid = self._grid(f, objective, model)
+        chosen = None       # the baseline's own step count (it is not limited by max_steps)
+        if steps is None and objective == "energy-optimal" and model == "arm1dof":
+            chosen = steps = _energy_steps_on_grid(tf - c.coast,
+                                                   float(f.switch_grid) or float(self.config.switch_grid))
         kw: dict[str, Any] = dict(model=model, q0=[float(x) for x in f.q0], qf=[float(x) for x in f.qf],
                                   tf=tf, uncertain=uncertain, objective=objective, steps=steps,
                                   starts=starts, seed=int(f.seed), time_budget=budget, coast=c.coast,
@@ -422,7 +426,7 @@ class PlannerService:
             kw["coast_max"] = coast_max
         req = GridPlanRequest(grid=grid, **kw) if grid is not None else PlanRequest(**kw)
         checked = check(req)   # UNREACHABLE answered at once, before the library lookup
-        if req.n_steps() > c.max_steps:
+        if req.n_steps() > c.max_steps and chosen is None:
             raise PlanningError(f"{req.n_steps()} steps per joint exceeds this planner's limit of "
                                 f"{c.max_steps}; ask for fewer steps or uncertain parameters")
         if grid is not None and req.steps != 0:
@@ -724,6 +728,18 @@ def _canceled(request: PlanRequest) -> PlanResult:
     r = failure(request, "TIME_BUDGET_EXHAUSTED", "canceled by the caller before a plan was found")
     r.extra = {CANCELED: True}
     return r
+
+
+def _energy_steps_on_grid(span: float, grid: float, most: int = 100) -> Optional[int]:
+    """The most equal energy-optimal steps (at most ``most``) whose boundaries fall on the switch
+    grid over ``span`` = tf - coast (s), or None (the planner's default) when the span is not a
+    whole number of grid cells or no grid is asked for."""
+    if not grid > 0.0:
+        return None
+    cells = round(span / grid)
+    if cells < 1 or abs(cells * grid - span) > 1e-9 * max(1.0, span):
+        return None
+    return max(n for n in range(1, min(most, cells) + 1) if cells % n == 0)
 
 
 def _fits(rec: MotionRecord, request: PlanRequest) -> bool:

@@ -174,3 +174,15 @@ def test_progress_is_reported_and_cancel_stops_the_worker(tmp_path):
         assert ok.success, ok.message
     finally:
         svc.close()
+
+
+def test_the_energy_optimal_baseline_gets_steps_whose_switches_are_on_the_grid(idle_service):
+    for grid, want in ((0.01, 95), (0.001, 95), (-1.0, None)):     # tf - coast = 0.95 s
+        req = idle_service.make_request(RequestFields(**dict(ROBUST, objective="energy-optimal",
+                                                             switch_grid=grid))).request
+        assert req.steps == want, (grid, req.steps)
+    from ff_planner.optimize.planner import plan
+
+    res = plan(idle_service.make_request(RequestFields(**dict(ROBUST, objective="energy-optimal",
+                                                              switch_grid=0.01))).request)
+    assert res.success and res.profile.n_steps == 95 and on_grid(res.profile, 0.01)
