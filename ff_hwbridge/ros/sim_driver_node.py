@@ -118,6 +118,7 @@ class SimDriverNode(Node):
         self.pub_truth = self.create_publisher(JointState, "~/ground_truth", 10)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_service(Trigger, "~/reset", self._on_reset)
+        self._late_seen = 0
         self.create_timer(1.0 / float(self._p("ground_truth_rate")), self._publish_truth)
         self.create_timer(1.0 / float(self._p("diagnostics_rate")), self._publish_diagnostics)
         self.rig.boot()
@@ -204,7 +205,9 @@ class SimDriverNode(Node):
             st.level = DiagnosticStatus.ERROR if fault else DiagnosticStatus.OK
             st.message = f"{d.state.value}" + (f", fault 0x{d.fault_code:04X}" if fault else "")
             stats = d.link_stats
-            values = {"nmt": d.nmt_state, "statusword": f"0x{d.statusword():04X}",
+            values = {"late_switches": str(self.rig.arm.late_changes),
+                      "late_switch_max_us": f"{self.rig.arm.late_max_ns / 1e3:.0f}",
+                      "nmt": d.nmt_state, "statusword": f"0x{d.statusword():04X}",
                       "applied_current_A": f"{d.applied_current:.4f}",
                       "setpoints_received": str(len(d.setpoint_log())),
                       "rx_frames": str(stats.rx_frames), "rx_dropped": str(stats.rx_dropped),
@@ -212,6 +215,13 @@ class SimDriverNode(Node):
             st.values = [KeyValue(key=k, value=v) for k, v in values.items()]
             arr.status.append(st)
         self.pub_diag.publish(arr)
+        late = self.rig.arm.late_changes
+        if late > self._late_seen:
+            self._late_seen = late
+            self.get_logger().warning(
+                f"{late} current change(s) so far started late on the simulated arm (up to "
+                f"{self.rig.arm.late_max_ns / 1e3:.0f} us): their CAN frames were handled after the "
+                f"plant's lag; a move's error then comes from the simulation, not from the bridge")
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         self.rig.reset_arm()

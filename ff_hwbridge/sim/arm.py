@@ -57,6 +57,11 @@ class ArmState:
     current: tuple[float, ...]
 
 
+#: ns: a current change asked for this much before the plant's time counts as late (it starts at
+#: the plant's time instead: the frame carrying it was handled after the plant's lag)
+LATE_NS = 50_000
+
+
 class SimArm:
     """Joint state of a 1-DOF arm or 2-DOF SCARA under piecewise-constant motor currents."""
 
@@ -78,6 +83,8 @@ class SimArm:
         self._ticker: Optional[threading.Thread] = None
         self._tick_stop = threading.Event()
         self._lag_ns = 0           # while the own clock runs: how far behind now readers look
+        self.late_changes = 0      # current changes asked for an instant the plant had passed
+        self.late_max_ns = 0       # ... the largest such lateness (ns): the switch started late
 
     # -- own clock -----------------------------------------------------------------------------
     def start_clock(self, period: float = 0.002, lag: float = 0.01) -> None:
@@ -149,6 +156,9 @@ class SimArm:
         if not 0 <= joint < self.n_joints:
             raise ParameterError(f"joint index must be 0..{self.n_joints - 1}, got {joint}")
         with self._lock:
+            if t_ns is not None and self._t_ns - t_ns > LATE_NS and float(current) != self._i[joint]:
+                self.late_changes += 1
+                self.late_max_ns = max(self.late_max_ns, self._t_ns - t_ns)
             self._advance_to(self._clock() if t_ns is None else t_ns)
             self._i[joint] = float(current)
 

@@ -58,7 +58,10 @@ def test_robust_lands_and_baseline_misses_with_coulomb_20_percent_off(stack_clie
         # the model's rest position for the profile, beside the measured one
         assert len(m["predicted_position"]) == 1 and np.isfinite(m["measured_minus_predicted"]), m
     assert rob["plan_success"] and rob["robust"]
-    assert abs(rob["error_truth"]) <= ROBUST_TOL, rob
+    logs = "\n".join(f"--- {p.name}:\n{p.output()[-1500:]}" for p in stack.procs
+                     if p.name in ("ff_can_hub", "ff_sim_driver", "ff_hwbridge"))
+    keys = ("error_truth", "switch_spread_s", "switch_error_s", "start_delay_s", "missed_cycles", "message")
+    assert abs(rob["error_truth"]) <= ROBUST_TOL, ({k: rob.get(k) for k in keys}, logs)
     assert abs(rob["error"]) <= ROBUST_TOL, rob
     assert abs(base["error_truth"]) >= BASELINE_MIN, base
     assert abs(base["error_truth"]) >= 3 * abs(rob["error_truth"]), (rob["error_truth"],
