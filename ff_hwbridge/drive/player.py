@@ -50,6 +50,7 @@ SWITCH_INTERVAL = 0.0002  # s, thread switch interval of a process running a syn
 LATE_THRESHOLD = 0.0005   # s: a setpoint sent more than this after its stamp counts as late
 MAX_RECORDS = 200_000     # (stamp, sent) pairs the statistics keep
 MAX_REPORTS = 10_000      # applied setpoints waiting for ``take_applied()`` (oldest dropped)
+MAX_PHASES = 1_000        # profiles whose shift onto the SYNC grid is remembered
 
 
 @dataclass(frozen=True)
@@ -133,6 +134,7 @@ class SetpointPlayer:
                                          late_threshold=LATE_THRESHOLD, name=name,
                                          rt_priority=self.config.rt_priority,
                                          prepare=self._prepare if self.config.prepare_ahead else None)
+        self._phases: dict[str, int] = {}      # profile id -> its shift onto the SYNC grid (ns)
         master.pending_fn = lambda: self._scheduler.pending > 0
         master.add_fault_listener(self._on_fault)
 
@@ -164,7 +166,32 @@ class SetpointPlayer:
         # or after a manual setpoint with a non-zero current; a manual zero ends it
         running = not last and (bool(profile_id) or any(c != 0.0 for c in amps))
         self.master.note_setpoint(motion_running=running)
-        self._scheduler.submit(int(stamp_ns), _Queued(amps, int(seq), str(profile_id), bool(last)))
+        stamp = int(stamp_ns)
+        if self._cycle is not None and profile_id:
+            stamp += self._phase(str(profile_id), stamp, bool(last))
+        self._scheduler.submit(stamp, _Queued(amps, int(seq), str(profile_id), bool(last)))
+
+    def _phase(self, profile_id: str, stamp_ns: int, last: bool) -> int:
+        """ns: the shift that puts a profile onto the SYNC grid as a whole. Its first setpoint
+        goes to the first SYNC at or after its stamp (shift 0 … one period); every later one of
+        the same profile gets the same shift. A profile whose switch times sit on the grid (the
+        planner's switch_grid) then lands every switch exactly on a SYNC, with the same common
+        delay, instead of each stamp being rounded on its own (a stamp near a cycle boundary
+        could otherwise go to either SYNC: one period of relative error)."""
+        shift = self._phases.get(profile_id)
+        if shift is None:
+            grid = self._cycle.grid() if self._cycle is not None else None
+            if grid is None:
+                return 0
+            nominal, period = grid
+            k = -(-(stamp_ns - nominal) // period)           # ceil: the first SYNC at or after
+            shift = nominal + k * period - stamp_ns
+            if len(self._phases) >= MAX_PHASES:
+                self._phases.pop(next(iter(self._phases)))
+            self._phases[profile_id] = shift
+        if last:
+            self._phases.pop(profile_id, None)
+        return shift
 
     def clear(self) -> int:
         """Drop every pending setpoint; returns how many were dropped."""

@@ -126,7 +126,7 @@ def test_setpoint_watchdog_and_feedback_loss(rig):
     assert _wait(lambda: master.latched, 2.0)
     assert "setpoint watchdog" in master.fault_reason
     master.fault_reset()
-    assert master.wait_for_state(State.OPERATION_ENABLED, 2.0)
+    assert master.wait_for_state(State.OPERATION_ENABLED, 5.0), (master.fault_reason, list(master.events)[-5:])
     drives[0].answer_sync = False                            # drive stops sending TPDOs
     assert _wait(lambda: master.latched, 2.0)
     assert "feedback lost" in master.fault_reason

@@ -216,7 +216,7 @@ def test_sync_loss_latches_the_safe_state_with_the_reason():
         bench.source.stop()
         assert wait_for(lambda: bench.master.latched, 3.0)
         assert "SYNC lost" in bench.master.fault_reason and "external" in bench.master.fault_reason
-        assert bench.player.pending == 0                           # dropped by the safe state
+        assert wait_for(lambda: bench.player.pending == 0)          # dropped by the safe state
         assert bench.master.applied_currents()[0] == 0.0
     finally:
         bench.close()
@@ -269,3 +269,20 @@ def test_drive_state_stays_enabled_while_sync_runs(bench):
     bench.enable()
     time.sleep(0.1)
     assert bench.master.states() == [State.OPERATION_ENABLED] and not bench.master.latched
+
+
+def test_a_profile_is_shifted_onto_the_grid_as_a_whole(bench):
+    """Stamps off the grid by a phase near the assignment tolerance: every switch of the profile
+    gets the same SYNC offset, so the relative timing is kept exactly."""
+    bench.enable()
+    _, period = bench.player.sync_grid()
+    base = _grid_stamp(bench, 5) + int(0.1 * period)          # right at the tolerance boundary
+    stamps = [base + j * 3 * period for j in range(4)]
+    for j, t in enumerate(stamps):
+        bench.player.submit(t, [0.2 * (j + 1)], seq=j, profile_id="phase", last=j == 3)
+    got: list = []
+    assert wait_for(lambda: got.extend(bench.player.take_applied()) or len(got) == 4)
+    applied = [a.sent_ns for a in sorted(got, key=lambda a: a.seq)]
+    shifts = [a - t for a, t in zip(applied, stamps)]
+    assert all(0 <= s < period + period // 10 for s in shifts), shifts      # never before its stamp
+    assert max(shifts) - min(shifts) < period // 2, shifts                  # one common shift
