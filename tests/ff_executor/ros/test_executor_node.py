@@ -53,6 +53,7 @@ class FakeBridge(Node):
         self.pending: list[tuple] = []
         self.received: list[tuple] = []   # (receive ns, stamp ns, currents, seq, pid, last)
         self.applied: list[tuple] = []    # (stamp ns, currents)
+        self.reported_errors: list[float] = []   # s, applied - stamp as published on ~/applied
         self.missed_count = 0             # SYNC mode: setpoints applied late, never reset (a counter)
         self.create_service(GetState, "~/get_state", self._get_state)
         qos = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
@@ -90,6 +91,7 @@ class FakeBridge(Node):
             self.pending.clear()
             self.received.clear()
             self.applied.clear()
+            self.reported_errors.clear()
             self.t_sim = self.now()
 
     def _loop(self):
@@ -106,6 +108,7 @@ class FakeBridge(Node):
                                               (t_apply - self.t_sim) / 1e9)
                     self.t_sim, self.current = t_apply, cur
                     self.applied.append((stamp, cur))
+                    self.reported_errors.append(((stamp if self.sync_period > 0 else now) - stamp) / 1e9)
                     sync = self.sync_period > 0
                     self.missed_count += int(sync and seq in self.miss_seqs)
                     # SYNC mode: the SYNC instant it was latched at, taken from its stamp, so
@@ -216,8 +219,10 @@ def test_executes_and_lands_where_the_model_says(stack):
     rec = bridge.received
     assert [r[2][0] for r in rec] == CUR + [0.0] and rec[-1][5]
     assert all(r[1] - r[0] > 0.1e9 for r in rec), "a setpoint reached the bridge less than 0.1 s early"
-    # timing statistics come from the bridge's reports
-    assert 0.0 <= result.switch_error_p50 <= result.switch_error_max < 0.05
+    # timing statistics come from the bridge's reports (this stand-in reports when its Python
+    # loop got to a setpoint: on a loaded machine that may be late, so compare, do not bound)
+    assert 0.0 <= result.switch_error_p50 <= result.switch_error_max
+    assert result.switch_error_max == pytest.approx(max(bridge.reported_errors), abs=2e-6)
     # feedback at >= 10 Hz during the move, carrying the commanded currents
     times = np.array([t for t, _ in fb])
     assert len(fb) >= 12 and np.diff(times).max() < 0.15
