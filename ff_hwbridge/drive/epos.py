@@ -752,6 +752,10 @@ class EposMaster:
                       if d.target is State.QUICK_STOP_ACTIVE
                       else cia402.CONTROLWORD[cia402.Command.DISABLE_VOLTAGE])
                 self._send_rpdo(d, cw, 0)
+                if self.config.synchronous and not self._sync_fresh():
+                    # a synchronous RPDO takes effect at the next SYNC only: with SYNC gone the
+                    # controlword goes as an SDO write too (applied on receipt)
+                    self._send_sdo_controlword(d, cw)
         # stamped at the latch, listed once the zero-current reaction has been sent: whoever
         # sees the event also sees applied_currents() == 0
         self.events.append((t_latch, f"safe state: {reason}"))
@@ -879,6 +883,23 @@ class EposMaster:
                     or (state is not target and since >= RESEND_PERIOD)
                     or since >= REFRESH_PERIOD):
                 self._send_rpdo(d, cw, setpoint)
+
+    def _sync_fresh(self) -> bool:
+        """A SYNC came within the last three periods (the reaction's RPDO will be latched)."""
+        age = self.sync_watch.age_s() if self.sync_watch is not None else None
+        return age is not None and age < 3.0 * float(self.config.sync_period)
+
+    def _send_sdo_controlword(self, d: _Drive, controlword: int) -> None:
+        """Write 0x6040 with one expedited SDO download frame (CiA 301: command 0x2B, 2 bytes),
+        without waiting for the answer: the safe state must not block on a drive or bus that
+        does not answer (canopen's SDO client drops the stray answer before its next request)."""
+        data = struct.pack("<BHBH2x", 0x2B, 0x6040, 0, int(controlword) & 0xFFFF)
+        with self._send_lock:
+            try:
+                self._connected_network().send_message(0x600 + d.node_id, data)
+            except Exception:  # noqa: BLE001 - a full bus must not kill the caller's thread
+                self.tx_errors += 1
+                log.exception("SDO controlword to node %d failed", d.node_id)
 
     def _send_rpdo(self, d: _Drive, controlword: int, setpoint: int) -> None:
         """Send RPDO1 (controlword + raw setpoint, clamped to the raw limit)."""

@@ -218,6 +218,8 @@ def test_sync_loss_latches_the_safe_state_with_the_reason():
         assert "SYNC lost" in bench.master.fault_reason and "external" in bench.master.fault_reason
         assert wait_for(lambda: bench.player.pending == 0)          # dropped by the safe state
         assert bench.master.applied_currents()[0] == 0.0
+        # no SYNC latches the reaction's RPDO: the controlword's SDO write stops the drive anyway
+        assert wait_for(lambda: bench.drive.state is not State.OPERATION_ENABLED), bench.drive.state
     finally:
         bench.close()
 
