@@ -131,9 +131,11 @@ class StackOptions:
     switch_interval: Optional[float] = 1e-4    # s, GIL switch interval of the sim driver and the
                                                # bridge (ff_executor.bringup.timed); None = Python's 5 ms
     separate_hub: bool = True                  # CAN hub in its own process (else the sim driver hosts it)
-    setpoint_timing: str = "sync"              # "sync": the drives latch setpoints at SYNC, produced
-                                               # by the hub's timer (separate hub) every SYNC_PERIOD;
-                                               # "on_receipt": applied when they arrive, at their stamps
+    setpoint_timing: str = "on_receipt"        # "on_receipt": applied when they arrive, at their stamps;
+                                               # "sync": the drives latch setpoints at SYNC, produced by
+                                               # the hub's timer (separate hub) every SYNC_PERIOD (a
+                                               # cancel's zero current was seen not to take effect in
+                                               # this mode: not the default until that is fixed)
     rt_priority: int = 0                       # 1..99: SCHED_FIFO for the sim driver process and the
                                                # bridge's scheduler thread (root/CAP_SYS_NICE); 0 = off
     timing_nice: Optional[int] = -10           # nice value for the sim driver and the bridge (the
@@ -552,9 +554,10 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--rt-priority", type=int, default=0, metavar="N",
                     help="SCHED_FIFO priority 1..99 for the simulated driver and the bridge's "
                          "scheduler thread (needs root/CAP_SYS_NICE; 0 = off, the default)")
-    ap.add_argument("--setpoint-timing", choices=("sync", "on_receipt"), default="sync",
-                    help="sync (default): the drives latch setpoints at SYNC, produced by the CAN hub's "
-                         "timer; on_receipt: applied when they arrive, at their stamps")
+    ap.add_argument("--setpoint-timing", choices=("sync", "on_receipt"), default="on_receipt",
+                    help="on_receipt (default): setpoints applied when they arrive, at their stamps; "
+                         "sync: the drives latch setpoints at SYNC, produced by the CAN hub's timer "
+                         "(a cancel's zero current was seen not to take effect in this mode)")
     return ap
 
 
