@@ -25,7 +25,6 @@ import heapq
 import itertools
 import logging
 import math
-import os
 import threading
 import time
 from collections import deque
@@ -34,7 +33,7 @@ from typing import Any, Callable, Optional
 
 import numpy as np
 
-from ff_hwbridge.drive.scheduler import SwitchStats
+from ff_hwbridge.drive.scheduler import SwitchStats, use_fifo
 from ff_hwbridge.drive.sync_watch import SyncEvent, SyncWatch
 
 log = logging.getLogger(__name__)
@@ -195,14 +194,8 @@ class CycleScheduler:
             self._cond.notify_all()
 
     def _set_rt_priority(self) -> None:
-        if self.rt_priority <= 0:
-            return
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.rt_priority))
-            self.rt_active = True
-        except (AttributeError, OSError) as exc:
-            log.warning("cycle scheduler: cannot use SCHED_FIFO priority %d (%s); running at "
-                        "normal priority", self.rt_priority, exc)
+        if self.rt_priority > 0:
+            self.rt_active = use_fifo(self.rt_priority, "cycle scheduler")
 
     def _cycles_ahead(self, stamp_ns: int, nominal_ns: int) -> int:
         """k: the stamp's SYNC is the k-th after the one at ``nominal_ns`` (<= 0: passed)."""

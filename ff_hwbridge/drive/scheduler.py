@@ -32,6 +32,18 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 
+def use_fifo(priority: int, who: str, tid: int = 0, hint: str = "") -> bool:
+    """SCHED_FIFO at ``priority`` for thread ``tid`` (0 = the calling thread); True when granted,
+    else a logged warning naming ``who`` (and ``hint``) and False."""
+    try:
+        os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(int(priority)))
+        return True
+    except (AttributeError, OSError) as exc:
+        log.warning("%s: cannot use SCHED_FIFO priority %d (%s); running at normal priority%s",
+                    who, priority, exc, hint)
+        return False
+
+
 @dataclass(order=True)
 class _Item:
     stamp_ns: int
@@ -141,14 +153,8 @@ class StampScheduler:
     # --- the thread ---------------------------------------------------------------------------
     def _set_rt_priority(self) -> None:
         """Linux: SCHED_FIFO for this thread (needs CAP_SYS_NICE / an rtprio limit); else a warning."""
-        if self.rt_priority <= 0:
-            return
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.rt_priority))
-            self.rt_active = True
-        except (AttributeError, OSError) as exc:
-            log.warning("scheduler: cannot use SCHED_FIFO priority %d (%s); running at normal "
-                        "priority", self.rt_priority, exc)
+        if self.rt_priority > 0:
+            self.rt_active = use_fifo(self.rt_priority, "scheduler")
 
     def _run(self) -> None:
         self._set_rt_priority()

@@ -18,7 +18,6 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import logging
-import os
 import threading
 import time
 from collections import deque
@@ -27,6 +26,8 @@ from typing import Any, Optional
 
 import can
 import numpy as np
+
+from ff_hwbridge.drive.scheduler import use_fifo
 
 log = logging.getLogger(__name__)
 
@@ -122,14 +123,8 @@ class SyncSource:
 
     def _set_priority(self) -> None:
         _timer_slack_1us()
-        if self.rt_priority <= 0:
-            return
-        try:
-            os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(self.rt_priority))
-            self.rt_active = True
-        except (AttributeError, OSError) as exc:
-            log.warning("SYNC source: cannot use SCHED_FIFO priority %d (%s); running at normal "
-                        "priority, expect more jitter under load", self.rt_priority, exc)
+        if self.rt_priority > 0:
+            self.rt_active = use_fifo(self.rt_priority, "SYNC source", hint=", expect more jitter under load")
 
     def _run(self) -> None:
         self._set_priority()
