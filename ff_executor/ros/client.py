@@ -125,7 +125,8 @@ class StackClient:
         self.last_truth: Optional[tuple[float, np.ndarray, np.ndarray]] = None   # (t s, q rad, qd rad/s)
         self.node.create_subscription(JointState, "/ff_sim_driver/ground_truth",
                                       lambda m: self._on_js(m, "truth"), qos)
-        self.node.create_subscription(JointState, "/ff_hwbridge/joint_states",
+        # the bridge's samples with effort = motor current A (its joint_states carry N·m)
+        self.node.create_subscription(JointState, "/ff_hwbridge/motor_currents",
                                       lambda m: self._on_js(m, "joints"), qos)
         self._stamps: dict[tuple[str, int], tuple[int, tuple[float, ...]]] = {}
         self._applied: dict[tuple[str, int], int] = {}

@@ -25,8 +25,8 @@ states during a move (``joint_state_timeout``) stops it the same way and aborts.
 
 Switch-time statistics come from the bridge's reports of applied setpoints on ``applied_topic``
 (ff_msgs/msg/CurrentSetpoint whose stamp is the moment it was applied) when it publishes them,
-else they are estimated from the measured currents (JointState effort, A) — coarse, bounded by the
-joint-state period — and labelled so in the log.
+else they are estimated from the measured motor currents (``current_topic``, JointState effort
+A) — coarse, bounded by the joint-state period — and labelled so in the log.
 
 The result also carries the model's rest position for the profile (``predicted_position``, from
 ``profile.predicted_rest``; empty when the profile does not say), the drives' SYNC period
@@ -99,6 +99,8 @@ PARAMETERS: dict[str, tuple[Any, str, Optional[tuple[float, float]], bool]] = {
     "setpoint_topic": ("/ff_hwbridge/setpoints", "where setpoints go (ff_msgs/msg/CurrentSetpoint)", None, True),
     "joint_state_topic": ("/ff_hwbridge/joint_states", "measured joint states (sensor_msgs/msg/JointState)",
                           None, True),
+    "current_topic": ("/ff_hwbridge/motor_currents", "measured motor currents (sensor_msgs/msg/JointState, "
+                      "effort A) for the switch-time estimate; '' = the joint states' effort", None, True),
     "applied_topic": ("/ff_hwbridge/applied", "the bridge's reports of applied setpoints (optional)", None, True),
     "joint_state_timeout": (1.0, "s, stop the move (zero current, abort) if joint states stop this long",
                             (0.0, 600.0), False),
@@ -172,8 +174,12 @@ class ExecutorNode(Node):
         self._io_group = MutuallyExclusiveCallbackGroup()
         self._client_group = ReentrantCallbackGroup()
         self._pub = self.create_publisher(CurrentSetpoint, g("setpoint_topic"), setpoint_qos)
+        self._effort_from_states = not str(g("current_topic"))
         self.create_subscription(JointState, g("joint_state_topic"), self._on_joint_state,
                                  sensor_qos, callback_group=self._io_group)
+        if not self._effort_from_states:
+            self.create_subscription(JointState, g("current_topic"), self._on_currents,
+                                     sensor_qos, callback_group=self._io_group)
         self.create_subscription(CurrentSetpoint, g("applied_topic"), self._on_applied,
                                  setpoint_qos, callback_group=self._io_group)
         self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10,
@@ -194,7 +200,8 @@ class ExecutorNode(Node):
         return int(self.get_clock().now().nanoseconds)
 
     # --- inputs -------------------------------------------------------------------------------
-    def _on_joint_state(self, msg: JointState) -> None:
+    def _joint_arrays(self, msg: JointState) -> Optional[tuple[np.ndarray, np.ndarray, Optional[np.ndarray]]]:
+        """(position rad, velocity rad/s, effort or None) in this executor's joint order, or None."""
         names = list(msg.name)
         order = self.config.joint_names
         try:
@@ -205,13 +212,29 @@ class ExecutorNode(Node):
             eff = (np.array([msg.effort[i] for i in idx], dtype=float)
                    if len(msg.effort) >= len(names or order) else None)
         except (ValueError, IndexError):
+            return None
+        return pos, vel, eff
+
+    def _log_effort(self, msg: JointState, eff: Optional[np.ndarray], now: int) -> None:
+        if self._effort_log is not None and eff is not None:
+            self._effort_log.append((time_to_ns(msg.header.stamp) or now, eff))
+
+    def _on_joint_state(self, msg: JointState) -> None:
+        arrays = self._joint_arrays(msg)
+        if arrays is None:
             return
+        pos, vel, eff = arrays
         now = self._now_ns()
         with self._state_lock:
             self._pos, self._vel, self._state_t = pos, vel, now
-            if self._effort_log is not None and eff is not None:
-                stamp = time_to_ns(msg.header.stamp) or now
-                self._effort_log.append((stamp, eff))
+            if self._effort_from_states:
+                self._log_effort(msg, eff, now)
+
+    def _on_currents(self, msg: JointState) -> None:
+        arrays = self._joint_arrays(msg)
+        if arrays is not None:
+            with self._state_lock:
+                self._log_effort(msg, arrays[2], self._now_ns())
 
     def _on_applied(self, msg: CurrentSetpoint) -> None:
         now = self._now_ns()

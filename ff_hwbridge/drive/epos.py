@@ -100,6 +100,8 @@ class JointFeedback:
     velocity_raw: int = 0
     current_raw: int = 0
     stamp: float = 0.0            # monotonic s of the latest TPDO1
+    sample_ns: int = 0            # wall-clock ns the latest TPDO1 was on the bus (its bus
+                                  #   timestamp; the arrival time where the bus gives none)
     stamp_motion: float = 0.0     # monotonic s of the latest TPDO2
 
 
@@ -827,6 +829,7 @@ class EposMaster:
                 fb.state = None
             now = self.clock()
             fb.stamp = now
+            fb.sample_ns = int(round(timestamp * 1e9)) if timestamp else time.time_ns()
             d.tpdo_seen = True
             if proxy:
                 # no echo of our own SYNC: the first drive's synchronous TPDO1 marks the cycle

@@ -17,8 +17,11 @@ Lifecycle (rclpy.lifecycle):
 
 Interfaces (relative to the node: /ff_hwbridge/...):
 - sub ``~/setpoints``   ff_msgs/msg/CurrentSetpoint: applied at ``stamp`` (ROS system clock).
-- pub ``~/joint_states`` sensor_msgs/JointState: position rad, velocity rad/s, effort = measured
-  motor current A.
+- pub ``~/joint_states`` sensor_msgs/JointState: position rad, velocity rad/s, effort = joint
+  torque N·m (gear_ratio x kt x measured motor current, as ros2_control expects); stamped with
+  the bus time of the drive's position sample (TPDO1), published once per new sample.
+- pub ``~/motor_currents`` sensor_msgs/JointState: the same samples with effort = measured motor
+  current A (what the drive reports; what the executor compares with its setpoints).
 - pub ``~/applied``     ff_msgs/msg/CurrentSetpoint: each applied setpoint, stamp = when it was sent.
 - pub ``/diagnostics``  diagnostic_msgs/DiagnosticArray: drive states, safe-state reason, timing.
 - srv ``~/fault_reset`` std_srvs/Trigger: clear the safe state and reset drive faults (re-enables
@@ -221,9 +224,11 @@ class BridgeNode(LifecycleNode):
         self._entities: list[tuple[str, Any]] = []
         self._timers: list[Any] = []
         self._pub_js: Any = None
+        self._pub_cur: Any = None
         self._pub_diag: Any = None
         self._pub_applied: Any = None
         self._diag_now = threading.Event()
+        self._last_sample_ns = 0        # bus ns of the last published drive sample
         self._log_handler = _RosLogHandler(self.get_logger())
         for name in ("ff_hwbridge", "canopen"):
             logging.getLogger(name).addHandler(self._log_handler)
@@ -388,6 +393,7 @@ class BridgeNode(LifecycleNode):
 
 
         self._pub_js = self.create_publisher(JointState, "~/joint_states", 10)
+        self._pub_cur = self.create_publisher(JointState, "~/motor_currents", 10)
         self._pub_applied = self.create_publisher(CurrentSetpoint, "~/applied", 100)
         self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         # own callback groups: a fault reset (which waits for the drives) or a timer never
@@ -399,7 +405,7 @@ class BridgeNode(LifecycleNode):
                                   callback_group=MutuallyExclusiveCallbackGroup())
         estop = self.create_service(Trigger, "~/estop", self._on_estop,
                                     callback_group=MutuallyExclusiveCallbackGroup())
-        self._entities += [("pub", self._pub_js), ("pub", self._pub_applied),
+        self._entities += [("pub", self._pub_js), ("pub", self._pub_cur), ("pub", self._pub_applied),
                            ("pub", self._pub_diag), ("sub", sub), ("srv", srv), ("srv", estop)]
         self._timers.append(self.create_timer(1.0 / float(self._get("joint_state_rate")),
                                               self._publish_joint_states))
@@ -479,17 +485,26 @@ class BridgeNode(LifecycleNode):
             self._publish_diagnostics()
 
     def _publish_joint_states(self) -> None:
-
+        """One JointState (effort N·m) and one motor-current JointState (effort A) per new drive
+        sample, stamped with the bus time of the latest position sample."""
         if self.master is None:
             return
-        msg = JointState()
-        msg.header.stamp = self.get_clock().now().to_msg()
         fb = self.master.feedback()
-        msg.name = list(self._cfg().joint_names)
-        msg.position = [f.position for f in fb]
-        msg.velocity = [f.velocity for f in fb]
-        msg.effort = [f.current for f in fb]
-        self._pub_js.publish(msg)
+        sample_ns = max((f.sample_ns for f in fb), default=0)
+        if sample_ns == 0 or sample_ns == self._last_sample_ns:
+            return                      # nothing new from the drives: no repeated sample
+        self._last_sample_ns = sample_ns
+        units = self.master.units
+        msgs = (JointState(), JointState())
+        for msg in msgs:
+            msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(sample_ns, 1_000_000_000)
+            msg.name = list(self._cfg().joint_names)
+            msg.position = [f.position for f in fb]
+            msg.velocity = [f.velocity for f in fb]
+        msgs[0].effort = [u.joint_torque(f.current) for u, f in zip(units, fb)]
+        msgs[1].effort = [f.current for f in fb]
+        self._pub_js.publish(msgs[0])
+        self._pub_cur.publish(msgs[1])
 
     def _publish_diagnostics(self) -> None:
 

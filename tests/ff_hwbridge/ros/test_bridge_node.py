@@ -80,6 +80,8 @@ def test_lifecycle_setpoints_faults_and_reset(bridge):
 
     js, diags, applied = [], [], []
     client.create_subscription(JointState, "/ff_hwbridge/joint_states", js.append, 10)
+    cur: list = []
+    client.create_subscription(JointState, "/ff_hwbridge/motor_currents", cur.append, 10)
     client.create_subscription(DiagnosticArray, "/diagnostics", diags.append, 10)
     client.create_subscription(CurrentSetpoint, "/ff_hwbridge/applied", applied.append, 10)
     pub = client.create_publisher(CurrentSetpoint, "/ff_hwbridge/setpoints", 10)
@@ -95,6 +97,18 @@ def test_lifecycle_setpoints_faults_and_reset(bridge):
     for k, s in enumerate(stamps):                  # applied at (not before) the stamp
         assert s >= t0 + k * 50_000_000
     assert applied[1].currents[0] == pytest.approx(9.999, abs=1e-3)
+    # joint states: effort N·m at the joint = gear x kt x the motor current published beside it,
+    # both stamped with the drive sample's bus time, each sample once
+    units = node.master.units[0]
+    by_stamp = {(m.header.stamp.sec, m.header.stamp.nanosec): m.effort[0] for m in list(cur)}
+    pairs = [(m.effort[0], by_stamp[k]) for m in list(js)
+             if (k := (m.header.stamp.sec, m.header.stamp.nanosec)) in by_stamp]
+    assert len(pairs) > 5 and any(abs(a) > 0.1 for _, a in pairs), pairs[-5:]
+    for torque, amps in pairs:
+        assert torque == pytest.approx(units.gear_ratio * units.torque_constant * amps, rel=1e-9, abs=1e-12)
+    stamps_js = [m.header.stamp.sec * 10**9 + m.header.stamp.nanosec for m in list(js)]
+    assert all(b > a for a, b in zip(stamps_js, stamps_js[1:]))
+    assert all(0 < time.time_ns() - s < 30 * 10**9 for s in stamps_js)
     assert max(abs(sp) for _, sp in drive.rx_log) <= 3333
     assert drive.setpoint_raw == 0
 
