@@ -45,7 +45,8 @@ def bench_ours(seeds, uncertain, starts=5000):
     total, search, tried, ok = [], [], 0, 0
     per_start, cpu = [], []
     for seed in seeds:
-        req = PlanRequest(uncertain=tuple(uncertain), starts=starts, seed=seed, time_budget=30.0)
+        req = PlanRequest(objective="robust-derivative",
+                          uncertain=tuple(uncertain), starts=starts, seed=seed, time_budget=30.0)
         t0 = time.perf_counter()
         c0 = time.process_time()
         r = plan_robust_1dof(req)
@@ -75,14 +76,15 @@ def bench_warm(uncertain, sigma=0.3, copies=15):
     times, tried = [], []
     for g in np.arange(0.5, 2.01, 0.25):
         for tf in (0.9, 1.0, 1.1):
-            base = plan_robust_1dof(PlanRequest(qf=(g,), tf=tf, uncertain=tuple(uncertain),
+            base = plan_robust_1dof(PlanRequest(objective="robust-derivative",
+                                                qf=(g,), tf=tf, uncertain=tuple(uncertain),
                                                 starts=2000, seed=1))
             if not base.success:
                 continue
             I0 = base.profile.currents[:, 0]
             for dg, dtf in ((0.1, 0.0), (0.25, 0.0), (0.0, 0.1), (-0.25, 0.0), (0.25, 0.1)):
-                req = PlanRequest(qf=(g + dg,), tf=tf + dtf, uncertain=tuple(uncertain),
-                                  starts=copies + 1, seed=1)
+                req = PlanRequest(objective="robust-derivative", qf=(g + dg,), tf=tf + dtf,
+                                  uncertain=tuple(uncertain), starts=copies + 1, seed=1)
                 rng = np.random.default_rng(1)
                 block = [I0] + [np.clip(I0 + rng.normal(0.0, sigma * math.sqrt(j), I0.shape),
                                         -10.0, 10.0) for j in range(1, copies + 1)]
@@ -165,7 +167,8 @@ def bench_peer(seeds, uncertain, n, cap):
 FIRST_PLAN = ("import time; t0 = time.perf_counter(); "
               "from ff_planner.model.profile import PlanRequest; "
               "from ff_planner.optimize.robust1d import plan_robust_1dof; "
-              "t1 = time.perf_counter(); r = plan_robust_1dof(PlanRequest(starts=5000, seed=0)); "
+              "t1 = time.perf_counter(); "
+              "r = plan_robust_1dof(PlanRequest(objective='robust-derivative', starts=5000, seed=0)); "
               "t2 = time.perf_counter(); "
               "import json; print(json.dumps({'import_s': t1 - t0, 'first_plan_s': t2 - t1, "
               "'robust': bool(r.robust)}))")
@@ -197,7 +200,8 @@ def main() -> None:
     from ff_planner.model.profile import PlanRequest
     from ff_planner.optimize.robust1d import plan_robust_1dof
 
-    plan_robust_1dof(PlanRequest(starts=5000, seed=12345))    # load the compiled code
+    plan_robust_1dof(PlanRequest(objective="robust-derivative", starts=5000,
+                                 seed=12345))    # load the compiled code
     out: dict = {"task": "arm1dof table2, 0 -> 1 rad, tf = 1 s, coast 0.05 s",
                  "machine_cores": os.cpu_count(), "load_average_at_start": os.getloadavg()}
     out["ours_k3_N5"] = bench_ours(seeds, ("pv", "pc", "pt"))

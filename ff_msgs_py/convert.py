@@ -131,7 +131,7 @@ def request_from_msg(req: Any, defaults: PlanRequest | None = None, params=None)
         base = base.replace(**dict(zip(req.override_names, req.override_values)))
     return PlanRequest(
         model=model, q0=list(req.q0), qf=list(req.qf), tf=float(req.move_time),
-        uncertain=list(req.uncertain), objective=req.objective or "robust-derivative",
+        uncertain=list(req.uncertain), objective=req.objective or d.objective,
         steps=int(req.steps) or None, starts=int(req.starts) or d.starts, seed=int(req.seed),
         time_budget=float(req.time_budget) or d.time_budget, coast=d.coast, params=base, tol=d.tol)
 

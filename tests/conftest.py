@@ -71,6 +71,6 @@ def robust_plan_1dof():
     from ff_planner.optimize.planner import plan
 
     result = plan(PlanRequest(model="arm1dof", q0=[0.0], qf=[1.0], tf=1.0, uncertain=["pv", "pc", "pt"],
-                              starts=3000, seed=0))
+                              objective="robust-derivative", steps=5, starts=3000, seed=0))
     assert result.success and result.robust, result.message
     return result

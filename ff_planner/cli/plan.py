@@ -92,11 +92,14 @@ def build_parser() -> argparse.ArgumentParser:
     o.add_argument("--uncertain", nargs="+", default=None, metavar="NAME",
                    help="friction parameters to be robust to (default: all of the model's)")
     o.add_argument("--objective", choices=OBJECTIVES, default=None,
-                   help="robust-derivative (paper), robust-sampled, robust-box (least worst rest "
-                        "error over the friction box), time-optimal, energy-optimal")
+                   help="robust-box (default: least worst rest error over the friction box, "
+                        "among plans with zero exact derivatives), robust-derivative (the paper's "
+                        "zero derivatives alone), robust-sampled, time-optimal, energy-optimal")
     o.add_argument("--steps", type=int, default=None, metavar="N",
-                   help="current steps per joint (default 2 + number of uncertain parameters; "
-                        "0: the robust 1-DOF planner chooses the smallest N up to 12)")
+                   help="current steps per joint (default: robust-box 8, raised to 10, 12 while "
+                        "no truly robust plan is found; others 2 + number of uncertain "
+                        "parameters; 0: the robust 1-DOF planner chooses the smallest N up to 12, "
+                        "robust-box until the box worst is <= 5 mrad)")
     o.add_argument("--starts", type=int, default=None,
                    help="multistart count (default 50; 0: escalated 50 -> 200 -> 1000)")
     o.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
@@ -105,6 +108,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "e.g. --box pc=0.3 (repeatable; default 0.2 each)")
     o.add_argument("--coast-max", type=float, default=None, metavar="S",
                    help="robust-box: longest coast the planner may choose (default 0.25 s)")
+    o.add_argument("--current-quantum", type=float, default=None, metavar="A",
+                   help="round the plan's currents to this grid, the drive's setpoint unit "
+                        "(EPOS4: nominal current / 1000, e.g. 0.003); rest position and "
+                        "certificate are for the rounded profile (default 0 = none)")
     o.add_argument("--time-budget", type=float, default=None, metavar="S",
                    help="wall-clock budget (default 30 s); the best plan so far is returned")
     o.add_argument("--tol", type=float, default=None,
@@ -148,11 +155,12 @@ class ProgressPrinter:
         self.lines += 1
 
 
-DEFAULTS = {"tf": 1.0, "coast": DEFAULT_COAST, "objective": "robust-derivative", "starts": 50,
-            "seed": 0, "time_budget": 30.0, "tol": 1e-6, "coast_max": DEFAULT_COAST_MAX}
+DEFAULTS = {"tf": 1.0, "coast": DEFAULT_COAST, "objective": PlanRequest().objective, "starts": 50,
+            "seed": 0, "time_budget": 30.0, "tol": 1e-6, "coast_max": DEFAULT_COAST_MAX,
+            "current_quantum": 0.0}
 _TASK_KEYS = ("q0", "qf", "tf", "coast")
 _PLAN_KEYS = ("uncertain", "objective", "steps", "starts", "seed", "time_budget", "tol", "box",
-              "coast_max")
+              "coast_max", "current_quantum")
 
 
 def load_config(path: str) -> dict:
@@ -302,8 +310,11 @@ def make_request(args: argparse.Namespace) -> PlanRequest:
     uncertain = named if named is not None else list(params.friction_keys)
     box = _box(_pick(args, cfg, "box"))
     coast_max = _number(_pick(args, cfg, "coast_max"), "--coast-max")
+    quantum = _number(_pick(args, cfg, "current_quantum"), "--current-quantum")
+    if not (math.isfinite(quantum) and 0.0 <= quantum < 1.0):
+        raise UsageError(f"--current-quantum must be a number in [0, 1) A (0 = none), got {quantum}")
     return PlanRequest(model=model, q0=tuple(q0), qf=tuple(qf), tf=tf, box=box,
-                       coast_max=coast_max,
+                       coast_max=coast_max, current_quantum=quantum,
                        uncertain=tuple(uncertain), objective=objective, steps=steps,
                        starts=_number(_pick(args, cfg, "starts"), "--starts", int),
                        seed=_number(_pick(args, cfg, "seed"), "--seed", int),

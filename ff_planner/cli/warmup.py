@@ -12,14 +12,15 @@ import sys
 import time
 
 from ff_planner.model import scara2
-from ff_planner.optimize import robust1d, robust2d
+from ff_planner.optimize import box_robust, robust1d, robust2d
 
 
 def warm_all(log=print) -> dict[str, float]:
     """Warm the 1-DOF and 2-DOF kernels; returns seconds per part."""
 
     times: dict[str, float] = {}
-    for name, fn in (("arm1dof", robust1d.warmup), ("scara2", scara2.warm_up),
+    for name, fn in (("arm1dof", robust1d.warmup), ("robust-box", box_robust.warmup),
+                     ("scara2", scara2.warm_up),
                      ("robust2d", robust2d.warm_up)):
         t0 = time.perf_counter()
         fn()

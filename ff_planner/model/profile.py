@@ -100,8 +100,9 @@ class PlanRequest:
     qf: Sequence[float] = (1.0,)             # rad
     tf: float = 1.0                          # s
     uncertain: Sequence[str] = ("pv", "pc", "pt")
-    objective: str = "robust-derivative"
-    steps: Optional[int] = None              # per joint; None = 2 + k (robust-box 8); 0 = chosen
+    objective: str = "robust-box"
+    steps: Optional[int] = None              # per joint; None = 2 + k (robust-box 8, others
+    #                                          tried while 8 has no robust plan); 0 = chosen
     starts: int = 50                         # 0 = chosen (1-DOF robust planners)
     seed: int = 0
     time_budget: float = 30.0                # s
@@ -110,6 +111,7 @@ class PlanRequest:
     tol: float = 1e-6                        # robustness tolerance on |dq(tf)/dp| and |q(tf) - qf|
     box: Optional[dict[str, float]] = None   # ± fraction per uncertain parameter (default 0.2)
     coast_max: float = DEFAULT_COAST_MAX     # s, robust-box: coast chosen in [coast, coast_max]
+    current_quantum: float = 0.0             # A, round the plan's currents to this grid (0 = none)
 
     @property
     def auto_steps(self) -> bool:
@@ -132,6 +134,13 @@ class PlanRequest:
             return max(BOX_DEFAULT_STEPS, 2 + len(self.uncertain))
         return 2 + len(self.uncertain)
 
+    def box_coast_max(self) -> float:
+        """robust-box: the longest coast (s) it may choose — ``coast_max``; left at its default
+        on a move no longer than that, half the move time (never below ``coast``)."""
+        if self.coast_max == DEFAULT_COAST_MAX and self.tf <= self.coast_max:
+            return max(float(self.coast), 0.5 * float(self.tf))
+        return float(self.coast_max)
+
     def validate(self) -> None:
         """Raise PlanningError/ParameterError with what to change; changes nothing."""
         nj = n_joints(self.model)
@@ -144,18 +153,21 @@ class PlanRequest:
             if not all(math.isfinite(float(x)) for x in v):
                 raise PlanningError(f"{name} must be finite, got {list(v)}")
         for name, x in (("tf", self.tf), ("coast", self.coast), ("time_budget", self.time_budget),
-                        ("coast_max", self.coast_max)):
+                        ("coast_max", self.coast_max), ("current_quantum", self.current_quantum)):
             if not math.isfinite(float(x)):
                 raise PlanningError(f"{name} must be finite, got {x}")
+        if self.current_quantum < 0.0:
+            raise PlanningError(f"current_quantum must be >= 0 A (0 = none), got "
+                                f"{self.current_quantum}")
         if not 0.0 < self.tf <= MAX_TF:
             raise PlanningError(f"move time tf must be in (0, {MAX_TF:g}] s, got {self.tf:g}")
-        if self.objective == "robust-box" and not self.coast <= self.coast_max < self.tf:
-            raise PlanningError(f"robust-box needs coast <= coast_max < tf, got coast = "
-                                f"{self.coast} s, coast_max = {self.coast_max} s, tf = {self.tf} s")
         if self.coast < 0:
             raise PlanningError(f"coast must be >= 0 s, got {self.coast}")
         if self.tf <= self.coast:
             raise PlanningError(f"move time tf = {self.tf} s must exceed the coast of {self.coast} s")
+        if self.objective == "robust-box" and not self.coast <= self.box_coast_max() < self.tf:
+            raise PlanningError(f"robust-box needs coast <= coast_max < tf, got coast = "
+                                f"{self.coast} s, coast_max = {self.coast_max} s, tf = {self.tf} s")
         if self.objective not in OBJECTIVES:
             raise PlanningError(f"unknown objective {self.objective!r}; use one of {', '.join(OBJECTIVES)}")
         bad = [u for u in self.uncertain if u not in p.friction_keys]

@@ -12,7 +12,8 @@ t_0 = 0 and t_N = tf − coast stay fixed. ``free_terms`` returns, in one compil
 
 The rest position is smooth in the switch times except where a velocity zero crossing meets a
 switch (the kink radius of ``hd_sim``); there the central difference is the mean of the two
-one-sided slopes. Units: rad, rad/s, A, s.
+one-sided slopes. When the coast length is a decision too, ``end_column`` gives the column of
+the coast-entry time t_N (central differences as for the switch times). Units: rad, rad/s, A, s.
 """
 from __future__ import annotations
 
@@ -105,3 +106,27 @@ def free_values(J, c, pvals, pscale, scales, times, cur, tf, q0, goal, W):
     g = np.empty(5)
     _nominal(J, c, pvals, pscale, times, cur, tf, q0, goal, W, g)
     return e, g
+
+
+@njit(cache=True, nogil=True)
+def end_column(J, c, pvals, pscale, scales, times, cur, tf, q0, goal, h, W):
+    """(∂e/∂t_N (S,), ∂g/∂t_N (5,)): central differences (±h s) in the coast-entry time
+    t_N = tf − coast, the column ``free_terms`` leaves out when the coast is a decision."""
+    n = cur.shape[0]
+    m = scales.shape[0]
+    seg = np.empty((0, 7))
+    ev = np.empty((0, 3))
+    qp = np.empty(m)
+    qm = np.empty(m)
+    gp = np.empty(5)
+    gm = np.empty(5)
+    tt = times.copy()
+    tt[n] = times[n] + h
+    _rest_all(J, c, pvals, scales, tt, cur, tf, q0, qp, seg, ev)
+    _nominal(J, c, pvals, pscale, tt, cur, tf, q0, goal, W, gp)
+    tt[n] = times[n] - h
+    _rest_all(J, c, pvals, scales, tt, cur, tf, q0, qm, seg, ev)
+    _nominal(J, c, pvals, pscale, tt, cur, tf, q0, goal, W, gm)
+    de = (qp - qm) / (2.0 * h)
+    dg = (gp - gm) / (2.0 * h)
+    return de, dg

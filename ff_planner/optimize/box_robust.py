@@ -25,7 +25,11 @@ CANDIDATES_WANT per coast); up to SCREEN_MAX of them per coast get a short equal
 with equal steps, then with free switch times from there (and, for N ≤ FREE_DIRECT_MAX_STEPS,
 also from the LM plan itself). The best verified plan among the LM plan, the equal-step and the
 free-time refinements is returned. With a ``grid`` the free switch times are rounded to it and
-the currents solved again. Units: rad, A, s.
+the currents solved again. The free-time refinement also moves the coast continuously within
+[coast, coast_max] (``FREE_COAST``; t_N = tf − coast a decision, ``box_kernels.end_column``),
+since the best plans have their coast-entry speed on the stopping bound. When no plan is
+derivative-robust, the LM end point of the shortest coast nearest the robust set (least |r|²)
+is the labelled best effort. Units: rad, A, s.
 """
 from __future__ import annotations
 
@@ -47,6 +51,7 @@ from ff_planner.optimize import box_kernels
 from ff_planner.optimize import lm1d as _lm1d
 from ff_planner.optimize.robust1d import (
     STOP_MARGIN,
+    stop_speed_bound,
     _no_plan,
     _Problem,
     _result,
@@ -72,6 +77,7 @@ CANDIDATES_WANT = 24    # LM plans collected per coast (the screening takes the 
 BARREN_STARTS = 128     # a coast whose first this many LM starts found nothing is given up
 STARTS_FACTOR = 10      # LM starts per coast = STARTS_FACTOR × request.starts (~0.1 ms a start)
 EXCHANGE_ROUNDS = 3     # check-set exchanges per refinement
+FREE_COAST = True       # the free-time refinement also moves the coast within [coast, coast_max]
 EXCHANGE_ADD = 3        # worst check samples added per exchange
 ERR_SCALE = 1e3         # the epigraph variable in mrad (SLSQP's tolerances suit O(1) values)
 
@@ -173,25 +179,50 @@ class _Box:
 
 
 class _FreeBox:
-    """The minimax problem of one coast with free switch times: x = (I (N), t_1..t_{N−1})."""
+    """The minimax problem with free switch times: x = (I (N), t_1..t_{N−1}[, t_N]).
 
-    def __init__(self, prob: _Problem, scales: np.ndarray):
+    With ``coast_range`` = (shortest, longest) coast (s) the coast-entry time t_N = tf − coast is
+    a decision too (in [tf − longest, tf − shortest]; the stopping bound follows it); otherwise
+    t_N stays at ``prob.times[N]``."""
+
+    def __init__(self, prob: _Problem, scales: np.ndarray,
+                 coast_range: Optional[tuple[float, float]] = None):
         self.prob = prob
         self.scales = np.ascontiguousarray(scales)
         self.memo: dict = {}
         n = prob.n
+        self.free_end = coast_range is not None
         self.end = float(prob.times[n])
+        if coast_range is not None:
+            self.end_lo = max(prob.tf - coast_range[1], n * MIN_STEP)
+            self.end_hi = max(prob.tf - coast_range[0], self.end_lo)
+        else:
+            self.end_lo = self.end_hi = self.end
+        self.nv = 2 * n - 1 + int(self.free_end)
         # each interior switch at least MIN_STEP from its neighbours and the ends
         self.lo = np.array([j * MIN_STEP for j in range(1, n)])
-        self.hi = np.array([self.end - (n - j) * MIN_STEP for j in range(1, n)])
+        self.hi = np.array([self.end_hi - (n - j) * MIN_STEP for j in range(1, n)])
 
     def times(self, x: np.ndarray) -> np.ndarray:
         n = self.prob.n
         t = np.empty(n + 1)
         t[0] = 0.0
-        t[1:n] = np.clip(x[n:2 * n - 1], self.lo, self.hi)
-        t[n] = self.end
+        t[n] = float(np.clip(x[2 * n - 1], self.end_lo, self.end_hi)) if self.free_end else self.end
+        t[1:n] = np.clip(x[n:2 * n - 1], self.lo, np.minimum(self.hi, t[n] - MIN_STEP *
+                                                               np.arange(n - 1, 0, -1)))
         return t
+
+    def stop_bound(self, x: np.ndarray) -> tuple[float, float]:
+        """(v_stop (rad/s) for the coast of x, its derivative in t_N (rad/s²))."""
+        pr = self.prob
+        if not self.free_end:
+            return pr.vb, 0.0
+        te = self.times(x)[pr.n]
+        h = 1e-6
+        vb = stop_speed_bound(pr.params, pr.tf - te)
+        d = (stop_speed_bound(pr.params, pr.tf - te - h)
+             - stop_speed_bound(pr.params, pr.tf - te + h)) / (2.0 * h)
+        return vb, d
 
     def terms(self, x: np.ndarray):
         """(e, ∂e/∂x, g, ∂g/∂x) at x (``box_kernels.free_terms``), memoised."""
@@ -202,9 +233,17 @@ class _FreeBox:
             p = pr.params
             n = pr.n
             cur = np.ascontiguousarray(x[:n], dtype=float)
-            self.memo[key] = box_kernels.free_terms(
-                p.J, p.n * p.kt, pr.pvals, pr.pscale, self.scales, self.times(x), cur, pr.tf,
+            t = self.times(x)
+            e, Ge, g, Gg = box_kernels.free_terms(
+                p.J, p.n * p.kt, pr.pvals, pr.pscale, self.scales, t, cur, pr.tf,
                 pr.q0, pr.goal, TIME_H, pr.W)
+            if self.free_end:
+                de, dg = box_kernels.end_column(p.J, p.n * p.kt, pr.pvals, pr.pscale,
+                                                self.scales, t, cur, pr.tf, pr.q0, pr.goal,
+                                                TIME_H, pr.W)
+                Ge = np.hstack([Ge, de[:, None]])
+                Gg = np.hstack([Gg, dg[:, None]])
+            self.memo[key] = (e, Ge, g, Gg)
         return self.memo[key]
 
     def values(self, x: np.ndarray):
@@ -223,33 +262,41 @@ class _FreeBox:
     def worst(self, x: np.ndarray) -> float:
         return _worst(self.prob, self.times(x), x[:self.prob.n], self.scales)
 
+    def start(self, I: np.ndarray, times: np.ndarray) -> np.ndarray:
+        """The decision vector of currents ``I`` (A) at step ``times`` (s)."""
+        n = self.prob.n
+        return np.concatenate([I, times[1:n]] + ([times[n:n + 1]] if self.free_end else []))
+
     def solve(self, x0: np.ndarray, deadline: float, maxiter: int = SOLVE_ITER) -> np.ndarray:
         """SLSQP on the epigraph form from ``x0``; the switch times enter in units of T_UNIT
         (currents and times then have Jacobian columns of like size)."""
         pr = self.prob
         n = pr.n
-        nv = 2 * n - 1
-        vb = pr.vb
+        nv = self.nv
         unit = np.ones(nv)
         unit[n:] = T_UNIT
         gaps = np.zeros((n, nv + 1))       # t_j − t_{j−1} ≥ MIN_STEP (j = 1..N), linear
         for j in range(n):
-            if j < n - 1:
+            if j < n - 1 or self.free_end:
                 gaps[j, n + j] = T_UNIT
             if j > 0:
                 gaps[j, n + j - 1] = -T_UNIT
         gap_rhs = np.zeros(n)
-        gap_rhs[n - 1] = self.end
+        if not self.free_end:
+            gap_rhs[n - 1] = self.end
 
         def terms(y):
             return self.terms(y[:nv] * unit)
 
         def ineq(y):
-            e, _, g, _ = self.values(y[:nv] * unit)
+            x = y[:nv] * unit
+            e, _, g, _ = self.values(x)
+            vb = self.stop_bound(x)[0]
             return np.concatenate([y[nv] - ERR_SCALE * e, y[nv] + ERR_SCALE * e,
                                    [vb - abs(g[4])], gaps @ y + gap_rhs - MIN_STEP])
 
         def ineq_jac(y):
+            x = y[:nv] * unit
             e, Ge, g, Gg = terms(y)
             m = e.shape[0]
             A = np.zeros((2 * m + 1 + n, nv + 1))
@@ -257,6 +304,8 @@ class _FreeBox:
             A[m:2 * m, :nv] = ERR_SCALE * Ge * unit
             A[:2 * m, nv] = 1.0
             A[2 * m, :nv] = -np.sign(g[4]) * Gg[4] * unit
+            if self.free_end:
+                A[2 * m, nv - 1] += self.stop_bound(x)[1] * T_UNIT
             A[2 * m + 1:] = gaps
             return A
 
@@ -280,6 +329,7 @@ class _FreeBox:
         grad_t = np.zeros(nv + 1)
         grad_t[nv] = 1.0
         bounds = ([(-pr.i_max, pr.i_max)] * n + list(zip(self.lo / T_UNIT, self.hi / T_UNIT))
+                  + ([(self.end_lo / T_UNIT, self.end_hi / T_UNIT)] if self.free_end else [])
                   + [(0.0, None)])
         res = minimize(lambda y: y[nv], y0, jac=lambda y: grad_t, method="SLSQP", bounds=bounds,
                        constraints=[{"type": "eq", "fun": eq, "jac": eq_jac},
@@ -288,7 +338,8 @@ class _FreeBox:
                        callback=stop_at_deadline)
         x = np.asarray(res.x[:nv], float) * unit
         x[:n] = np.clip(x[:n], -pr.i_max, pr.i_max)
-        x[n:] = self.times(x)[1:n]
+        t = self.times(x)
+        x[n:nv] = t[1:nv - n + 1]
         return x
 
 
@@ -306,12 +357,17 @@ def _with_times(prob: _Problem, times: np.ndarray, grid: Optional[float] = None)
     ``grid`` (s) the interior switch times are rounded to it (at least one grid step apart)."""
     t = np.array(times, dtype=float)
     if grid:
+        t[-1] = prob.tf - max(round((prob.tf - t[-1]) / grid), 1) * grid    # the coast too
         for j in range(1, t.shape[0] - 1):
             t[j] = max(round(t[j] / grid) * grid, t[j - 1] + grid)
         t[1:-1] = np.minimum(t[1:-1], t[-1] - grid * np.arange(t.shape[0] - 2, 0, -1))
     out = copy.copy(prob)
     out.times = np.ascontiguousarray(t)
     out.W = workspace(prob.n)
+    coast = float(prob.tf - t[-1])
+    if abs(coast - prob.coast) > 1e-12:     # the coast was a decision: its stopping bound
+        out.coast = coast
+        out.vb = stop_speed_bound(prob.params, coast)
     return out
 
 
@@ -324,9 +380,12 @@ def _polish(prob: _Problem, I: np.ndarray) -> Optional[np.ndarray]:
 
 
 def _candidates(prob: _Problem, starts: int, seed: int, deadline: float,
-                want: int = 1 << 30) -> tuple[list, int, int]:
+                want: int = 1 << 30, barren: Optional[int] = BARREN_STARTS,
+                closest: Optional[list] = None) -> tuple[list, int, int]:
     """Derivative-robust LM plans from up to ``starts`` seeded starts (the tuned chunk cycle),
-    stopping once ``want`` of them are found."""
+    stopping once ``want`` of them are found, or after ``barren`` starts that found none
+    (None: no such cut-off). ``closest`` ([|r|², I] or empty), if given, is kept at the LM end
+    point with the least residual |r|² (the best effort when none is robust)."""
     found: list[np.ndarray] = []
     tried = iters = chunk = 0
     cfg = prob.cfg()
@@ -334,15 +393,19 @@ def _candidates(prob: _Problem, starts: int, seed: int, deadline: float,
     counts = np.zeros(5, np.int64)
     ver = np.empty(10 + 2 * int(_lm1d.sweep_size(int(prob.umask.sum()), 1)))
     while tried < starts and len(found) < want and time.perf_counter() < deadline:
-        if not found and tried >= BARREN_STARTS:
+        if not found and barren is not None and tried >= barren:
             break       # measured: such coasts (long ones) yield 0-1 plans in 500 starts
         m = min(64, starts - tried)
         frac, oppose, mid = chunk_spread(prob.settings, chunk)
         block = np.empty((m, prob.n))
-        done, _, st, it, _ = prob.chunk(block, cfg, False, counts, ver, True,
+        done, _, st, it, f = prob.chunk(block, cfg, False, counts, ver, True,
                                         _seed_key(seed, chunk), frac * prob.i_max,
                                         direction if oppose else 0.0,
                                         (mid[0] * prob.i_max, mid[1] * prob.i_max))
+        if closest is not None and done:
+            s_best = int(np.argmin(f[:done]))
+            if math.isfinite(f[s_best]) and (not closest or f[s_best] < closest[0]):
+                closest[:] = [float(f[s_best]), block[s_best].copy()]
         tried += done
         iters += int(it[:done].sum())
         chunk += 1
@@ -366,10 +429,14 @@ def _refine_equal(prob: _Problem, I: np.ndarray, base: np.ndarray, check: np.nda
     return I
 
 
-def _refine(prob: _Problem, x: np.ndarray, base: np.ndarray, check: np.ndarray,
-            deadline: float) -> np.ndarray:
-    """Free-time minimax from ``x`` on the base samples, with exchange from the check set."""
-    box = _FreeBox(prob, base)
+def _refine(prob: _Problem, I: np.ndarray, base: np.ndarray, check: np.ndarray,
+            deadline: float, coast_range: Optional[tuple[float, float]] = None
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """Free-time minimax from currents ``I`` at ``prob.times`` on the base samples, with exchange
+    from the check set; the coast a decision too within ``coast_range`` (s). Returns (currents
+    (N,) A, step times (N + 1,) s)."""
+    box = _FreeBox(prob, base, coast_range)
+    x = box.start(I, prob.times)
     for _ in range(EXCHANGE_ROUNDS):
         x = box.solve(x, deadline)
         e = box_kernels.rest_errors(
@@ -378,10 +445,10 @@ def _refine(prob: _Problem, x: np.ndarray, base: np.ndarray, check: np.ndarray,
         if not np.all(np.isfinite(e)) or np.max(np.abs(e)) <= 1.02 * box.worst(x):
             break
         add = check[np.argsort(-np.abs(e))[:EXCHANGE_ADD]]
-        box = _FreeBox(prob, np.vstack([box.scales, add]))
+        box = _FreeBox(prob, np.vstack([box.scales, add]), coast_range)
         if time.perf_counter() > deadline:
             break
-    return x
+    return x[:prob.n].copy(), box.times(x)
 
 
 def plan_box_robust_1dof(request: PlanRequest, progress: Progress = None,
@@ -407,19 +474,26 @@ def plan_box_robust_1dof(request: PlanRequest, progress: Progress = None,
     base_scales = np.ascontiguousarray(box_samples(fr, FRICTION))
     check_scales = np.ascontiguousarray(box_check_samples(fr, FRICTION))
     lo = max(float(request.coast), 2.0 * STOP_MARGIN)
-    coasts = np.unique(np.linspace(lo, max(lo, float(request.coast_max)), COAST_LEVELS))
+    hi = max(lo, request.box_coast_max())
+    coasts = np.unique(np.linspace(lo, hi, COAST_LEVELS))
+    coast_range = (lo, hi)
     n = request.n_steps()
     tried = iters = 0
     per_coast: list[dict] = []
     fallback = None
+    closest: list = []       # [|r|², I]: the first coast's LM end point nearest the robust set
     pool: list = []          # (worst after the short minimax, its I, prob, the LM plan I0)
     for coast in coasts:
         if per_coast and time.perf_counter() > deadline:
             break
         req_c = dc_replace(request, coast=float(coast))
         prob = _Problem(req_c, params, n, grid)
+        # the shortest coast (the most feasible) gets every start: a hard task's robust plans
+        # can take hundreds of them; longer coasts are given up after BARREN_STARTS
         cands, t_, i_ = _candidates(prob, STARTS_FACTOR * int(request.starts),
-                                    int(request.seed), deadline, CANDIDATES_WANT)
+                                    int(request.seed), deadline, CANDIDATES_WANT,
+                                    None if not per_coast else BARREN_STARTS,
+                                    closest if not per_coast else None)
         if initial_currents is not None:
             init = np.array(initial_currents, dtype=float, ndmin=2).reshape(-1, n)
             out = np.ascontiguousarray(np.clip(init, -prob.i_max, prob.i_max))
@@ -476,12 +550,12 @@ def plan_box_robust_1dof(request: PlanRequest, progress: Progress = None,
             if time.perf_counter() > deadline:
                 break
             try:
-                x = _refine(prob, np.concatenate([J_, prob.times[1:n]]), base_scales,
-                            check_scales, deadline)
+                I_f, t_f = _refine(prob, J_, base_scales, check_scales, deadline,
+                                   coast_range if FREE_COAST else None)
             except (ValueError, ArithmeticError):
                 continue
-            prob_t = _with_times(prob, _FreeBox(prob, base_scales).times(x), grid)
-            consider(_polish(prob_t, x[:n]), prob_t)
+            prob_t = _with_times(prob, t_f, grid)
+            consider(_polish(prob_t, I_f), prob_t)
         if progress is not None:
             progress({"stage": f"robust-box refine {refined}", "starts_done": tried,
                       "best": float(best[0]) if best else math.inf})
@@ -492,7 +566,10 @@ def plan_box_robust_1dof(request: PlanRequest, progress: Progress = None,
     if best is None:
         assert fallback is not None     # the first coast always runs
         stats["stop_speed_bound"] = fallback.vb
-        return _no_plan(request, fallback, None, tried, iters, False, t0, stats, out_of_time)
+        if closest:
+            stats["best_effort_residual2"] = closest[0]
+        return _no_plan(request, fallback, closest[1] if closest else None, tried, iters, False,
+                        t0, stats, out_of_time)
     w, I, prob = best
     stats.update(box_worst=w, coast=prob.coast, stop_speed_bound=prob.vb,
                  step_durations=np.diff(prob.times).tolist())
@@ -504,3 +581,8 @@ def plan_box_robust_1dof(request: PlanRequest, progress: Progress = None,
            f"durations")
     return _result(req_c, prob, I, True, msg, tried, iters, initial_currents is not None, t0,
                    stats)
+
+
+def warmup() -> None:
+    """Compile (or load from numba's disk cache) the robust-box kernels: one small plan."""
+    plan_box_robust_1dof(PlanRequest(objective="robust-box", steps=5, starts=5, time_budget=60.0))

@@ -8,7 +8,10 @@ the planner service and handed to a worker process). Dispatch (``ROUTES``): robu
 (scara2, link 2 held); robust-derivative /
 robust-sampled -> ``robust1d.plan_robust_1dof`` (arm1dof) or ``robust2d.plan_robust_scara2``
 (scara2); time-optimal / energy-optimal -> ``baselines.plan_baseline`` (arm1dof). Errors are
-``PlanningError`` with the PlanTrajectory error name in ``.code``.
+``PlanningError`` with the PlanTrajectory error name in ``.code``. robust-box (the default
+objective) with steps unset, steps = 0 or starts = 0 goes through ``plan_auto_1dof`` (N and
+starts along ``auto_ladders``); ``request.current_quantum`` > 0 rounds the answer's currents to
+the drive's setpoint grid before its rest position and certificate are computed.
 """
 from __future__ import annotations
 
@@ -16,18 +19,19 @@ import math
 import time
 from dataclasses import dataclass
 from dataclasses import replace as dc_replace
-from typing import Callable, Optional, Sequence, Union
+from typing import Callable, Optional, Union
 
 import numpy as np
 
 from ff_planner.core.errors import ParameterError, PlanningError, WarmStartUnavailable, error_code_of
 from ff_planner.model.params import Arm1DofParams, Params, Scara2Params
-from ff_planner.model.profile import BOX_DEFAULT_STEPS, DEFAULT_STARTS, PlanRequest, PlanResult
+from ff_planner.model.profile import DEFAULT_STARTS, PlanRequest, PlanResult
 from ff_planner.model.simulate import rest_position
 from ff_planner.optimize.baselines import plan_baseline, reach_1dof
 from ff_planner.optimize.box_robust import plan_box_robust_1dof
 from ff_planner.optimize.certificate import certify_1dof
 from ff_planner.optimize.certificate2d import certify_scara2
+from ff_planner.optimize.quantize import quantize_result
 from ff_planner.optimize.robust1d import plan_robust_1dof
 from ff_planner.optimize.robust2d import plan_robust_scara2
 from ff_planner.optimize.robust2d_box import plan_box_robust_scara2
@@ -125,34 +129,65 @@ AUTO_OBJECTIVES = ("robust-derivative", "robust-sampled", "robust-box")
 AUTO_MAX_STEPS = 12                 # largest N the planner escalates to
 AUTO_STARTS = (50, 200, 1000)       # multistart counts tried per N before the next N
 BOX_TARGET = 5e-3                   # rad: robust-box escalates N until its box worst is below
-BOX_AUTO_STEP = 2                   # robust-box tries N = BOX_DEFAULT_STEPS, +2, ... up to the max
 
 
-def _good(result: PlanResult) -> bool:
-    """A truly robust plan (robust-box: and its box worst within BOX_TARGET)."""
+def _good(result: PlanResult, box_target: bool) -> bool:
+    """A truly robust plan (zero exact derivatives, verified); with ``box_target`` (robust-box,
+    steps = 0) also its box worst within BOX_TARGET."""
     if not (result.success and result.robust):
         return False
-    if result.objective == "robust-box":
+    if box_target and result.objective == "robust-box":
         return float(result.extra.get("box_worst", math.inf)) <= BOX_TARGET
     return True
 
 
+def auto_ladders(req: PlanRequest) -> tuple[list[int], list[int], bool]:
+    """(step counts N in the order tried, multistart counts tried per N, whether the box worst
+    must reach BOX_TARGET) of a request the facade plans with ``plan_auto_1dof``.
+
+    steps = 0: N from 2 + k up to AUTO_MAX_STEPS until a plan is truly robust (robust-box: and
+    its box worst ≤ BOX_TARGET, else the least box worst of them). robust-box with steps unset:
+    BOX_DEFAULT_STEPS, and only while it has no truly robust plan the others from 2 + k up
+    (measured: the robust set is not monotone in N — 0 → 2 rad in 1 s, k = 3 has robust plans
+    at N = 7 and 10, none at N = 8 in 1000 starts). starts = 0: the AUTO_STARTS ladder;
+    otherwise the given starts, escalated along AUTO_STARTS beyond them before N changes
+    (robust-box with steps unset) or not at all."""
+    k = len(req.uncertain)
+    box = req.objective == "robust-box"
+    if req.auto_steps:
+        ns = list(range(k + 2, AUTO_MAX_STEPS + 1))
+    elif box and req.steps is None:
+        first = req.n_steps()
+        ns = [first] + [n for n in range(k + 2, AUTO_MAX_STEPS + 1) if n != first]
+    else:
+        ns = [req.n_steps()]
+    if req.auto_starts:
+        ladder = list(AUTO_STARTS)
+    elif box and req.steps is None:
+        ladder = [int(req.starts)] + [s for s in AUTO_STARTS if s > int(req.starts)]
+    else:
+        ladder = [int(req.starts)]
+    return ns, ladder, bool(box and req.auto_steps)
+
+
+def _tried_text(tried: list[dict]) -> str:
+    parts = []
+    for row in tried:
+        what = "robust" if row["robust"] else "no robust plan"
+        if row["robust"] and "box_worst" in row:
+            what += f", box worst {row['box_worst'] * 1e3:.3g} mrad"
+        parts.append(f"N={row['steps']} ({row['starts']} starts): {what}")
+    return "; ".join(parts)
+
+
 def plan_auto_1dof(req: PlanRequest, route: Route, progress: Progress = None,
                    initial_currents: Optional[np.ndarray] = None) -> PlanResult:
-    """Choose N (steps = 0: from 2 + k up to AUTO_MAX_STEPS; robust-box: BOX_DEFAULT_STEPS, +2, ...)
-    and the starts (starts = 0:
-    AUTO_STARTS in turn, escalated before N): the first truly robust plan (``_good``), else the
-    best robust one (least box worst for robust-box), else the last best effort. ``extra["auto"]``
-    lists every (steps, starts) tried with its outcome; the time budget covers all of them."""
+    """Choose N and the starts along ``auto_ladders(req)``, starts escalated before N: the first
+    truly robust plan (``_good``), else the best robust one (least box worst for robust-box),
+    else the last best effort. ``extra["auto"]`` lists every (steps, starts) tried with its
+    outcome, and the message says it; the time budget covers all of them."""
     t0 = time.perf_counter()
-    k = len(req.uncertain)
-    if not req.auto_steps:
-        ns: Sequence[int] = [req.n_steps()]
-    elif req.objective == "robust-box":   # the box worst falls with N; small N rarely help
-        ns = range(max(BOX_DEFAULT_STEPS, k + 2), AUTO_MAX_STEPS + 1, BOX_AUTO_STEP)
-    else:
-        ns = range(k + 2, AUTO_MAX_STEPS + 1)
-    ladder = AUTO_STARTS if req.auto_starts else (int(req.starts),)
+    ns, ladder, box_target = auto_ladders(req)
     tried: list[dict] = []
     best: Optional[PlanResult] = None
     last: Optional[PlanResult] = None
@@ -181,11 +216,9 @@ def plan_auto_1dof(req: PlanRequest, route: Route, progress: Progress = None,
             if r.success and r.robust and (best is None or float(
                     r.extra.get("box_worst", 0.0)) < float(best.extra.get("box_worst", 0.0))):
                 best = r
-            if _good(r):
-                break
             if r.success and r.robust:
                 break            # robust at this N: more starts will not change N
-        if best is not None and _good(best):
+        if best is not None and _good(best, box_target):
             break
         if time.perf_counter() - t0 > req.time_budget:
             break
@@ -194,7 +227,13 @@ def plan_auto_1dof(req: PlanRequest, route: Route, progress: Progress = None,
     result.extra = dict(result.extra or {})
     result.extra["auto"] = {"tried": tried, "steps_chosen": result.profile.n_steps
                             if result.profile is not None else None,
-                            "max_steps": AUTO_MAX_STEPS, "starts_ladder": list(ladder)}
+                            "steps_ladder": list(ns), "max_steps": AUTO_MAX_STEPS,
+                            "starts_ladder": list(ladder),
+                            "box_target": BOX_TARGET if box_target else None,
+                            "box_target_met": bool(best is not None and box_target
+                                                   and _good(best, True))}
+    if len(tried) > 1 or req.auto_steps or req.auto_starts:
+        result.message = f"{result.message} [tried {_tried_text(tried)}]"
     result.starts_tried = sum(row["starts_tried"] for row in tried)
     return result
 
@@ -235,50 +274,8 @@ def check(request: PlanRequest) -> CheckedRequest:
     return CheckedRequest(request, params, tuple(float(r) for r in bound))
 
 
-def plan(request: Union[PlanRequest, CheckedRequest], progress: Progress = None,
-         initial_currents: Optional[np.ndarray] = None) -> PlanResult:
-    """Plan a rest-to-rest feedforward current profile.
-
-    A plain PlanRequest is checked first (``check``: PlanningError with ``.code`` for bad input
-    or an unreachable goal); a CheckedRequest is planned as it is. Returns a PlanResult; when no
-    plan met the tolerances it is the best plan found, labelled ``best_effort=True`` with
-    error_code NO_ROBUST_PLAN (or TIME_BUDGET_EXHAUSTED when the time budget ran out first). The
-    inner planners honour ``request.time_budget``; the facade labels a result that came back
-    late. ``initial_currents`` (A, N × joints) warm-starts the search from a known plan (e.g. a
-    motion-library neighbour); WarmStartUnavailable if the route's planner takes none
-    (``ROUTES``).
-    """
-    t0 = time.perf_counter()
-    checked = request if isinstance(request, CheckedRequest) else check(request)
-    req = checked.request
-    route = ROUTES[(req.model, req.objective)]
-    auto = req.auto_steps or req.auto_starts
-    if auto and not (req.model == "arm1dof" and req.objective in AUTO_OBJECTIVES):
-        req = dc_replace(req, steps=None if req.auto_steps else req.steps,
-                         starts=DEFAULT_STARTS if req.auto_starts else req.starts)
-        auto = False
-    if auto:
-        result = plan_auto_1dof(req, route, progress, initial_currents)
-    elif initial_currents is None:
-        result = route.fn(req, progress)
-    elif route.warm_start:
-        result = route.fn(req, progress, initial_currents=np.asarray(initial_currents, dtype=float))
-    else:
-        raise WarmStartUnavailable(f"the {req.model} {req.objective} planner "
-                                   f"({route.fn.__module__}.{route.fn.__name__}) takes no "
-                                   f"initial_currents")
-    elapsed = time.perf_counter() - t0
-    result.extra = dict(result.extra or {})
-    result.extra.setdefault("reach_bound", list(checked.reach))
-    result.extra["facade_time_s"] = elapsed
-    if elapsed > req.time_budget:
-        result.extra["over_time_budget"] = True
-    if result.profile is not None and "rest_position" not in result.extra:
-        try:   # where the arm stops with zero current after tf: what a user will see
-            rest = rest_position(checked.params, result.profile, [float(x) for x in result.q0])
-            result.extra["rest_position"] = [float(x) for x in rest]
-        except (ValueError, ArithmeticError):
-            pass
+def _certify(result: PlanResult, req: PlanRequest, checked: CheckedRequest) -> None:
+    """Attach the box certificate (1-DOF or SCARA) to ``result`` if it has none."""
     arm = result.params if isinstance(result.params, Arm1DofParams) else checked.params
     if (result.profile is not None and isinstance(arm, Arm1DofParams)
             and req.uncertain and result.certificate is None):
@@ -296,6 +293,88 @@ def plan(request: Union[PlanRequest, CheckedRequest], progress: Progress = None,
                                                 list(result.qf), list(req.uncertain), req.box)
         except (PlanningError, ValueError, ArithmeticError):
             pass
+
+
+def _quantize(result: PlanResult, req: PlanRequest, checked: CheckedRequest) -> None:
+    """Round the profile's currents to ``req.current_quantum`` (A): the profile as the drive
+    applies it; the rest position (and, through ``_certify``, the certificate) follow it."""
+    if result.profile is None:
+        return
+    try:
+        result.extra["current_quantum"] = quantize_result(
+            result, result.params if result.params is not None else checked.params,
+            float(req.current_quantum), list(req.uncertain))
+    except (ValueError, ArithmeticError) as exc:
+        result.extra["current_quantum"] = {"quantum": float(req.current_quantum),
+                                           "error": str(exc)}
+
+
+def apply_current_quantum(result: PlanResult, checked: CheckedRequest) -> PlanResult:
+    """A plan from elsewhere (e.g. a motion-library row) as ``plan`` would answer it under
+    ``checked.request.current_quantum``: currents rounded, rest position and certificate
+    recomputed for the rounded profile (unchanged when the quantum is 0 or the currents are on
+    the grid already)."""
+    req = checked.request
+    q = float(req.current_quantum)
+    prof = result.profile
+    if q <= 0.0 or prof is None:
+        return result
+    if np.allclose(prof.currents, np.round(prof.currents / q) * q, rtol=0.0, atol=1e-12):
+        return result
+    result.extra = dict(result.extra or {})
+    _quantize(result, req, checked)
+    _certify(result, req, checked)
+    return result
+
+
+def plan(request: Union[PlanRequest, CheckedRequest], progress: Progress = None,
+         initial_currents: Optional[np.ndarray] = None) -> PlanResult:
+    """Plan a rest-to-rest feedforward current profile.
+
+    A plain PlanRequest is checked first (``check``: PlanningError with ``.code`` for bad input
+    or an unreachable goal); a CheckedRequest is planned as it is. Returns a PlanResult; when no
+    plan met the tolerances it is the best plan found, labelled ``best_effort=True`` with
+    error_code NO_ROBUST_PLAN (or TIME_BUDGET_EXHAUSTED when the time budget ran out first). The
+    inner planners honour ``request.time_budget``; the facade labels a result that came back
+    late. ``initial_currents`` (A, N × joints) warm-starts the search from a known plan (e.g. a
+    motion-library neighbour); WarmStartUnavailable if the route's planner takes none
+    (``ROUTES``).
+    """
+    t0 = time.perf_counter()
+    checked = request if isinstance(request, CheckedRequest) else check(request)
+    req = checked.request
+    route = ROUTES[(req.model, req.objective)]
+    auto = req.auto_steps or req.auto_starts or (req.objective == "robust-box"
+                                                 and req.steps is None)
+    if auto and not (req.model == "arm1dof" and req.objective in AUTO_OBJECTIVES):
+        req = dc_replace(req, steps=None if req.auto_steps else req.steps,
+                         starts=DEFAULT_STARTS if req.auto_starts else req.starts)
+        auto = False
+    if auto:
+        result = plan_auto_1dof(req, route, progress, initial_currents)
+    elif initial_currents is None:
+        result = route.fn(req, progress)
+    elif route.warm_start:
+        result = route.fn(req, progress, initial_currents=np.asarray(initial_currents, dtype=float))
+    else:
+        raise WarmStartUnavailable(f"the {req.model} {req.objective} planner "
+                                   f"({route.fn.__module__}.{route.fn.__name__}) takes no "
+                                   f"initial_currents")
+    result.extra = dict(result.extra or {})
+    if req.current_quantum > 0.0:
+        _quantize(result, req, checked)
+    elapsed = time.perf_counter() - t0
+    result.extra.setdefault("reach_bound", list(checked.reach))
+    result.extra["facade_time_s"] = elapsed
+    if elapsed > req.time_budget:
+        result.extra["over_time_budget"] = True
+    if result.profile is not None and "rest_position" not in result.extra:
+        try:   # where the arm stops with zero current after tf: what a user will see
+            rest = rest_position(checked.params, result.profile, [float(x) for x in result.q0])
+            result.extra["rest_position"] = [float(x) for x in rest]
+        except (ValueError, ArithmeticError):
+            pass
+    _certify(result, req, checked)
     if not result.success:
         result.best_effort = result.profile is not None
         if result.error_code == "OK":

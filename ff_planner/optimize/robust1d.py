@@ -275,7 +275,7 @@ def solve_block(params: Arm1DofParams, q0: float, qf: float, tf: float, uncertai
     starts = np.array(starts, dtype=float, ndmin=2)
     if starts.ndim != 2 or not np.all(np.isfinite(starts)):
         raise PlanningError("starts must be a finite (M, N) array of currents (A)")
-    req = PlanRequest(model="arm1dof", q0=(float(q0),), qf=(float(qf),), tf=float(tf),
+    req = PlanRequest(objective="robust-derivative", model="arm1dof", q0=(float(q0),), qf=(float(qf),), tf=float(tf),
                       uncertain=tuple(uncertain), steps=starts.shape[1], coast=float(coast),
                       params=params, tol=float(tol), starts=max(1, starts.shape[0]))
     req.validate()
@@ -639,7 +639,7 @@ def warmup() -> float:
     Call it at install or node start so that no user request pays for compilation (cold compile
     ~10–25 s on a 2-core machine, cached load ~0.3 s)."""
     t0 = time.perf_counter()
-    plan_robust_1dof(PlanRequest(starts=200, seed=0, uncertain=("pc",)))
+    plan_robust_1dof(PlanRequest(objective="robust-derivative", starts=200, seed=0, uncertain=("pc",)))
     plan_robust_1dof(PlanRequest(objective="robust-sampled", starts=200, seed=0,
                                  uncertain=("pc",)))
     simulate(Arm1DofParams(), CurrentProfile.uniform([[1.0], [-1.0]], 1.0), [0.0], trajectory=True)

@@ -249,7 +249,7 @@ def warm_up() -> float:
     by planning a short task; returns the seconds it took. For install time or node start."""
     t = time.perf_counter()
     scara2.warm_up()
-    req = PlanRequest(model="scara2", q0=(-0.5, 0.0), qf=(0.5, 0.0), tf=1.0,
+    req = PlanRequest(objective="robust-derivative", model="scara2", q0=(-0.5, 0.0), qf=(0.5, 0.0), tf=1.0,
                       uncertain=scara2.FRICTION_NAMES, starts=32, seed=0, time_budget=600)
     plan_robust_scara2(req)
     return time.perf_counter() - t

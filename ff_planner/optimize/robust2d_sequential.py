@@ -42,7 +42,7 @@ def _phase(p: Scara2Params, joint: int, qa0: float, qaf: float, q_other: float, 
     k = len(names)
     for n in (k + 2, k + 3, k + 5):
         for s in range(3):
-            req = PlanRequest(model="arm1dof", q0=(qa0,), qf=(qaf,), tf=t,
+            req = PlanRequest(objective="robust-derivative", model="arm1dof", q0=(qa0,), qf=(qaf,), tf=t,
                               uncertain=tuple(names) or ("pc",), steps=max(n, 3),
                               coast=request.coast, params=pm, starts=400, seed=seed + 7919 * s,
                               time_budget=budget, tol=request.tol)

@@ -316,7 +316,8 @@ def section_single(rep: Report, starts: int, seed: int) -> None:
             "26 ms per start (MATLAB fmincon, i7-2620M).", "")
     rows, rec = [], {}
     for name in FRICTION:
-        req = PlanRequest(uncertain=(name,), steps=3, starts=starts, seed=seed, time_budget=60.0)
+        req = PlanRequest(objective="robust-derivative",
+                          uncertain=(name,), steps=3, starts=starts, seed=seed, time_budget=60.0)
         res, err = _plan(req)
         j = judge(p, res.profile, 0.0, 1.0, [name]) if res is not None and res.profile is not None else None
         rows.append(_plan_row(name, res, err, j, PAPER["single_ms_per_start"]))
@@ -366,7 +367,8 @@ def section_three(rep: Report, starts: int, seed: int, repeats: int) -> None:
     rows, rec, times = [], {}, []
     res0 = None
     for r in range(repeats):
-        req = PlanRequest(uncertain=FRICTION, steps=5, starts=starts, seed=seed + r, time_budget=60.0)
+        req = PlanRequest(objective="robust-derivative",
+                          uncertain=FRICTION, steps=5, starts=starts, seed=seed + r, time_budget=60.0)
         res, err = _plan(req)
         if res is not None:
             times.append(res.solve_time)
@@ -480,7 +482,8 @@ def _sweep_one(name: str, distances: np.ndarray, starts: int, seed: int):
     """(max |∂q/∂p| of the best plan, robust?) per goal distance, N = 3, one uncertain parameter."""
     vals, robust = [], []
     for d in distances:
-        res, _ = _plan(PlanRequest(qf=(float(d),), uncertain=(name,), steps=3, starts=starts,
+        res, _ = _plan(PlanRequest(objective="robust-derivative",
+                                   qf=(float(d),), uncertain=(name,), steps=3, starts=starts,
                                    seed=seed, time_budget=5.0))
         if res is None or res.profile is None or not res.sensitivities:
             vals.append(np.nan)
@@ -535,7 +538,7 @@ def refine_threshold(name: str, last: Optional[float], first_fail: Optional[floa
     for _ in range(REFINE_MAX_STEPS):
         ok = False
         for mult in REFINE_STARTS:
-            res, _ = _plan(PlanRequest(qf=(round(d, 6),), uncertain=(name,), steps=3,
+            res, _ = _plan(PlanRequest(objective="robust-derivative", qf=(round(d, 6),), uncertain=(name,), steps=3,
                                        starts=starts * mult, seed=seed, time_budget=20.0))
             ok = bool(res is not None and res.robust and res.success)
             tried.append({"qf": round(d, 6), "starts": starts * mult, "robust": ok})
@@ -703,7 +706,8 @@ def section_scara2(rep: Report, starts: int, seed: int) -> None:
             "Task [−0.5, 0] → [0.5, 0] rad in 1 s, table 3 arm, all six friction parameters "
             f"uncertain, up to {starts} starts (stops at the first verified robust plan). Paper: all 12 "
             "derivatives below the optimiser's tolerance; about 10 hours per optimisation.", "")
-    req = PlanRequest(model="scara2", q0=(-0.5, 0.0), qf=(0.5, 0.0), uncertain=names, steps=8,
+    req = PlanRequest(objective="robust-derivative",
+                      model="scara2", q0=(-0.5, 0.0), qf=(0.5, 0.0), uncertain=names, steps=8,
                       starts=starts, seed=seed, time_budget=60.0)
     res, err = _plan(req)
     if res is None or res.profile is None:
@@ -746,7 +750,8 @@ def run(out: Path, quick: bool = False, seed: int = 0,
             "kink (shown beside).", "")
     if {"single", "three", "sweep"} & set(sections):
         tw = time.perf_counter()
-        _plan(PlanRequest(uncertain=("pc",), steps=3, starts=2))   # load compiled kernels
+        _plan(PlanRequest(objective="robust-derivative",
+                          uncertain=("pc",), steps=3, starts=2))   # load compiled kernels
         rep.data["warmup_s"] = time.perf_counter() - tw
         rep.add(f"Loading the compiled (numba, cached) kernels took {rep.data['warmup_s']:.2f} s "
                 "once, before the timed runs.", "")

@@ -46,6 +46,12 @@ ROS_BUILTIN = ("use_sim_time", "start_type_description_service")  # declared by 
 #: the service's configuration converts and checks them.
 PARAMETERS: dict[str, tuple[str, Optional[tuple[float, float]]]] = {
     "default_model": ("model id used when a request leaves `model` empty: arm1dof | scara2", None),
+    "default_objective": ("objective used when a request leaves `objective` empty: robust-box "
+                          "(least worst rest error over the friction box) | robust-derivative | "
+                          "robust-sampled | time-optimal | energy-optimal", None),
+    "current_quantum": ("A, round every plan's currents to this grid, the drive's setpoint unit "
+                        "(EPOS4: nominal current / 1000, e.g. 0.003); rest position and "
+                        "certificate are for the rounded profile; 0 = none", (0.0, 1.0)),
     "default_starts": ("multistart count when a request says 0", (1, 10_000_000)),
     "default_time_budget": ("s, wall-clock planning budget when a request says 0", (0.0, 86400.0)),
     "max_time_budget": ("s; requests asking for more are refused", (0.0, 86400.0)),
@@ -208,7 +214,7 @@ class PlannerNode(Node):
         worker = threading.Thread(target=lambda: box.append(self.service.handle_fields(fields, progress, cancel)),
                                   name="ff_plan_goal_work", daemon=True)
         self.get_logger().info(f"plan_long goal {gid}: {goal.model or '-'} {list(goal.q0)} -> {list(goal.qf)} "
-                               f"tf={goal.move_time:g} {goal.objective or 'robust-derivative'}")
+                               f"tf={goal.move_time:g} {goal.objective or self.service.config.default_objective}")
         worker.start()
         total = int(goal.starts)
         steps = int(goal.steps) or (2 + len(goal.uncertain) if len(goal.uncertain) else 0)

@@ -64,9 +64,9 @@ from ff_planner.library.refusal import as_vector, failure
 from ff_planner.library.store import LibraryError, MotionLibrary, MotionRecord, record_from_result, task_key
 from ff_planner.library.warm import PlanFn, warm_plan
 from ff_planner.model.params import MODELS, Params, check_model, default_params, preset
-from ff_planner.model.profile import PlanRequest, PlanResult, RobustnessCertificate
+from ff_planner.model.profile import OBJECTIVES, PlanRequest, PlanResult, RobustnessCertificate
 from ff_planner.model.simulate import rest_position
-from ff_planner.optimize.planner import CheckedRequest, check, plan
+from ff_planner.optimize.planner import CheckedRequest, apply_current_quantum, check, plan
 from ff_planner.optimize.sample_box import box_fractions
 
 SHIFT_EPS = 1e-9          # rad / s: canonical distance below which a stored task is the same motion
@@ -107,6 +107,9 @@ class ServiceConfig:
     motion_dir: str = ""                 # "" = no motion files
     warmup: bool = True                  # plan a small task in each worker at start (JIT caches)
     switch_grid: float = 0.001           # s, switch-time grid when a request says 0 (1 ms SYNC); 0 = none
+    default_objective: str = PlanRequest().objective   # when a request leaves `objective` empty
+    current_quantum: float = 0.0         # A, round every plan's currents to this grid (the drive's
+    #                                      setpoint unit, e.g. an EPOS4's nominal current / 1000); 0 = none
 
     def validate(self) -> None:
         """Raise ServiceConfigError naming the first setting that cannot be used."""
@@ -132,6 +135,12 @@ class ServiceConfig:
             raise ServiceConfigError(f"coast must be >= 0 s, got {self.coast}")
         if not (math.isfinite(self.switch_grid) and 0.0 <= self.switch_grid < 1.0):
             raise ServiceConfigError(f"switch_grid must be in [0, 1) s (0 = no grid), got {self.switch_grid}")
+        if self.default_objective not in OBJECTIVES:
+            raise ServiceConfigError(f"default_objective {self.default_objective!r} is unknown; use "
+                                     f"one of {', '.join(OBJECTIVES)}")
+        if not (math.isfinite(self.current_quantum) and 0.0 <= self.current_quantum < 1.0):
+            raise ServiceConfigError(f"current_quantum must be in [0, 1) A (0 = none), got "
+                                     f"{self.current_quantum}")
 
     def model_params(self, model: str) -> Params:
         """The node's parameters for ``model``: its preset with the configured overrides."""
@@ -147,18 +156,24 @@ class ServiceConfig:
 # --- worker side (runs in the pool's processes) ------------------------------------------------
 def _worker_init(plan_fn: PlanFn, warmup: bool) -> None:
     """Pool initializer: plan one small task, cold and warm, k = 1 and 3 (loads the JIT caches of
-    both paths), so that no request pays for them."""
+    both paths), and a small robust-box task, so that no request pays for them."""
     if not warmup:
         return
     for unc in (["pc"], ["pv", "pc", "pt"]):
         try:
-            req = PlanRequest(model="arm1dof", q0=[0.0], qf=[1.0], tf=1.0, uncertain=unc, starts=20,
+            req = PlanRequest(objective="robust-derivative", model="arm1dof", q0=[0.0], qf=[1.0],
+                              tf=1.0, uncertain=unc, starts=20,
                               time_budget=120.0)
             res = plan_fn(req)
             if res.profile is not None:
                 plan_fn(replace(req, qf=[1.01]), initial_currents=res.profile.currents)
         except Exception:  # noqa: BLE001 - warming is best effort; a request reports real errors
             pass
+    try:    # the robust-box kernels (the default objective), one small plan
+        plan_fn(PlanRequest(objective="robust-box", model="arm1dof", q0=[0.0], qf=[1.0], tf=1.0,
+                            steps=5, starts=5, time_budget=120.0))
+    except Exception:  # noqa: BLE001 - warming is best effort
+        pass
 
 
 def _ping() -> int:
@@ -387,8 +402,8 @@ class PlannerService:
         params = self.params[model]
         if names:
             params = params.replace(**dict(zip(names, values)))   # unknown names: UNKNOWN_PARAMETER
-        objective = f.objective or "robust-derivative"
         c = self.config
+        objective = f.objective or c.default_objective
         tf = float(f.move_time)
         if not math.isfinite(tf) or tf <= 0:
             raise PlanningError(f"move_time must be a finite number > 0 s, got {tf}")
@@ -421,7 +436,8 @@ class PlannerService:
         kw: dict[str, Any] = dict(model=model, q0=[float(x) for x in f.q0], qf=[float(x) for x in f.qf],
                                   tf=tf, uncertain=uncertain, objective=objective, steps=steps,
                                   starts=starts, seed=int(f.seed), time_budget=budget, coast=c.coast,
-                                  params=params, tol=c.tol, box=box)
+                                  params=params, tol=c.tol, box=box,
+                                  current_quantum=float(c.current_quantum))
         if coast_max > 0.0:
             kw["coast_max"] = coast_max
         req = GridPlanRequest(grid=grid, **kw) if grid is not None else PlanRequest(**kw)
@@ -512,6 +528,11 @@ class PlannerService:
         elapsed = time.monotonic() - t0
         result.extra = dict(result.extra or {}, source=source, latency=elapsed)
         if result.profile is not None:
+            if request.current_quantum > 0.0:     # e.g. a library row planned without it
+                try:
+                    apply_current_quantum(result, checked)
+                except Exception as exc:  # noqa: BLE001 - the node must keep serving
+                    self.log(f"current quantum not applied: {exc!r}")
             result.extra["predicted_rest"] = predicted_rest(result, checked.params)
             if grid > 0.0 and not on_grid(result.profile, grid):
                 result.message = ((result.message + "; ") if result.message else "") + (
@@ -759,7 +780,7 @@ def _fits(rec: MotionRecord, request: PlanRequest) -> bool:
         if set(have) != set(want) or any(abs(have[k] - want[k]) > 1e-12 for k in want):
             return False
     if request.objective == "robust-box" and prof is not None \
-            and prof.coast > float(request.coast_max) + 1e-12:
+            and prof.coast > request.box_coast_max() + 1e-12:
         return False
     return True
 

@@ -67,8 +67,10 @@ def test_request_round_trip_with_overrides():
 def test_request_defaults_and_bad_override():
     msg = PlanTrajectory.Request(model="arm1dof", q0=[0.0], qf=[1.0], move_time=1.0, uncertain=["pc"])
     req = convert.request_from_msg(msg, defaults=PlanRequest(starts=7, time_budget=4.0))
-    assert req.steps is None and req.n_steps() == 3 and req.starts == 7 and req.time_budget == 4.0
-    assert req.objective == "robust-derivative"
+    assert req.steps is None and req.starts == 7 and req.time_budget == 4.0
+    assert req.objective == "robust-box" and req.n_steps() == 8        # the planner's defaults
+    msg.objective = "robust-derivative"
+    assert convert.request_from_msg(msg).n_steps() == 3                 # 2 + k for one parameter
     msg.override_names, msg.override_values = ["nope"], [1.0]
     with pytest.raises(ParameterError, match="nope"):
         convert.request_from_msg(msg)

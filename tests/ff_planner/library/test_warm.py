@@ -11,6 +11,7 @@ from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult
 
 
 def _request(q0=0.0, qf=1.0, tf=1.0, **kw) -> PlanRequest:
+    kw.setdefault("objective", "robust-derivative")
     return PlanRequest(model="arm1dof", q0=[q0], qf=[qf], tf=tf, uncertain=["pv", "pc", "pt"], **kw)
 
 

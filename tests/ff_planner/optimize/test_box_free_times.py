@@ -55,6 +55,40 @@ def test_free_terms_match_the_simulator_and_its_derivatives():
         assert np.allclose(Ge[:, 4 + j - 1], (qp - qm) / (2 * h), rtol=1e-3, atol=1e-6)
 
 
+def test_coast_column_matches_the_simulator_and_the_free_coast_stays_in_its_range():
+    from ff_planner.optimize.box_kernels import end_column
+    from ff_planner.optimize.box_robust import _FreeBox
+    from ff_planner.optimize.robust1d import _Problem, stop_speed_bound
+
+    p = Arm1DofParams()
+    nom = np.array([p.pv, p.pc, p.pt])
+    times = np.array([0.0, 0.2, 0.45, 0.7, 0.95])
+    cur = np.array([-2.0, 6.0, 1.0, -5.0])
+    scales = np.array([[1.0, 1.0, 1.0], [0.8, 1.2, 0.9], [1.1, 0.85, 1.2]])
+    de, dg = end_column(p.J, p.n * p.kt, nom, np.abs(nom), scales, times, cur, 1.0, 0.0, 1.0,
+                        1e-6, workspace(4))
+    h = 1e-5
+    tp, tm = times.copy(), times.copy()
+    tp[4] += h
+    tm[4] -= h
+    fr = np.ascontiguousarray(scales * nom)
+    qp, _ = batch_core(p.J, p.n * p.kt, fr, np.ones(3, bool), tp, cur, 1.0, 0.0)
+    qm, _ = batch_core(p.J, p.n * p.kt, fr, np.ones(3, bool), tm, cur, 1.0, 0.0)
+    assert np.allclose(de, (qp - qm) / (2 * h), rtol=1e-3, atol=1e-6)
+    assert np.all(np.isfinite(dg)) and abs(dg[4]) > 0.0     # the coast-entry speed moves with t_N
+    # the decision vector keeps t_N within [tf − coast_max, tf − coast] and the stopping bound
+    # follows the coast
+    prob = _Problem(PlanRequest(objective="robust-box", steps=4), p, 4)
+    box = _FreeBox(prob, scales, (0.05, 0.2))
+    x = box.start(cur, prob.times)
+    assert x.shape == (2 * 4,) and x[-1] == pytest.approx(0.95)
+    x[-1] = 0.5                                               # asks for a 0.5 s coast
+    assert box.times(x)[4] == pytest.approx(0.8)              # held at tf − coast_max
+    x[-1] = 0.85
+    vb, dvb = box.stop_bound(x)
+    assert vb == pytest.approx(stop_speed_bound(p, 0.15)) and dvb < 0.0
+
+
 @pytest.fixture(scope="module")
 def n5_plan():
     return plan(PlanRequest(objective="robust-box", steps=5, seed=0))
@@ -76,7 +110,8 @@ def test_n5_free_times_beat_the_best_equal_step_plan(n5_plan):
 def test_robust_box_default_steps():
     assert PlanRequest(objective="robust-box").n_steps() == BOX_DEFAULT_STEPS
     assert PlanRequest(objective="robust-box", steps=6).n_steps() == 6
-    assert PlanRequest().n_steps() == 5
+    assert PlanRequest().n_steps() == BOX_DEFAULT_STEPS          # robust-box is the default
+    assert PlanRequest(objective="robust-derivative").n_steps() == 5
     assert PlanRequest(objective="robust-box", uncertain=("pc",)).n_steps() == BOX_DEFAULT_STEPS
 
 
@@ -94,14 +129,20 @@ def test_robust_box_chosen_steps_ladder():
     from ff_planner.optimize.planner import Route, plan_auto_1dof
 
     seen = []
-    base = plan(PlanRequest(objective="robust-box", steps=8, starts=5, coast_max=0.1))
+    base = plan(PlanRequest(objective="robust-derivative", starts=200))    # a truly robust plan
 
     def fake(req, progress=None):
         seen.append(req.steps)
         out = base
-        out.extra = dict(base.extra, box_worst=0.004 if req.steps == 10 else 0.02)
+        out.objective = "robust-box"
+        out.extra = dict(base.extra, box_worst=0.004 if req.steps == 7 else 0.02)
         return out
 
     r = plan_auto_1dof(PlanRequest(objective="robust-box", steps=0), Route(fake, False))
-    assert seen == [8, 10]                       # stops at the first N within BOX_TARGET
-    assert [t["steps"] for t in r.extra["auto"]["tried"]] == [8, 10]
+    assert seen == [5, 6, 7]                     # from 2 + k up: stops within BOX_TARGET
+    assert [t["steps"] for t in r.extra["auto"]["tried"]] == [5, 6, 7]
+    assert r.extra["auto"]["box_target_met"] and "tried N=5" in r.message
+    # steps unset (the default): N = 8, raised only while no truly robust plan is found
+    seen.clear()
+    r = plan_auto_1dof(PlanRequest(objective="robust-box"), Route(fake, False))
+    assert seen == [8] and not r.extra["auto"]["box_target_met"]

@@ -37,8 +37,8 @@ def fresh_points(box: dict, count: int, seed: int) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def default_plan():
-    return plan(PlanRequest())
+def derivative_plan():
+    return plan(PlanRequest(objective="robust-derivative"))
 
 
 @pytest.fixture(scope="module")
@@ -59,7 +59,7 @@ def test_box_samples_cover_corners_centre_faces():
     assert np.all(np.abs(chk[:, 2] - 1.0) <= 0.1 + 1e-12)
 
 
-def test_robust_box_is_derivative_robust_and_beats_the_default(box_plan, default_plan):
+def test_robust_box_is_derivative_robust_and_beats_robust_derivative(box_plan, derivative_plan):
     r = box_plan
     assert r.success and r.robust and r.objective == "robust-box"
     assert r.extra["verification"]["max_abs_derivative"] <= 1e-6
@@ -67,7 +67,7 @@ def test_robust_box_is_derivative_robust_and_beats_the_default(box_plan, default
     assert 0.05 - 1e-12 <= r.profile.coast <= 0.25 + 1e-12
     corners = box_corners(box_fractions(KEYS), KEYS)
     assert rest_errors(r, corners).max() <= r.extra["box_worst"] + 1e-12
-    assert r.extra["box_worst"] < 0.5 * rest_errors(default_plan, corners).max()
+    assert r.extra["box_worst"] < 0.5 * rest_errors(derivative_plan, corners).max()
 
 
 def test_box_and_coast_max_are_validated():
@@ -82,7 +82,7 @@ def test_box_and_coast_max_are_validated():
         check(PlanRequest(tf=1000.0))
 
 
-@pytest.mark.parametrize("which", ["default_plan", "box_plan"])
+@pytest.mark.parametrize("which", ["derivative_plan", "box_plan"])
 def test_certificate_is_honest(which, request):
     r = request.getfixturevalue(which)
     c = r.certificate
@@ -97,8 +97,8 @@ def test_certificate_is_honest(which, request):
     assert len(c.switch_timing) == r.profile.n_steps
 
 
-def test_certificate_box_and_switch_timing(default_plan):
-    r = default_plan
+def test_certificate_box_and_switch_timing(derivative_plan):
+    r = derivative_plan
     narrow = certify_1dof(r.params, r.profile, 0.0, 1.0, ["pc"], {"pc": 0.05})
     assert set(narrow.per_parameter) == {"pc"} and set(narrow.worst_at) == {"pc"}
     assert narrow.worst_rest_error == pytest.approx(narrow.per_parameter["pc"], rel=1e-6)
@@ -124,7 +124,7 @@ def test_every_1dof_objective_gets_a_certificate():
 
 
 def test_chosen_steps_and_starts_escalate_starts_before_steps():
-    r = plan(PlanRequest(qf=(2.0,), steps=0, starts=0))
+    r = plan(PlanRequest(objective="robust-derivative", qf=(2.0,), steps=0, starts=0))
     assert r.success and r.robust
     tried = r.extra["auto"]["tried"]
     assert [(t["steps"], t["starts"]) for t in tried[:4]] == [(5, 50), (5, 200), (5, 1000),

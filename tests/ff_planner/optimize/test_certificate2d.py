@@ -29,7 +29,8 @@ def _fresh_errors(p: Scara2Params, profile: CurrentProfile, q0, qf, scales: np.n
 @pytest.fixture(scope="module")
 def held():
     """The section 4.2 task (link 2 held) through the facade, all six parameters uncertain."""
-    req = PlanRequest(model="scara2", q0=(-0.5, 0.0), qf=(0.5, 0.0), tf=1.0, uncertain=NAMES,
+    req = PlanRequest(objective="robust-derivative",
+                      model="scara2", q0=(-0.5, 0.0), qf=(0.5, 0.0), tf=1.0, uncertain=NAMES,
                       starts=32, seed=0, time_budget=60)
     return req, plan(req)
 

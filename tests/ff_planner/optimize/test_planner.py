@@ -84,8 +84,8 @@ def _fake_result(request, success):
 
 
 def _route_to(monkeypatch, fn, warm_start=False):
-    """Send the default request (arm1dof, robust-derivative) to ``fn``."""
-    monkeypatch.setitem(planner.ROUTES, ("arm1dof", "robust-derivative"), Route(fn, warm_start))
+    """Send the default request (arm1dof, the default objective) to ``fn``."""
+    monkeypatch.setitem(planner.ROUTES, ("arm1dof", PlanRequest().objective), Route(fn, warm_start))
 
 
 def test_failed_plans_are_labelled_best_effort(monkeypatch):
@@ -114,7 +114,7 @@ def test_progress_is_passed_through(monkeypatch):
         return _fake_result(req, True)
 
     _route_to(monkeypatch, fn)
-    r = plan(PlanRequest(), progress=seen.append)
+    r = plan(PlanRequest(steps=5), progress=seen.append)
     assert r.success and not r.best_effort and seen == [{"starts_done": 1}]
 
 
@@ -165,10 +165,10 @@ def test_warm_starts_follow_the_dispatch_table(monkeypatch):
 
     init = np.ones((5, 1))
     _route_to(monkeypatch, fn, warm_start=True)
-    assert plan(PlanRequest(), initial_currents=init).success
+    assert plan(PlanRequest(steps=5), initial_currents=init).success
     assert np.array_equal(seen["init"], init)
     _route_to(monkeypatch, fn, warm_start=False)
     with pytest.raises(WarmStartUnavailable):
-        plan(PlanRequest(), initial_currents=init)
+        plan(PlanRequest(steps=5), initial_currents=init)
     with pytest.raises(WarmStartUnavailable):
         plan(PlanRequest(objective="time-optimal"), initial_currents=init)

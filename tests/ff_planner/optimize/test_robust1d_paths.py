@@ -48,7 +48,7 @@ def test_hot_path_verification_matches_the_reference_simulator(robust_plan_1dof)
 
 
 def test_verify_refuses_what_is_not_robust():
-    prof = plan_robust_1dof(PlanRequest(uncertain=("pc",), starts=500, seed=0)).profile
+    prof = plan_robust_1dof(PlanRequest(objective="robust-derivative", uncertain=("pc",), starts=500, seed=0)).profile
     assert verify(T2, prof, 0.0, 1.0, ["pc"])["robust"]
     assert not verify(T2, prof, 0.0, 1.1, ["pc"])["robust"]            # not at the goal
     assert not verify(T2, prof, 0.0, 1.0, ["pv"])["robust"]            # not robust to pv
@@ -60,28 +60,31 @@ def test_verify_refuses_what_is_not_robust():
 
 def test_warm_only_runs_exactly_the_given_starts(robust_plan_1dof):
     good = robust_plan_1dof.profile.currents          # (N, 1) as stored in a profile / motion file
-    r = plan_robust_1dof(PlanRequest(starts=50, seed=1), initial_currents=good, warm_only=True)
+    r = plan_robust_1dof(PlanRequest(objective="robust-derivative",
+                                     starts=50, seed=1), initial_currents=good, warm_only=True)
     assert r.success and r.robust and r.warm_start and r.starts_tried == 1
     assert r.extra["warm_starts"] == 1 and r.extra["warm_starts_ok"] == 1
     bad = np.full((2, 5), 0.01)           # two hopeless given starts: no random start follows
-    r = plan_robust_1dof(PlanRequest(starts=50, seed=1), initial_currents=bad, warm_only=True)
+    r = plan_robust_1dof(PlanRequest(objective="robust-derivative",
+                                     starts=50, seed=1), initial_currents=bad, warm_only=True)
     assert not r.success and r.starts_tried == 2 and r.extra["warm_starts_ok"] == 0
     # several given starts: the good one after a bad one is found, and counted honestly
     both = np.vstack([bad[:1], good.reshape(1, -1)])
-    r = plan_robust_1dof(PlanRequest(starts=50, seed=1), initial_currents=both, warm_only=True)
+    r = plan_robust_1dof(PlanRequest(objective="robust-derivative",
+                                     starts=50, seed=1), initial_currents=both, warm_only=True)
     assert r.success and r.starts_tried == 2
     with pytest.raises(PlanningError, match="warm_only"):
-        plan_robust_1dof(PlanRequest(), warm_only=True)
-    patient = plan_robust_1dof(PlanRequest(), initial_currents=good, warm_only=True,
+        plan_robust_1dof(PlanRequest(objective="robust-derivative"), warm_only=True)
+    patient = plan_robust_1dof(PlanRequest(objective="robust-derivative"), initial_currents=good, warm_only=True,
                                warm_settings=dict(max_iter=100, abandon_iter=100))
     assert patient.success and patient.starts_tried == 1
     with pytest.raises(PlanningError, match="warm_settings"):
-        plan_robust_1dof(PlanRequest(), initial_currents=good, warm_settings={"zeal": 1})
+        plan_robust_1dof(PlanRequest(objective="robust-derivative"), initial_currents=good, warm_settings={"zeal": 1})
 
 
 def test_warm_starts_count_towards_the_requested_starts():
     bad = np.full(3, 0.01)
-    r = plan_robust_1dof(PlanRequest(uncertain=("pc",), qf=(7.0,), starts=5, seed=0),
+    r = plan_robust_1dof(PlanRequest(objective="robust-derivative", uncertain=("pc",), qf=(7.0,), starts=5, seed=0),
                          initial_currents=bad)
     assert not r.success and r.starts_tried == 5        # 1 given + 4 random, not 1 + 5
 
@@ -94,7 +97,7 @@ def test_solve_block_public_entry():
                                 "kink_radius"} <= set(ends[0])
     oks = [e for e in ends if e["ok"]]
     assert oks and all(e["status"] == "ok" for e in oks)
-    prof = plan_robust_1dof(PlanRequest(uncertain=("pc",), steps=3, starts=1),
+    prof = plan_robust_1dof(PlanRequest(objective="robust-derivative", uncertain=("pc",), steps=3, starts=1),
                             initial_currents=oks[0]["currents"], warm_only=True)
     assert prof.success                     # an "ok" end point passes the full verification
     first = solve_block(T2, 0.0, 1.0, 1.0, ("pc",), starts, stop_first=True)
@@ -107,11 +110,13 @@ def test_solve_block_public_entry():
 def test_long_moves_with_default_starts(name, goal):
     """Fig. 6: robust plans up to about the paper's thresholds with the default 50 starts;
     long moves saturate the middle current (held at the bound by the projected LM)."""
-    r = plan_robust_1dof(PlanRequest(qf=(goal,), uncertain=(name,), steps=3, starts=50, seed=0))
+    r = plan_robust_1dof(PlanRequest(objective="robust-derivative",
+                                     qf=(goal,), uncertain=(name,), steps=3, starts=50, seed=0))
     assert r.success and r.robust
     assert np.max(np.abs(r.profile.currents)) <= T2.i_max
 
 
 def test_beyond_the_threshold_no_robust_plan():
-    r = plan_robust_1dof(PlanRequest(qf=(2.5,), uncertain=("pv",), steps=3, starts=200, seed=0))
+    r = plan_robust_1dof(PlanRequest(objective="robust-derivative",
+                                     qf=(2.5,), uncertain=("pv",), steps=3, starts=200, seed=0))
     assert not r.success and r.error_code == "NO_ROBUST_PLAN" and r.best_effort

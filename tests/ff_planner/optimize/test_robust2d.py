@@ -15,7 +15,7 @@ P = Scara2Params()
 
 @pytest.fixture(scope="module")
 def plan():
-    req = PlanRequest(model="scara2", q0=(-0.5, 0.0), qf=(0.5, 0.0), tf=1.0,
+    req = PlanRequest(objective="robust-derivative", model="scara2", q0=(-0.5, 0.0), qf=(0.5, 0.0), tf=1.0,
                       uncertain=scara2.FRICTION_NAMES, starts=100000, seed=1, time_budget=60)
     seen = []
     res = plan_robust_scara2(req, progress=seen.append)
@@ -51,7 +51,7 @@ def test_plan_independently_resimulated(plan):
 
 
 def test_link2_moving_is_labelled_best_effort():
-    req = PlanRequest(model="scara2", q0=(0.0, 0.0), qf=(0.3, 0.3), tf=1.0,
+    req = PlanRequest(objective="robust-derivative", model="scara2", q0=(0.0, 0.0), qf=(0.3, 0.3), tf=1.0,
                       uncertain=("pc1", "pc2"), steps=4, starts=1, seed=0, time_budget=3)
     res = plan_robust_scara2(req)
     assert not res.success and res.error_code in ("NO_ROBUST_PLAN", "TIME_BUDGET_EXHAUSTED")
@@ -60,7 +60,7 @@ def test_link2_moving_is_labelled_best_effort():
 
 
 def test_tiny_budget_reports_clearly():
-    req = PlanRequest(model="scara2", q0=(-0.5, 0.0), qf=(0.5, 0.0), tf=1.0,
+    req = PlanRequest(objective="robust-derivative", model="scara2", q0=(-0.5, 0.0), qf=(0.5, 0.0), tf=1.0,
                       uncertain=scara2.FRICTION_NAMES, starts=1, seed=0, time_budget=1e-3)
     res = plan_robust_scara2(req)
     assert not res.success and res.error_code in ("NO_ROBUST_PLAN", "TIME_BUDGET_EXHAUSTED")

@@ -17,7 +17,8 @@ TASK = dict(model="scara2", q0=(-0.5, 0.0), qf=(0.5, 0.0), tf=1.0,
 
 @pytest.fixture(scope="module")
 def pair():
-    return plan(PlanRequest(**TASK)), plan(PlanRequest(**TASK, objective="robust-box"))
+    return (plan(PlanRequest(**TASK, objective="robust-derivative")),
+            plan(PlanRequest(**TASK, objective="robust-box")))
 
 
 def test_box_plan_stays_truly_robust(pair):

@@ -16,7 +16,7 @@ P = Scara2Params()
 
 @pytest.fixture(scope="module")
 def held():
-    req = PlanRequest(model="scara2", q0=(0.0, 0.0), qf=(0.6, 0.0), tf=1.0,
+    req = PlanRequest(objective="robust-derivative", model="scara2", q0=(0.0, 0.0), qf=(0.6, 0.0), tf=1.0,
                       uncertain=scara2.FRICTION_NAMES, seed=0, time_budget=60)
     res = plan_robust_scara2(req)
     assert res.success

@@ -84,7 +84,8 @@ def _send(clients, feedback, **fields):
     return fut.result()
 
 
-ONE_DOF = dict(model="arm1dof", q0=[0.0], qf=[1.0], move_time=1.0, uncertain=["pc"])
+ONE_DOF = dict(model="arm1dof", q0=[0.0], qf=[1.0], move_time=1.0, uncertain=["pc"],
+               objective="robust-derivative")
 
 
 def test_a_plan_with_progress_feedback_then_a_real_plan_with_its_certificate(clients):

@@ -118,7 +118,7 @@ def test_good_request_then_warm_from_the_library(client, planner_node):
 
 def test_robust_1dof_plan_cold_then_warm_from_its_neighbour(client):
     fields = dict(model="arm1dof", q0=[0.0], qf=[1.0], move_time=1.0, uncertain=["pv", "pc", "pt"],
-                  starts=50, seed=1)
+                  starts=50, seed=1, objective="robust-derivative")
     cold = _call(client, **fields)
     assert cold.success and cold.robust and not cold.warm_start, cold.message
     assert sorted(cold.sensitivity_names) == ["pc", "pt", "pv"]
@@ -244,7 +244,8 @@ def test_box_grid_certificate_and_predicted_rest_over_the_service(client):
     from ff_msgs.srv import PlanTrajectory
 
     fields = dict(model="arm1dof", q0=[0.0], qf=[0.6], move_time=1.0, uncertain=["pv", "pc", "pt"],
-                  steps=7, starts=100, seed=3, box_names=["pc"], box_fractions=[0.3])
+                  steps=7, starts=100, seed=3, box_names=["pc"], box_fractions=[0.3],
+                  objective="robust-derivative")
     res = _call(client, **fields)
     assert res.success and res.robust, res.message
     times = list(res.profile.step_times)

@@ -25,6 +25,21 @@ def test_service_config_refuses_unknown_names():
         config_from_mapping({"workers": 0})
 
 
+def test_default_objective_and_current_quantum_parameters(tmp_path):
+    cfg = config_from_mapping({"current_quantum": 0.003, "default_objective": "robust-derivative",
+                               "library_path": ""})
+    svc = PlannerService(cfg)
+    req = svc.make_request(RequestFields(model="arm1dof", q0=[0.0], qf=[1.0], move_time=1.0)).request
+    assert req.current_quantum == 0.003 and req.objective == "robust-derivative"
+    asked = svc.make_request(RequestFields(model="arm1dof", q0=[0.0], qf=[1.0], move_time=1.0,
+                                           objective="robust-box")).request
+    assert asked.objective == "robust-box"
+    with pytest.raises(ServiceConfigError, match="current_quantum"):
+        config_from_mapping({"current_quantum": -0.001})
+    with pytest.raises(ServiceConfigError, match="default_objective"):
+        config_from_mapping({"default_objective": "fastest"})
+
+
 def test_configured_parameters_reach_the_plan(tmp_path):
     cfg = config_from_mapping({"arm1dof.params.pc": 0.25, "library_path": str(tmp_path / "l.sqlite")})
     svc = PlannerService(cfg)
@@ -34,7 +49,8 @@ def test_configured_parameters_reach_the_plan(tmp_path):
     p = req.resolved_params()
     assert (p.pc, p.pv) == (0.25, -0.04)
     assert req.starts == cfg.default_starts and req.time_budget == cfg.default_time_budget
-    assert list(req.uncertain) == ["pv", "pc", "pt"] and req.n_steps() == 5
+    assert list(req.uncertain) == ["pv", "pc", "pt"] and req.objective == "robust-box"
+    assert req.objective == cfg.default_objective and req.n_steps() == 8 and req.current_quantum == 0.0
     # a request while no workers run is answered, not raised
     res = svc.handle(checked)
     assert not res.success and res.error_code == "INTERNAL_ERROR"
@@ -51,7 +67,8 @@ def test_service_warm_starts_from_the_nearest_stored_plan(tmp_path):
     svc = PlannerService(cfg, plan_fn=stub_plan)
     svc.start()
     try:
-        base = dict(model="arm1dof", q0=[0.0], move_time=1.0, uncertain=["pc"])
+        base = dict(model="arm1dof", q0=[0.0], move_time=1.0, uncertain=["pc"],
+                    objective="robust-derivative")
         # a stored neighbour with recognisable currents (as ff-library build would leave it)
         seed_req = svc.make_request(RequestFields(qf=[1.0], **base)).request
         stored = stub_plan(seed_req, initial_currents=np.array([[3.0], [-1.0], [2.0]]))
@@ -141,7 +158,8 @@ def test_planner_service_answers_grid_requests_warm_from_the_library(tmp_path):
         # a grid task (and a shifted copy of one): answered from the library without planning
         for q0, qf in ((0.0, 0.75), (0.25, 1.0), (1.0, 1.75)):
             res = svc.handle_fields(RequestFields(model="arm1dof", q0=[q0], qf=[qf], move_time=1.0,
-                                                  uncertain=["pc"], starts=200))
+                                                  uncertain=["pc"], starts=200,
+                                                  objective="robust-derivative"))
             assert res.success and res.warm_start, res.message
             assert res.extra["source"] in ("hit", "shift") and "motion library" in res.message
             assert on_grid(res.profile, 0.001) and res.certificate is not None
@@ -150,7 +168,8 @@ def test_planner_service_answers_grid_requests_warm_from_the_library(tmp_path):
         # a request between grid points: re-optimised from the nearest stored plan (worker process)
         svc.start()
         res = svc.handle_fields(RequestFields(model="arm1dof", q0=[0.0], qf=[0.85], move_time=0.95,
-                                              uncertain=["pc"], starts=200))
+                                              uncertain=["pc"], starts=200,
+                                              objective="robust-derivative"))
         assert res.success and res.warm_start and res.extra["source"] == "warm", res.message
         assert "warm start from library entry" in res.message
     finally:
