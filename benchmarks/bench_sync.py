@@ -5,7 +5,9 @@ Processes: the CAN hub producing SYNC (``ff-can-hub --sync-period``, its timer t
 SCHED_FIFO when permitted), the simulated EPOS4 + arm (``ff-sim-rig --bus-url``, recording each
 latched setpoint with the SYNC instant it took effect at), and this one: the bridge's
 ``EposMaster`` (``sync_producer: external``, RPDO transmission type 1) and ``SetpointPlayer``
-(default priorities unless ``--rt-priority``), stamps on the SYNC grid one period apart.
+(default priorities unless ``--rt-priority``), stamps on the SYNC grid one period apart; with
+``--player-process`` the player runs in its own process (``ProcessPlayer``: its own bus
+connection, SYNC watch, guard, units and RPDO send) and this process only feeds it.
 
 Figures:
 - ``switch_error_us``: latched SYNC instant at the simulated drive − planned time (stamp), p50 /
@@ -19,6 +21,7 @@ Figures:
 
     .venv/bin/python benchmarks/bench_sync.py --duration 60            # quiet
     .venv/bin/python benchmarks/bench_sync.py --duration 60 --load 2   # two busy processes
+    .venv/bin/python benchmarks/bench_sync.py --duration 60 --load 2 --player-process
 """
 from __future__ import annotations
 
@@ -36,6 +39,7 @@ import numpy as np
 
 from ff_hwbridge.drive.epos import EposMaster
 from ff_hwbridge.drive.player import PlayerConfig, SetpointPlayer, SetpointRejected
+from ff_hwbridge.drive.player_process import ProcessPlayer
 from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.sim.rig_process import RigProcess, free_port, rig_master_config
 
@@ -61,6 +65,10 @@ def main() -> int:
     ap.add_argument("--process-rt", type=int, default=0,
                     help="SCHED_FIFO for this whole process (every thread, as 'chrt -f N' would), "
                          "to measure what a master process with no normal-priority thread gains")
+    ap.add_argument("--sim-rt-priority", type=int, default=0,
+                    help="SCHED_FIFO for the simulated drive's process (chrt -f N; 0 = normal)")
+    ap.add_argument("--player-process", action="store_true",
+                    help="the player in its own process (player_process: true)")
     a = ap.parse_args()
 
     load = [subprocess.Popen(["sh", "-c", "while :; do :; done"]) for _ in range(a.load)]
@@ -74,7 +82,8 @@ def main() -> int:
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert hub.stdout is not None
     hub.stdout.readline()
-    sim = RigProcess(["--record", record], port=port, host_hub=False, bus_url=url)
+    sim = RigProcess(["--record", record], port=port, host_hub=False, bus_url=url,
+                     prefix=["chrt", "-f", str(a.sim_rt_priority)] if a.sim_rt_priority > 0 else ())
     master = None
     hub_sync: dict = {}
     submitted = 0
@@ -93,8 +102,11 @@ def main() -> int:
         master.enable()
         if not master.wait_for_state(State.OPERATION_ENABLED, 3.0):
             raise SystemExit(f"drive not enabled: {master.fault_reason}")
-        player = SetpointPlayer(master, PlayerConfig(rt_priority=a.rt_priority)).start()
+        kind = ProcessPlayer if a.player_process else SetpointPlayer
+        player = kind(master, PlayerConfig(rt_priority=a.rt_priority)).start()
         while player.sync_grid() is None:
+            if master.latched:
+                raise SystemExit(f"safe state before the stream: {master.fault_reason}")
             time.sleep(0.01)
         time.sleep(0.2)
         nominal, period = player.sync_grid()   # type: ignore[misc]
@@ -161,6 +173,7 @@ def main() -> int:
     result = {"benchmark": "bench_sync", "host": platform.node(), "cpus": os.cpu_count(),
               "duration_s": a.duration, "sync_period_s": a.sync_period, "busy_processes": a.load,
               "transport": "python-can-remote hub on 127.0.0.1, SYNC from the hub's timer thread",
+              "player_process": bool(a.player_process), "sim_rt_priority": a.sim_rt_priority,
               "player_rt_priority": a.rt_priority, "hub_rt_priority": a.hub_rt_priority,
               "process_rt_priority": a.process_rt,
               "loadavg_1min_before_after": [load_before[0], os.getloadavg()[0]],

@@ -47,6 +47,9 @@ Example (``config/bridge_epos4_1dof.yaml``)::
                                   #   (default: max(heartbeat_timeout, 20 SYNC periods))
     missed_cycle_tolerance: 1     # cycles: a setpoint that takes effect more than this many
                                   #   SYNC cycles after its own -> safe state (every miss counts)
+    player_process: false         # sync: the setpoint player (guard, units, RPDO, SYNC watch) in
+                                  #   its own process with its own bus connection
+                                  #   (ff_hwbridge.drive.player_process); false: a thread here
     joints:
       - name: joint1
         node_id: 1
@@ -179,6 +182,7 @@ class BridgeConfig:
     sync_producer: str = "master"
     sync_timeout: float = 0.0
     missed_cycle_tolerance: int = 1
+    player_process: bool = False
 
     @property
     def rt_priority(self) -> int:
@@ -367,7 +371,7 @@ def config_from_mapping(data: Mapping[str, Any]) -> BridgeConfig:
         if f.name in ("bus", "joints") or f.name not in data:
             continue
         v = data[f.name]
-        if f.name in ("reset_communication", "check_identity"):
+        if f.name in ("reset_communication", "check_identity", "player_process"):
             kw[f.name] = bool(v)
         elif f.name in ("scaling_source", "setpoint_timing", "sync_producer"):
             kw[f.name] = str(v).lower()

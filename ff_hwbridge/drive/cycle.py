@@ -15,7 +15,14 @@ setpoint at each SYNC. :class:`CycleScheduler` therefore
    bus's echo of our own frames, ``echo_time(marks)``; without an echo the local send time):
    applied = that SYNC's bus instant, missed cycles = how many SYNCs after its own cycle that
    was (counted in SYNCs seen, so SYNC jitter does not count). A setpoint that misses by more
-   than ``missed_tolerance`` cycles calls ``on_beyond(reason)``.
+   than ``missed_tolerance`` cycles calls ``on_fault(reason)``.
+
+A setpoint older than one already sent is dropped (``stale``: it would undo a newer command),
+unless it is a stop (``submit(..., stop=True)``, zero current): a stop is never dropped, it is
+sent at once (counted ``stale_stops``). A setpoint that is due (``clock_ns()`` past its stamp)
+while no SYNC has been seen cannot be placed on the grid: ``on_fault(reason)``. A payload that
+fails to prepare or to send, or a pass of the thread that raises, calls ``on_fault(reason)``
+too, besides the log: the player latches the safe state with the reason.
 
 Records are (stamp ns, applied SYNC instant ns); the switch error is applied − stamp.
 """
@@ -46,6 +53,7 @@ class _Item:
     stamp_ns: int
     order: int
     payload: Any = field(compare=False)
+    stop: bool = field(default=False, compare=False)
 
 
 @dataclass
@@ -93,13 +101,15 @@ class CycleScheduler:
                  report: Callable[[Resolved], None], *,
                  echo_time: Callable[[tuple[int, ...]], Optional[int]] = lambda marks: None,
                  prepare: Optional[Callable[[Any], Any]] = None,
-                 on_beyond: Callable[[str], object] = lambda reason: None,
+                 on_fault: Callable[[str], object] = lambda reason: None,
                  tolerance: float = 0.1, missed_tolerance: int = 1, rt_priority: int = 0,
-                 max_records: int = 200_000, name: str = "ff-cycle-scheduler") -> None:
+                 max_records: int = 200_000, name: str = "ff-cycle-scheduler",
+                 clock_ns: Callable[[], int] = time.time_ns) -> None:
         self.watch = watch
         self._send, self._report, self._prepare = send, report, prepare
         self._echo_time = echo_time
-        self._on_beyond = on_beyond
+        self._on_fault = on_fault
+        self._clock_ns = clock_ns
         self.period_ns = watch.period_ns
         self._tol_ns = int(tolerance * self.period_ns)
         self.missed_tolerance = int(missed_tolerance)
@@ -115,7 +125,7 @@ class CycleScheduler:
         self._last_stamp: Optional[int] = None
         self.records: deque[tuple[int, int]] = deque(maxlen=max_records)
         self._leads: deque[int] = deque(maxlen=max_records)
-        self.late = self.stale = self.errors = 0
+        self.late = self.stale = self.stale_stops = self.errors = 0
         self.missed = self.missed_max = self.superseded = 0
         self._last_applied_ns: Optional[int] = None
         watch.add_listener(self._on_sync)
@@ -142,9 +152,11 @@ class CycleScheduler:
         self.stop()
         self.watch.remove_listener(self._on_sync)
 
-    def submit(self, stamp_ns: int, payload: Any) -> None:
+    def submit(self, stamp_ns: int, payload: Any, stop: bool = False) -> None:
+        """Queue ``payload`` for the SYNC at or after ``stamp_ns``; ``stop``: a stop (zero
+        current), never dropped as stale."""
         with self._cond:
-            heapq.heappush(self._heap, _Item(int(stamp_ns), next(self._counter), payload))
+            heapq.heappush(self._heap, _Item(int(stamp_ns), next(self._counter), payload, bool(stop)))
             self._cond.notify_all()
 
     def clear(self) -> int:
@@ -164,7 +176,7 @@ class CycleScheduler:
     def reset_stats(self) -> None:
         self.records.clear()
         self._leads.clear()
-        self.late = self.stale = self.missed = self.missed_max = self.superseded = 0
+        self.late = self.stale = self.stale_stops = self.missed = self.missed_max = self.superseded = 0
 
     def grid(self) -> Optional[tuple[int, int]]:
         """(nominal instant of the latest SYNC, period) in ns; None before the first SYNC."""
@@ -207,10 +219,22 @@ class CycleScheduler:
             try:
                 if self._cycle():
                     return
-            except Exception:  # noqa: BLE001 - the thread must survive whatever one cycle does
-                self.errors += 1
-                log.exception("setpoint cycle failed")
+            except Exception as exc:  # noqa: BLE001 - the thread must survive whatever one cycle does
+                self._failed("a pass of the setpoint cycle", None, exc)
                 time.sleep(0.001)
+
+    def _failed(self, what: str, item: Optional[_Item], exc: BaseException) -> None:
+        """Logged, counted and ``on_fault(reason)``: what failed cannot be trusted on the bus."""
+        self.errors += 1
+        log.exception("%s failed", what)
+        stamp = f" (setpoint stamped {item.stamp_ns} ns)" if item is not None else ""
+        self._fault(f"setpoint cycle: {what} failed{stamp}: {type(exc).__name__}: {exc}")
+
+    def _fault(self, reason: str) -> None:
+        try:
+            self._on_fault(reason)
+        except Exception:  # noqa: BLE001 - the thread must survive a failing reaction
+            log.exception("reacting to a setpoint cycle fault failed")
 
     def _cycle(self) -> bool:
         """One pass: resolve what its SYNC has latched, send what is due; True when stopped."""
@@ -228,19 +252,41 @@ class CycleScheduler:
                     if k <= 1:
                         item = heapq.heappop(self._heap)
                         break
-                self._cond.wait(0.05)
+                elif self._heap and self._heap[0].stamp_ns <= self._clock_ns():
+                    item = heapq.heappop(self._heap)         # due, and no SYNC to place it on
+                    break
+                self._cond.wait(0.05 if g is not None else 0.005)
             if self._stop:
                 return True
         for r in done:
             self._deliver(r)
-        if item is not None and g is not None:
-            self._send_item(item, *g)
+        if item is not None:
+            if g is not None:
+                self._send_item(item, *g)
+            else:
+                self._unplaceable(item)
         return False
+
+    def _unplaceable(self, item: _Item) -> None:
+        """A setpoint due while no SYNC has been seen: no drive latches it; a stop is sent
+        all the same, and the safe state is called for with the reason."""
+        if item.stop:
+            try:
+                payload = self._prepare(item.payload) if self._prepare is not None else item.payload
+                self._send(item.stamp_ns, payload)
+            except Exception:  # noqa: BLE001
+                self.errors += 1
+                log.exception("sending a stop without SYNC failed")
+        self._fault(f"setpoint stamped {item.stamp_ns} ns ({'stop' if item.stop else 'current'}) "
+                    f"is due but no SYNC has been seen: it cannot be placed on the SYNC grid "
+                    f"({self.period_ns / 1e6:g} ms)")
 
     def _send_item(self, item: _Item, ev: SyncEvent, nominal_ns: int) -> None:
         if self._last_stamp is not None and item.stamp_ns < self._last_stamp:
-            self.stale += 1
-            return
+            if not item.stop:
+                self.stale += 1
+                return
+            self.stale_stops += 1          # a stop is sent at once, never dropped
         k = self._cycles_ahead(item.stamp_ns, nominal_ns)
         target = nominal_ns + k * self.period_ns
         payload = item.payload
@@ -249,12 +295,11 @@ class CycleScheduler:
                 payload = self._prepare(payload)
             seen = self.watch.latest()
             marks, token = self._send(item.stamp_ns, payload)
-        except Exception:  # noqa: BLE001 - the thread must survive a failing send
-            self.errors += 1
-            log.exception("sending a setpoint failed")
+        except Exception as exc:  # noqa: BLE001 - the thread must survive a failing send
+            self._failed("preparing / sending a setpoint", item, exc)
             return
         sent = time.time_ns()
-        self._last_stamp = item.stamp_ns
+        self._last_stamp = max(item.stamp_ns, self._last_stamp or item.stamp_ns)
         seen_count = seen.count if seen is not None else ev.count
         lead = sent - (seen.bus_ns if seen is not None else ev.bus_ns)
         with self._cond:
@@ -297,7 +342,7 @@ class CycleScheduler:
         except Exception:  # noqa: BLE001
             log.exception("reporting a setpoint failed")
         if r.missed_cycles > self.missed_tolerance:
-            self._on_beyond(f"setpoint missed its SYNC cycle: took effect {r.missed_cycles} "
+            self._fault(f"setpoint missed its SYNC cycle: took effect {r.missed_cycles} "
                             f"cycle(s) of {self.period_ns / 1e6:g} ms late (missed_cycle_tolerance "
                             f"{self.missed_tolerance}); stamp {r.stamp_ns} ns, sent "
                             f"{(r.sent_ns - r.stamp_ns) / 1e3:+.0f} µs from it")

@@ -165,6 +165,12 @@ class EposMaster:
         self.tx_errors = 0
         self.sync_watch = SyncWatch(config.sync_period)
         self.echo = False                 # the bus echoes our frames (set at connect)
+        # a setpoint player in another process owns the currents (player_process): this master
+        # then sends RPDO1 with 0 current only (state machine, reactions) and leaves the
+        # refresh of an enabled drive's RPDO to the player; ``gate_listener()`` is called
+        # whenever what the player may send (``gate()``) may have changed
+        self.external_player = False
+        self.gate_listener: Optional[Callable[[], None]] = None
         self._sync_expected_since: Optional[float] = None   # monotonic s: SYNC must come
 
     # --- properties ---------------------------------------------------------------------------
@@ -625,7 +631,8 @@ class EposMaster:
                 for d in self._drives:
                     # keep the RPDO stream (and so the drive's RPDO deadline) fed even when no
                     # TPDO arrives to step the state machine
-                    if d.operational and d.feedback.state is not None and now - d.last_tx >= REFRESH_PERIOD:
+                    if (d.operational and d.feedback.state is not None and not self._player_owns(d)
+                            and now - d.last_tx >= REFRESH_PERIOD):
                         with self._send_lock:
                             self._send_rpdo(d, d.controlword, d.setpoint)
                     if d.history_wanted and d.operational:
@@ -744,11 +751,14 @@ class EposMaster:
         return None
 
     def _react(self, reason: str) -> None:
-        log.error("safe state: %s", reason)
         t_latch = self.clock()
         for d in self._drives:
             state = d.feedback.state
             d.target = State.QUICK_STOP_ACTIVE if state is State.OPERATION_ENABLED else State.SWITCH_ON_DISABLED
+        self._gate_changed()              # an external player stops sending before the reaction
+        log.error("safe state: %s", reason)
+        for d in self._drives:
+            state = d.feedback.state
             if d.operational:
                 cw = (cia402.CONTROLWORD[cia402.Command.QUICK_STOP]
                       if d.target is State.QUICK_STOP_ACTIVE
@@ -823,10 +833,13 @@ class EposMaster:
             fb = d.feedback
             fb.statusword, fb.position_raw = sw, pos
             fb.position = d.units.increments_to_rad(pos)
+            before = fb.state
             try:
                 fb.state = cia402.decode_statusword(sw)
             except cia402.StatuswordError:
                 fb.state = None
+            if fb.state is not before and self.external_player:
+                self._gate_changed()
             now = self.clock()
             fb.stamp = now
             fb.sample_ns = int(round(timestamp * 1e9)) if timestamp else time.time_ns()
@@ -882,10 +895,35 @@ class EposMaster:
             # controlword (a lost quick stop must not leave the drive driving current), and
             # refresh the RPDO now and then anyway (a lost setpoint heals)
             since = now - d.last_tx
+            if self._player_owns(d) and cw == d.controlword:
+                return                    # the player's RPDOs (and refreshes) carry it
             if (cw != d.controlword or setpoint != d.setpoint
                     or (state is not target and since >= RESEND_PERIOD)
                     or since >= REFRESH_PERIOD):
                 self._send_rpdo(d, cw, setpoint)
+
+    def gate(self) -> list[tuple[int, bool]]:
+        """Per joint: (controlword, True when a current may be sent: operational, in and meant
+        for Operation enabled, no safe state latched)."""
+        latched = self.guard.latched
+        return [(d.controlword, bool(not latched and d.operational
+                                     and d.feedback.state is State.OPERATION_ENABLED
+                                     and d.target is State.OPERATION_ENABLED))
+                for d in self._drives]
+
+    def _gate_changed(self) -> None:
+        fn = self.gate_listener
+        if fn is not None:
+            try:
+                fn()
+            except Exception:  # noqa: BLE001 - the caller is the state machine / a reaction
+                log.exception("gate listener failed")
+
+    def _player_owns(self, d: _Drive) -> bool:
+        """An external player feeds this enabled drive's RPDO (no refresh from here)."""
+        return (self.external_player and not self.guard.latched
+                and d.feedback.state is State.OPERATION_ENABLED
+                and d.target is State.OPERATION_ENABLED)
 
     def _sync_fresh(self) -> bool:
         """A SYNC came within the last three periods (the reaction's RPDO will be latched)."""
@@ -907,13 +945,16 @@ class EposMaster:
     def _send_rpdo(self, d: _Drive, controlword: int, setpoint: int) -> None:
         """Send RPDO1 (controlword + raw setpoint, clamped to the raw limit)."""
         sp = max(-d.raw_limit, min(d.raw_limit, int(setpoint)))
-        if self.guard.latched:
+        if self.guard.latched or self.external_player:
             sp = 0
         data = struct.pack(d.rx_fmt, int(controlword) & 0xFFFF, sp)
         with self._send_lock:
+            changed = d.controlword != int(controlword) & 0xFFFF
             d.controlword = int(controlword) & 0xFFFF
             d.setpoint = sp
             d.last_tx = self.clock()
+            if changed and self.external_player:
+                self._gate_changed()      # the player learns the new controlword first
             try:
                 self._connected_network().send_message(0x200 + d.node_id, data)
                 d.tx_seq += 1
@@ -926,6 +967,9 @@ class EposMaster:
         now = self.clock()
         for d in self._drives:
             d.target = target
+        if self.external_player:
+            self._gate_changed()
+        for d in self._drives:
             if d.feedback.state is not None:
                 self._step(d, now)
 

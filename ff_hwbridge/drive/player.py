@@ -22,6 +22,15 @@ SYNC before that one has been seen (up to one period early), and reported once i
 ``rpdo_sent_ns`` the send and ``missed_cycles`` how many SYNCs late it took effect (counted;
 more than ``missed_cycle_tolerance`` latches the safe state).
 
+Stops: a setpoint whose currents are all zero is a stop. Whatever the phase bookkeeping does, a
+stop is never dropped (applied at once even when a later-stamped setpoint has been sent) and
+the shift onto the grid never puts a setpoint before one stamped earlier that was submitted
+before it (the shifted stamps keep the order of the stamps), so a zero stamped after a step
+takes effect at or after it (:class:`~ff_hwbridge.drive.placement.GridPlacement`). A setpoint
+that cannot be placed on the SYNC grid (due while no SYNC has been seen), or whose guard,
+conversion or send fails, latches the safe state with the reason (``EposMaster.trip``), besides
+the log.
+
 A latched safe state drops every pending setpoint; ``stop()`` drops them, stops the thread and
 commands zero current. Stamps are integer ns on ``clock_ns`` (default ``time.time_ns``, the ROS
 system clock).
@@ -37,6 +46,7 @@ from typing import Any, Callable, Optional, Sequence
 from ff_hwbridge.drive.config import BridgeConfig
 from ff_hwbridge.drive.cycle import CycleScheduler, Resolved
 from ff_hwbridge.drive.epos import EposMaster, PreparedCommand
+from ff_hwbridge.drive.placement import GridPlacement
 from ff_hwbridge.drive.scheduler import StampScheduler, SwitchStats
 
 __all__ = ["AppliedSetpoint", "PlayerConfig", "SetpointPlayer", "SetpointRejected"]
@@ -50,7 +60,6 @@ SWITCH_INTERVAL = 0.0002  # s, thread switch interval of a process running a syn
 LATE_THRESHOLD = 0.0005   # s: a setpoint sent more than this after its stamp counts as late
 MAX_RECORDS = 200_000     # (stamp, sent) pairs the statistics keep
 MAX_REPORTS = 10_000      # applied setpoints waiting for ``take_applied()`` (oldest dropped)
-MAX_PHASES = 1_000        # profiles whose shift onto the SYNC grid is remembered
 
 
 @dataclass(frozen=True)
@@ -124,17 +133,20 @@ class SetpointPlayer:
         if self.synchronous:
             self._cycle = CycleScheduler(
                 master.sync_watch, self._send_cycle, self._report_cycle, echo_time=master.echo_time,
-                prepare=self._prepare, on_beyond=master.trip,
+                prepare=self._prepare, on_fault=master.trip,
                 tolerance=self.config.cycle_tolerance,
                 missed_tolerance=master.config.missed_cycle_tolerance,
-                rt_priority=self.config.rt_priority, max_records=MAX_RECORDS, name=name)
+                rt_priority=self.config.rt_priority, max_records=MAX_RECORDS, name=name,
+                clock_ns=clock_ns)
         self._scheduler: StampScheduler | CycleScheduler = self._cycle or StampScheduler(self._apply, clock_ns=clock_ns,
                                          spin_margin=self.config.spin_margin,
                                          max_records=MAX_RECORDS,
                                          late_threshold=LATE_THRESHOLD, name=name,
                                          rt_priority=self.config.rt_priority,
-                                         prepare=self._prepare if self.config.prepare_ahead else None)
-        self._phases: dict[str, int] = {}      # profile id -> its shift onto the SYNC grid (ns)
+                                         prepare=self._prepare if self.config.prepare_ahead else None,
+                                         on_error=master.trip)
+        # synchronous: one shift onto the SYNC grid per profile run, the order of stamps kept
+        self._placement = GridPlacement(self._cycle.grid) if self._cycle is not None else None
         master.pending_fn = lambda: self._scheduler.pending > 0
         master.add_fault_listener(self._on_fault)
 
@@ -167,31 +179,10 @@ class SetpointPlayer:
         running = not last and (bool(profile_id) or any(c != 0.0 for c in amps))
         self.master.note_setpoint(motion_running=running)
         stamp = int(stamp_ns)
-        if self._cycle is not None and profile_id:
-            stamp += self._phase(str(profile_id), stamp, bool(last))
-        self._scheduler.submit(stamp, _Queued(amps, int(seq), str(profile_id), bool(last)))
-
-    def _phase(self, profile_id: str, stamp_ns: int, last: bool) -> int:
-        """ns: the shift that puts a profile onto the SYNC grid as a whole. Its first setpoint
-        goes to the first SYNC at or after its stamp (shift 0 … one period); every later one of
-        the same profile gets the same shift. A profile whose switch times sit on the grid (the
-        planner's switch_grid) then lands every switch exactly on a SYNC, with the same common
-        delay, instead of each stamp being rounded on its own (a stamp near a cycle boundary
-        could otherwise go to either SYNC: one period of relative error)."""
-        shift = self._phases.get(profile_id)
-        if shift is None:
-            grid = self._cycle.grid() if self._cycle is not None else None
-            if grid is None:
-                return 0
-            nominal, period = grid
-            k = -(-(stamp_ns - nominal) // period)           # ceil: the first SYNC at or after
-            shift = nominal + k * period - stamp_ns
-            if len(self._phases) >= MAX_PHASES:
-                self._phases.pop(next(iter(self._phases)))
-            self._phases[profile_id] = shift
-        if last:
-            self._phases.pop(profile_id, None)
-        return shift
+        stop = all(c == 0.0 for c in amps)
+        if self._placement is not None:
+            stamp = self._placement.place(stamp, str(profile_id), int(seq))
+        self._scheduler.submit(stamp, _Queued(amps, int(seq), str(profile_id), bool(last)), stop=stop)
 
     def clear(self) -> int:
         """Drop every pending setpoint; returns how many were dropped."""

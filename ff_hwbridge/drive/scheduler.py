@@ -13,7 +13,10 @@ real-time kernel and CAP_SYS_NICE make the timing hold under load; without permi
 and runs normally).
 
 A setpoint whose stamp already passed is applied at once (counted ``late``); one whose stamp is
-older than the last applied stamp is dropped (``stale``: it would undo a newer command).
+older than the last applied stamp is dropped (``stale``: it would undo a newer command) unless it
+is a stop (``submit(..., stop=True)``, zero current): a stop is never dropped, it is applied at
+once (counted ``stale_stops``). A payload that fails to prepare or to apply calls
+``on_error(reason)`` (the player latches the safe state with it) besides the log.
 """
 from __future__ import annotations
 
@@ -49,6 +52,7 @@ class _Item:
     stamp_ns: int
     order: int
     payload: Any = field(compare=False)
+    stop: bool = field(default=False, compare=False)
 
 
 @dataclass(frozen=True)
@@ -74,11 +78,13 @@ class StampScheduler:
     def __init__(self, apply: Callable[[int, Any], None], clock_ns: Callable[[], int] = time.time_ns,
                  spin_margin: float = 0.0003, max_records: int = 200_000,
                  late_threshold: float = 0.0005, name: str = "ff-stamp-scheduler",
-                 rt_priority: int = 0, prepare: Optional[Callable[[Any], Any]] = None) -> None:
+                 rt_priority: int = 0, prepare: Optional[Callable[[Any], Any]] = None,
+                 on_error: Callable[[str], object] = lambda reason: None) -> None:
         if not 0.0 <= spin_margin < 0.05:
             raise ValueError(f"spin_margin must be in [0, 0.05) s, got {spin_margin!r}")
         self._apply = apply
         self._prepare = prepare
+        self._on_error = on_error
         self._clock_ns = clock_ns
         self._margin_ns = int(spin_margin * 1e9)
         self._late_ns = int(late_threshold * 1e9)
@@ -94,6 +100,7 @@ class StampScheduler:
         self.records: deque[tuple[int, int]] = deque(maxlen=max_records)
         self.late = 0
         self.stale = 0
+        self.stale_stops = 0
         self.errors = 0
 
     # --- control ------------------------------------------------------------------------------
@@ -115,10 +122,11 @@ class StampScheduler:
             self._thread.join(timeout)
             self._thread = None
 
-    def submit(self, stamp_ns: int, payload: Any) -> None:
-        """Queue ``payload`` to be applied at ``stamp_ns``."""
+    def submit(self, stamp_ns: int, payload: Any, stop: bool = False) -> None:
+        """Queue ``payload`` to be applied at ``stamp_ns``; ``stop``: a stop (zero current),
+        never dropped as stale."""
         with self._cond:
-            heapq.heappush(self._heap, _Item(int(stamp_ns), next(self._counter), payload))
+            heapq.heappush(self._heap, _Item(int(stamp_ns), next(self._counter), payload, bool(stop)))
             self._cond.notify_all()
 
     def clear(self) -> int:
@@ -139,7 +147,7 @@ class StampScheduler:
 
     def reset_stats(self) -> None:
         self.records.clear()
-        self.late = self.stale = 0
+        self.late = self.stale = self.stale_stops = 0
 
     def stats(self) -> SwitchStats:
         """p50 / p99 / max of sent − stamp (µs) over the recorded setpoints."""
@@ -172,15 +180,16 @@ class StampScheduler:
                     return
                 item = heapq.heappop(self._heap)
             if self._last_applied is not None and item.stamp_ns < self._last_applied:
-                self.stale += 1
-                continue
+                if not item.stop:
+                    self.stale += 1
+                    continue
+                self.stale_stops += 1            # a stop is applied at once, never dropped
             payload = item.payload
             if self._prepare is not None:        # the work that need not wait for the stamp
                 try:
                     payload = self._prepare(payload)
-                except Exception:  # noqa: BLE001
-                    self.errors += 1
-                    log.exception("preparing a setpoint failed")
+                except Exception as exc:  # noqa: BLE001
+                    self._failed("preparing", item, exc)
                     continue
             # spin; while more than ~50 µs remain, yield the GIL so that the bus receiver and
             # the SYNC thread of this process are not starved by the spin
@@ -195,10 +204,20 @@ class StampScheduler:
                 self.late += 1
             try:
                 self._apply(item.stamp_ns, payload)
-            except Exception:  # noqa: BLE001 - the thread must survive a failing send
-                self.errors += 1
-                log.exception("applying a setpoint failed")
+            except Exception as exc:  # noqa: BLE001 - the thread must survive a failing send
+                self._failed("applying", item, exc)
                 continue
             sent = self._clock_ns()
-            self._last_applied = item.stamp_ns
+            self._last_applied = max(item.stamp_ns, self._last_applied or item.stamp_ns)
             self.records.append((item.stamp_ns, sent))
+
+    def _failed(self, what: str, item: _Item, exc: BaseException) -> None:
+        """A payload could not be prepared / applied: logged, counted, ``on_error(reason)``."""
+        self.errors += 1
+        log.exception("%s a setpoint failed", what)
+        reason = (f"setpoint player: {what} the setpoint stamped {item.stamp_ns} ns failed "
+                  f"({type(exc).__name__}: {exc})")
+        try:
+            self._on_error(reason)
+        except Exception:  # noqa: BLE001 - the thread must survive a failing reaction
+            log.exception("reacting to a failed setpoint failed")

@@ -134,7 +134,8 @@ def test_an_rpdo_on_the_bus_after_a_sync_waits_for_the_next_sync():
 def test_player_assigns_cycles_and_reports_sync_instant_minus_stamp():
     # a loaded machine may stall this process for longer than a cycle: misses are counted and
     # checked for consistency here, not forbidden (their rate is bench_sync.py's figure)
-    bench = SyncBench(missed_cycle_tolerance=1000)
+    bench = SyncBench(missed_cycle_tolerance=1000, heartbeat_timeout=3.0, feedback_timeout=3.0,
+                      sync_timeout=3.0)            # about cycles, not the watchdogs
     try:
         _assigns_cycles(bench)
     finally:

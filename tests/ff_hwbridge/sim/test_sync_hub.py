@@ -13,8 +13,10 @@ import pytest
 
 from ff_hwbridge.drive.epos import EposMaster
 from ff_hwbridge.drive.player import SetpointPlayer
+from ff_hwbridge.drive.player_process import ProcessPlayer
 from ff_hwbridge.sim.rig_process import RigProcess, free_port, rig_master_config
 from ff_msgs_py.launch import start_module, wait_for_line
+from ff_hwbridge.protocol.cia402 import State
 from tests.support.canopen_helpers import configure_and_enable, waiter
 
 pytestmark = pytest.mark.integration
@@ -23,7 +25,9 @@ PERIOD = 0.005       # s; protocol checks only: they must hold on a loaded 2-cor
 wait_for = waiter(5.0)
 
 
-def test_setpoints_latch_at_the_hub_sync_and_the_hub_reports_its_jitter(ros_env):
+@pytest.mark.parametrize("player_kind", [SetpointPlayer, ProcessPlayer],
+                         ids=["thread", "process"])
+def test_setpoints_latch_at_the_hub_sync_and_the_hub_reports_its_jitter(ros_env, player_kind):
     port = free_port()
     hub = start_module("can_hub", "ff_hwbridge.cli.can_hub",
                        ["--port", str(port), "--sync-period", str(PERIOD)], ros_env)
@@ -42,7 +46,7 @@ def test_setpoints_latch_at_the_hub_sync_and_the_hub_reports_its_jitter(ros_env)
         master.network.subscribe(0x80, lambda cid, data, ts: syncs.append(int(round(ts * 1e9))))
         configure_and_enable(master, 5.0)
         assert not master._sync_running                 # external: the master sends no SYNC
-        player = SetpointPlayer(master).start()
+        player = player_kind(master).start()
         assert wait_for(lambda: player.sync_grid() is not None)
         nominal, period = player.sync_grid()
         amps = [0.2, -0.3, 0.4, 0.0]
@@ -76,3 +80,42 @@ def test_setpoints_latch_at_the_hub_sync_and_the_hub_reports_its_jitter(ros_env)
     assert st["count"] > 50 and st["period_us"] == PERIOD * 1e6
     assert 0.0 <= st["jitter_p50_us"] <= st["jitter_p99_us"] <= st["jitter_max_us"]
     assert re.search(r"SYNC every 5 ms", hub.output())
+
+
+def test_a_dead_player_process_latches_the_safe_state_and_the_drive_stops(ros_env):
+    """The player process killed mid-stream: the bridge latches the safe state with the reason
+    and its own RPDOs carry the reaction (0 A, quick stop)."""
+    port = free_port()
+    hub = start_module("can_hub", "ff_hwbridge.cli.can_hub",
+                       ["--port", str(port), "--sync-period", str(PERIOD)], ros_env)
+    rig = master = player = None
+    try:
+        assert wait_for_line(hub, "CAN hub on ws://", 20.0), hub.output()
+        url = f"ws://127.0.0.1:{port}/"
+        rig = RigProcess([], port=port, host_hub=False, bus_url=url, env=ros_env)
+        master = EposMaster(rig_master_config(url, "epos4", 5.0, sync_period=PERIOD,
+                                              sync_producer="external", heartbeat_timeout=1.0,
+                                              feedback_timeout=1.0, sync_timeout=1.0,
+                                              setpoint_timeout=5.0, player_process=True))
+        master.connect()
+        configure_and_enable(master, 5.0)
+        player = ProcessPlayer(master).start()
+        assert wait_for(lambda: player.sync_grid() is not None)
+        nominal, period = player.sync_grid()
+        player.submit(nominal + 20 * period, [0.8], seq=0, profile_id="dies")
+        got: list = []
+        assert wait_for(lambda: got.extend(player.take_applied()) or got)
+        assert wait_for(lambda: abs(master.feedback()[0].current - 0.8) < 0.05), master.feedback()
+        os.kill(player.pid, 9)
+        assert wait_for(lambda: master.latched, 5.0)
+        assert "player process" in master.fault_reason, master.fault_reason
+        assert wait_for(lambda: abs(master.feedback()[0].current) < 0.05), master.feedback()
+        assert wait_for(lambda: master.states()[0] is not State.OPERATION_ENABLED), master.states()
+    finally:
+        if player is not None:
+            player.close()
+        if master is not None:
+            master.disconnect()
+        if rig is not None:
+            rig.stop(20)
+        hub.stop()

@@ -1,0 +1,548 @@
+"""The synchronous setpoint player in a process of its own (``player_process: true``).
+
+The bridge's process runs the ROS executor, whose threads hold the GIL for ms at a time; a player
+thread there, SCHED_FIFO or not, waits for the GIL before each send. :class:`ProcessPlayer` has
+the same interface as :class:`~ff_hwbridge.drive.player.SetpointPlayer` but plays in a child
+process (``multiprocessing``, spawn) that imports no ROS and runs no executor:
+
+- the child opens its own python-can connection to the bus (socketcan allows several sockets;
+  the simulation's hub several clients) with ``receive_own_messages`` where the interface can,
+  watches SYNC itself (:class:`~ff_hwbridge.drive.sync_watch.SyncWatch` fed by its receiver
+  thread), places each stamp on the grid (:class:`~ff_hwbridge.drive.placement.GridPlacement`),
+  and runs the :class:`~ff_hwbridge.drive.cycle.CycleScheduler`: safety clamp
+  (:class:`~ff_hwbridge.drive.safety.SafetyGuard`: ±limit A, NaN → 0 A), units (raw 0x6071 ‰ /
+  0x2030 mA) and RPDO1 (controlword + setpoint, CiA 402) for the right cycle; it refreshes an
+  enabled drive's RPDO every ``REFRESH_PERIOD`` (the drive's RPDO deadline);
+- what it may send comes from the master through shared memory (:meth:`EposMaster.gate`: per
+  joint the controlword and whether a current may be sent; the master updates it before it
+  sends a new controlword or its safe-state reaction), so the child never re-enables a drive
+  the master stops and sends 0 A while the safe state is latched;
+- the bridge's process only feeds it (``submit`` → a pipe) and reports: applied setpoints,
+  missed cycles, faults and the statistics come back over the pipe. A fault the child reports
+  (a miss beyond ``missed_cycle_tolerance``, a setpoint that cannot be placed, a failing send)
+  latches the master's safe state with its reason; a child that dies or stops reporting for
+  ``DEAD_AFTER`` s latches it too (and the drive's own RPDO timeout 0x1400:05 stops it).
+
+The master keeps the state machine, the watchdogs and the reactions; while the player owns an
+enabled drive it sends RPDO1 with 0 current only and no refresh of its own
+(``EposMaster.external_player``).
+"""
+from __future__ import annotations
+
+import logging
+import multiprocessing as mp
+import struct
+import sys
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any, Callable, Optional, Sequence
+
+import can
+
+from ff_hwbridge.drive.cycle import CycleScheduler, Resolved
+from ff_hwbridge.drive.epos import ECHO_INTERFACES, REFRESH_PERIOD, SYNC_COB_ID, EposMaster
+from ff_hwbridge.drive.placement import GridPlacement
+from ff_hwbridge.drive.player import (MAX_REPORTS, SWITCH_INTERVAL, AppliedSetpoint, PlayerConfig,
+                                      SetpointPlayer, SetpointRejected)
+from ff_hwbridge.drive.safety import SafetyGuard
+from ff_hwbridge.drive.scheduler import SwitchStats, use_fifo
+from ff_hwbridge.protocol.epos_od import rpdo_layout, struct_format
+from ff_hwbridge.protocol.units import DriveUnits
+
+log = logging.getLogger(__name__)
+
+__all__ = ["ProcessPlayer", "make_player"]
+
+STATUS_PERIOD = 0.02      # s, the child's status report (pending, statistics, heartbeat)
+DEAD_AFTER = 2.0          # s without a status report: the player process counts as dead
+START_TIMEOUT = 30.0      # s for the child to import, open the bus and report ready
+
+
+def make_player(master: EposMaster, config: Optional[PlayerConfig] = None) -> Any:
+    """The player ``master.config`` asks for: :class:`ProcessPlayer` with ``player_process``
+    and synchronous setpoints, else an in-process :class:`SetpointPlayer`."""
+    if master.config.player_process and master.config.synchronous:
+        return ProcessPlayer(master, config)
+    return SetpointPlayer(master, config)
+
+
+@dataclass(frozen=True)
+class _Joint:
+    node_id: int
+    units: DriveUnits
+    limit: float              # A
+    rx_fmt: str               # RPDO1 struct format (controlword, setpoint)
+
+
+@dataclass(frozen=True)
+class _Spec:
+    bus: dict
+    echo: bool
+    joints: tuple[_Joint, ...]
+    period_s: float
+    cycle_tolerance: float
+    missed_tolerance: int
+    rt_priority: int
+    setpoint_timeout: float
+
+
+# --- the child ------------------------------------------------------------------------------------
+class _Child:
+    """What runs in the player process (see the module docstring)."""
+
+    def __init__(self, spec: _Spec, conn: Any, gate: Any) -> None:
+        from ff_hwbridge.drive.bus import open_bus
+        from ff_hwbridge.drive.sync_watch import SyncWatch
+
+        self.spec, self.conn, self.gate = spec, conn, gate
+        self.n = len(spec.joints)
+        self._conn_lock = threading.Lock()
+        self._send_lock = threading.Lock()
+        cfg = dict(spec.bus)
+        if spec.echo:
+            cfg["receive_own_messages"] = True
+        self.bus = open_bus(cfg)
+        try:      # only SYNC and the setpoint RPDOs (our echoes) are of interest here
+            ids = [SYNC_COB_ID] + [0x200 + j.node_id for j in spec.joints]
+            self.bus.set_filters([can.typechecking.CanFilter(can_id=i, can_mask=0x7FF) for i in ids])
+        except (NotImplementedError, can.CanError, AttributeError):
+            pass
+        self.watch = SyncWatch(spec.period_s)
+        self.guard = SafetyGuard([j.limit for j in spec.joints], spec.setpoint_timeout)
+        self.rx_ids = {0x200 + j.node_id: i for i, j in enumerate(spec.joints)}
+        self.tx_seq = [0] * self.n
+        self.echo_seq = [0] * self.n
+        self.sent_data: list[deque[bytes]] = [deque(maxlen=256) for _ in range(self.n)]
+        self.echo_log: list[deque[tuple[int, int]]] = [deque(maxlen=1024) for _ in range(self.n)]
+        self.last_frame: list[Optional[bytes]] = [None] * self.n
+        self.last_tx = [0.0] * self.n
+        self.raw = [0] * self.n
+        self.received = 0
+        self.stopped = threading.Event()
+        self.sched = CycleScheduler(self.watch, self._send, self._report, echo_time=self._echo_time,
+                                    prepare=self._prepare, on_fault=self._fault,
+                                    tolerance=spec.cycle_tolerance,
+                                    missed_tolerance=spec.missed_tolerance,
+                                    rt_priority=spec.rt_priority, name="ff-player-process")
+        self.placement = GridPlacement(self.sched.grid)
+        self.rx_rt = False
+
+    def tell(self, *msg: Any) -> None:
+        with self._conn_lock:
+            try:
+                self.conn.send(msg)
+            except (OSError, EOFError, BrokenPipeError):
+                self.stopped.set()
+
+    # gate in shared memory: [cw_0, ok_0, cw_1, ok_1, ..., latched]
+    def _gate(self, i: int) -> tuple[int, bool]:
+        return int(self.gate[2 * i]), bool(self.gate[2 * i + 1]) and not self.gate[2 * self.n]
+
+    def _prepare(self, q: tuple) -> tuple:
+        """Safety clamp (±limit A, NaN → 0 A) and units; 0 A while the bridge's safe state is
+        latched (the gate's last entry)."""
+        cmd = self.guard.filter(q[1])
+        if self.gate[2 * self.n]:
+            return q, (0,) * self.n, "safe state latched by the bridge", True
+        raws = tuple(j.units.amps_to_setpoint(float(a), limit=j.limit)
+                     for j, a in zip(self.spec.joints, cmd.currents))
+        return q, raws, cmd.reason, cmd.latched
+
+    def _frame(self, i: int, raw: int) -> Optional[bytes]:
+        cw, ok = self._gate(i)
+        if not ok:
+            return None                       # the master owns this drive's RPDO now
+        return struct.pack(self.spec.joints[i].rx_fmt, cw & 0xFFFF, int(raw))
+
+    def _tx(self, i: int, data: bytes) -> None:
+        with self._send_lock:
+            self.sent_data[i].append(data)
+            self.bus.send(can.Message(arbitration_id=0x200 + self.spec.joints[i].node_id, data=data,
+                                      is_extended_id=False))
+            self.tx_seq[i] += 1
+            self.last_frame[i] = data
+            self.last_tx[i] = time.monotonic()
+
+    def _send(self, stamp_ns: int, prepared: tuple) -> tuple[Optional[tuple[int, ...]], Any]:
+        q, raws, reason, latched = prepared
+        marks: list[int] = []
+        echo = self.spec.echo
+        for i, raw in enumerate(raws):
+            data = self._frame(i, raw)
+            if data is None:
+                self.raw[i] = 0
+                echo = False
+                continue
+            self._tx(i, data)
+            self.raw[i] = int(raw)
+            marks.append(self.tx_seq[i])
+        currents = tuple(j.units.setpoint_to_amps(r) for j, r in zip(self.spec.joints, self.raw))
+        return (tuple(marks) if echo else None), (q, currents, reason, latched)
+
+    def _report(self, r: Resolved) -> None:
+        q, currents, reason, latched = r.token
+        self.tell("applied", r.applied_ns, r.stamp_ns, currents, q[2], q[3], q[4], reason, latched,
+                  r.sent_ns, r.missed_cycles)
+
+    def _fault(self, reason: str) -> None:
+        self.tell("fault", reason)
+
+    def _echo_time(self, marks: Sequence[int]) -> Optional[int]:
+        t = 0
+        for i, m in enumerate(marks):
+            log_ = list(self.echo_log[i])
+            hit = next((ts for seq, ts in reversed(log_) if seq == m), None)
+            if hit is None:
+                return None
+            t = max(t, hit)
+        return t
+
+    # --- threads ----------------------------------------------------------------------------
+    def receive(self) -> None:
+        if self.spec.rt_priority > 0:
+            self.rx_rt = use_fifo(self.spec.rt_priority, "player process bus receiver")
+        failures = 0
+        while not self.stopped.is_set():
+            try:
+                msg = self.bus.recv(0.1)
+                failures = 0
+            except Exception as exc:  # noqa: BLE001
+                if self.stopped.is_set():
+                    return
+                failures += 1
+                if failures == 1:
+                    log.exception("player process: bus receive failed")
+                if failures >= 20:            # the bus is gone: tell the bridge, stop
+                    self._fault(f"setpoint player process: the bus is gone ({type(exc).__name__}: "
+                                f"{exc})")
+                    self.stopped.set()
+                    return
+                time.sleep(0.01)
+                continue
+            if msg is None:
+                continue
+            cid = msg.arbitration_id
+            if cid == SYNC_COB_ID:
+                self.watch.observe(msg.timestamp, tuple(self.echo_seq) if self.spec.echo else None)
+            elif cid in self.rx_ids:
+                i = self.rx_ids[cid]
+                data = bytes(msg.data)
+                sent = self.sent_data[i]
+                if sent and sent[0] == data:          # our own frame, echoed by the bus
+                    sent.popleft()
+                    self.echo_seq[i] += 1
+                    ts = int(round(msg.timestamp * 1e9)) if msg.timestamp else time.time_ns()
+                    self.echo_log[i].append((self.echo_seq[i], ts))
+
+    def status(self) -> None:
+        if self.spec.rt_priority > 0:         # the refresh and the heartbeat to the bridge
+            use_fifo(self.spec.rt_priority, "player process status")
+        while not self.stopped.wait(STATUS_PERIOD):
+            now = time.monotonic()
+            for i in range(self.n):                 # the drive's RPDO deadline: refresh
+                if now - self.last_tx[i] >= REFRESH_PERIOD:
+                    cw, ok = self._gate(i)
+                    if ok:
+                        self._tx(i, struct.pack(self.spec.joints[i].rx_fmt, cw & 0xFFFF,
+                                                self.raw[i]))
+            s, c, w = self.sched.stats(), self.sched.cycle_stats(), self.watch.stats()
+            g = self.sched.grid()
+            self.tell("status", self.received, self.sched.pending, s, c, w.as_dict(), g,
+                      int(self.sched.rt_active and (self.rx_rt or self.spec.rt_priority <= 0)),
+                      self.sched.stale, self.sched.stale_stops, self.sched.errors)
+
+    def run(self) -> None:
+        sys.setswitchinterval(SWITCH_INTERVAL)
+        threading.Thread(target=self.receive, name="ff-player-rx", daemon=True).start()
+        threading.Thread(target=self.status, name="ff-player-status", daemon=True).start()
+        self.sched.start()
+        self.tell("ready")
+        try:
+            while not self.stopped.is_set():
+                try:
+                    msg = self.conn.recv()
+                except (EOFError, OSError):
+                    break
+                kind = msg[0]
+                if kind == "sp":
+                    _, stamp, amps, seq, pid, last, stop = msg
+                    self.received += 1
+                    placed = self.placement.place(stamp, pid, seq)
+                    self.sched.submit(placed, (stamp, amps, seq, pid, last), stop=stop)
+                elif kind == "clear":
+                    self.sched.clear()
+                elif kind == "reset_stats":
+                    self.sched.reset_stats()
+                    self.watch.reset_stats()
+                elif kind == "stop":
+                    break
+        finally:
+            self.stopped.set()
+            self.sched.close()
+            self.bus.shutdown()
+
+
+def _child_main(spec: _Spec, conn: Any, gate: Any) -> None:
+    logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
+    try:
+        child = _Child(spec, conn, gate)
+    except Exception as exc:  # noqa: BLE001 - told to the parent, which latches the safe state
+        conn.send(("fault", f"setpoint player process could not start: {type(exc).__name__}: {exc}"))
+        return
+    child.run()
+
+
+# --- the bridge's side --------------------------------------------------------------------------
+class ProcessPlayer:
+    """:class:`SetpointPlayer`'s interface, played by a child process (module docstring)."""
+
+    synchronous = True
+
+    def __init__(self, master: EposMaster, config: Optional[PlayerConfig] = None, *,
+                 clock_ns: Callable[[], int] = time.time_ns, start_timeout: float = START_TIMEOUT) -> None:
+        if not master.config.synchronous:
+            raise ValueError("a player process needs setpoint_timing: sync")
+        self.master = master
+        self.config = config if config is not None else PlayerConfig.from_bridge(master.config)
+        self._clock_ns = clock_ns
+        self._start_timeout = start_timeout
+        self._n = len(master.joint_names)
+        ctx = mp.get_context("spawn")
+        self._ctx = ctx
+        self._gate = ctx.Array("i", 2 * self._n + 1, lock=False)
+        self._proc: Optional[Any] = None
+        self._conn: Optional[Any] = None
+        self._conn_lock = threading.Lock()
+        self._reader: Optional[threading.Thread] = None
+        self._closing = False
+        self._reports: deque[AppliedSetpoint] = deque(maxlen=MAX_REPORTS)
+        self.records_: deque[tuple[int, int]] = deque(maxlen=200_000)
+        self._submitted = 0
+        self._status: Optional[tuple] = None
+        self._status_at = time.monotonic()
+        self._ready = threading.Event()
+        self.exit_reason: Optional[str] = None
+        master.pending_fn = lambda: self.pending > 0
+        master.add_fault_listener(self._on_fault)
+
+    # --- control ------------------------------------------------------------------------------
+    def _spec(self) -> _Spec:
+        cfg = self.master.config
+        bus = cfg.bus.as_dict()
+        joints = tuple(_Joint(j.node_id, u, float(j.current_limit), struct_format(rpdo_layout(u.family)))
+                       for j, u in zip(cfg.joints, self.master.units))
+        return _Spec(bus, bus.get("interface") in ECHO_INTERFACES, joints, float(cfg.sync_period),
+                     self.config.cycle_tolerance, int(cfg.missed_cycle_tolerance),
+                     int(self.config.rt_priority), float(cfg.setpoint_timeout))
+
+    def start(self) -> "ProcessPlayer":
+        """Spawn the player process and wait until it has opened the bus (idempotent)."""
+        if self._proc is not None and self._proc.is_alive():
+            return self
+        if self.config.rt_priority > 0:       # the master's watchdogs see the TPDOs in time
+            self.master.set_receiver_priority(self.config.rt_priority)
+        self._write_gate()
+        parent, child = self._ctx.Pipe()
+        self._conn = parent
+        self._ready.clear()
+        self._proc = self._ctx.Process(target=_child_main, args=(self._spec(), child, self._gate),
+                                       name="ff-setpoint-player", daemon=True)
+        self._proc.start()
+        child.close()
+        if self.config.rt_priority > 0 and self._proc.pid:
+            # its start-up (interpreter, imports, bus) under SCHED_FIFO too: a loaded machine
+            # would otherwise keep a new normal-priority process waiting for seconds
+            use_fifo(self.config.rt_priority, "setpoint player process", tid=self._proc.pid)
+        self.master.gate_listener = self._write_gate
+        self._status_at = time.monotonic() + self._start_timeout
+        self._reader = threading.Thread(target=self._read, name="ff-player-reader", daemon=True)
+        self._reader.start()
+        if not self._ready.wait(self._start_timeout):
+            self._died("the setpoint player process did not start within "
+                       f"{self._start_timeout:g} s")
+        else:
+            self._write_gate()
+            self.master.external_player = True    # from now on the child refreshes the RPDOs
+        return self
+
+    def _write_gate(self) -> None:
+        g = self.master.gate()
+        for i, (cw, ok) in enumerate(g):
+            self._gate[2 * i] = int(cw)
+            self._gate[2 * i + 1] = int(ok)
+        self._gate[2 * self._n] = int(self.master.latched)
+
+    def _tell(self, *msg: Any) -> None:
+        conn = self._conn
+        if conn is None:
+            return
+        with self._conn_lock:
+            try:
+                conn.send(msg)
+            except (OSError, EOFError, BrokenPipeError, ValueError):
+                pass
+
+    def submit(self, stamp_ns: int, currents: Sequence[float], *, seq: int = 0,
+               profile_id: str = "", last: bool = False) -> None:
+        """As :meth:`SetpointPlayer.submit`; the setpoint goes to the player process."""
+        if self.master.latched:
+            raise SetpointRejected(f"safe state ({self.master.fault_reason})")
+        if self.exit_reason is not None:
+            raise SetpointRejected(self.exit_reason)
+        amps = tuple(float(c) for c in currents)
+        if len(amps) != self._n:
+            raise SetpointRejected(f"{len(amps)} current(s) for {self._n} joint(s) "
+                                   f"{list(self.master.joint_names)}")
+        running = not last and (bool(profile_id) or any(c != 0.0 for c in amps))
+        self.master.note_setpoint(motion_running=running)
+        self._submitted += 1
+        self._tell("sp", int(stamp_ns), amps, int(seq), str(profile_id), bool(last),
+                   all(c == 0.0 for c in amps))
+
+    def clear(self) -> int:
+        """Drop every pending setpoint (in the player process); returns how many were pending."""
+        n = self.pending
+        self._tell("clear")
+        return n
+
+    def stop(self) -> None:
+        """Stop the player process, hand the RPDOs back to the master, command zero current."""
+        self._closing = True
+        self.master.external_player = False      # the master's refresh again
+        self._tell("stop")
+        proc = self._proc
+        if proc is not None:
+            proc.join(3.0)
+            if proc.is_alive():
+                proc.terminate()
+                proc.join(2.0)
+        self.master.external_player = False
+        self.master.gate_listener = None
+        if self._conn is not None:
+            self._conn.close()
+            self._conn = None
+        self._proc = None
+        self.master.command_zero()
+
+    def close(self) -> None:
+        """``stop()`` and detach from the master."""
+        self.stop()
+        self.master.remove_fault_listener(self._on_fault)
+        self.master.pending_fn = lambda: False
+
+    def __enter__(self) -> "ProcessPlayer":
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    @property
+    def pid(self) -> Optional[int]:
+        return self._proc.pid if self._proc is not None else None
+
+    # --- what comes back ----------------------------------------------------------------------
+    def _read(self) -> None:
+        conn = self._conn
+        assert conn is not None
+        if self.config.rt_priority > 0:       # faults reach the master without delay
+            use_fifo(self.config.rt_priority, "player process reader")
+        while True:
+            try:
+                if not conn.poll(0.1):
+                    if not self._closing and time.monotonic() - self._status_at > DEAD_AFTER:
+                        alive = self._proc is not None and self._proc.is_alive()
+                        self._died("the setpoint player process "
+                                   + ("stopped reporting" if alive else
+                                      f"died (exit code {self._proc.exitcode if self._proc else None})"))
+                        return
+                    continue
+                msg = conn.recv()
+            except (EOFError, OSError, ValueError):
+                if not self._closing:
+                    code = self._proc.exitcode if self._proc is not None else None
+                    self._died(f"the setpoint player process died (exit code {code})")
+                return
+            kind = msg[0]
+            if kind == "applied":
+                (_, applied, stamp, currents, seq, pid, last, reason, latched, sent, missed) = msg
+                self._reports.append(AppliedSetpoint(applied, stamp, tuple(currents), seq, pid, last,
+                                                     reason, latched, sent, missed))
+                self.records_.append((stamp, applied))
+                if last:
+                    self.master.guard.end_motion()
+            elif kind == "status":
+                self._status = msg
+                self._status_at = time.monotonic()
+            elif kind == "ready":
+                self._ready.set()
+                self._status_at = time.monotonic()
+            elif kind == "fault":
+                self.master.trip(str(msg[1]))
+
+    def _died(self, reason: str) -> None:
+        self.exit_reason = reason
+        log.error("%s", reason)
+        self.master.external_player = False     # the master's own RPDOs carry the reaction
+        self.master.trip(reason)
+
+    def _on_fault(self, reason: str) -> None:
+        self._write_gate()
+        self._tell("clear")
+
+    @property
+    def pending(self) -> int:
+        """Setpoints submitted and not yet applied (0 once the player process is gone)."""
+        st = self._status
+        if self.exit_reason is not None:
+            return 0
+        if st is None:
+            return self._submitted
+        return max(0, self._submitted - int(st[1])) + int(st[2])
+
+    def stats(self) -> SwitchStats:
+        st = self._status
+        if st is None:
+            nan = float("nan")
+            return SwitchStats(0, 0, 0, nan, nan, nan, nan)
+        return st[3]
+
+    def records(self) -> list[tuple[int, int]]:
+        return list(self.records_)
+
+    def reset_stats(self) -> None:
+        self.records_.clear()
+        self._tell("reset_stats")
+        self._status = None if self._status is None else self._status[:3] + (
+            SwitchStats(0, 0, 0, *(float("nan"),) * 4),) + self._status[4:]
+
+    def sync_grid(self) -> Optional[tuple[int, int]]:
+        st = self._status
+        return None if st is None else st[6]
+
+    def take_applied(self) -> list[AppliedSetpoint]:
+        out = []
+        while self._reports:
+            out.append(self._reports.popleft())
+        return out
+
+    def diagnostics(self) -> dict[str, float]:
+        """As :meth:`SetpointPlayer.diagnostics`, plus ``player_process`` 1 and its pid."""
+        s = self.stats()
+        out: dict[str, float] = {
+            "switch_count": s.count, "switch_late": s.late, "switch_p50_us": s.p50_us,
+            "switch_p99_us": s.p99_us, "switch_max_us": s.max_us, "pending_setpoints": self.pending,
+            "scheduler_realtime": 0, "synchronous": 1, "player_process": 1,
+            "player_pid": float(self.pid or 0)}
+        st = self._status
+        if st is not None:
+            c, w = st[4], st[5]
+            out.update({"scheduler_realtime": st[7], "missed_setpoints": c.missed,
+                        "missed_cycles_max": c.missed_max_cycles, "superseded_setpoints": c.superseded,
+                        "send_after_sync_p99_us": c.send_after_sync_p99_us,
+                        "sync_count": w["count"], "sync_period_us": w["period_us"],
+                        "sync_jitter_p99_us": w["jitter_p99_us"], "sync_jitter_max_us": w["jitter_max_us"],
+                        "sync_missing": w["missing"], "sync_age_ms": w["age_ms"],
+                        "stale_setpoints": st[8], "stale_stops": st[9], "player_errors": st[10]})
+        return out
