@@ -22,6 +22,15 @@ Interfaces (relative to the node: /ff_hwbridge/...):
   the bus time of the drive's position sample (TPDO1), published once per new sample.
 - pub ``~/motor_currents`` sensor_msgs/JointState: the same samples with effort = measured motor
   current A (what the drive reports; what the executor compares with its setpoints).
+- sub ``~/joint_commands`` (parameter ``command_topic``) sensor_msgs/JointState: effort commands
+  in N·m at the joint, as ros2_control's ``joint_state_topic_hardware_interface`` publishes them
+  for an ``effort`` command interface (``name`` + ``effort``, position/velocity empty). Each is
+  converted to motor current (A = N·m / (gear_ratio x kt)) and applied at once through the same
+  player and safety guard as the setpoints (clamp to the current limit; NaN effort, ros2_control's
+  unset command, = 0 A). A non-zero command starts the setpoint watchdog: commands that stop for
+  ``setpoint_timeout`` s latch the safe state (zero current + quick stop) until ``~/fault_reset``;
+  zero effort on every joint ends the motion (no watchdog). Refused (logged once per cause) while
+  a CurrentProfile runs; a profile's setpoints are refused while non-zero commands are live.
 - pub ``~/applied``     ff_msgs/msg/CurrentSetpoint: each applied setpoint, stamp = when it was sent.
 - pub ``/diagnostics``  diagnostic_msgs/DiagnosticArray: drive states, safe-state reason, timing.
 - srv ``~/fault_reset`` std_srvs/Trigger: clear the safe state and reset drive faults (re-enables
@@ -42,24 +51,30 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import sys
 import threading
+import time
 from typing import Any, Callable, Optional, Sequence
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.qos import qos_profile_sensor_data
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
-from ff_hwbridge.drive.config import BridgeConfig, ConfigError, config_from_mapping, load_config, with_bus
+from ff_hwbridge.drive.config import (OPTION_RANGES, BridgeConfig, ConfigError, config_from_mapping, load_config,
+                                      with_bus)
 from ff_hwbridge.drive.epos import EposError, EposMaster
 from ff_hwbridge.drive.player import SWITCH_INTERVAL, AppliedSetpoint, SetpointPlayer, SetpointRejected
 from ff_hwbridge.protocol.cia402 import State
+from ff_hwbridge.protocol.units import DriveUnits
 from ff_msgs.msg import CurrentSetpoint
 from ff_msgs_py.threads import in_thread
 
@@ -110,9 +125,47 @@ PARAMS: dict[str, tuple[Any, str]] = {
     "spin_margin": (0.0003, "s, the scheduler sleeps until this long before a stamp, then spins"),
     "scheduler_rt_priority": (-1, "1..99: SCHED_FIFO for the setpoint player and bus receiver "
                               "(needs CAP_SYS_NICE); 0 = off; -1 = auto (50 when synchronous)"),
+    "command_topic": ("~/joint_commands", "sensor_msgs/JointState effort commands, N·m at the joint "
+                      "(ros2_control joint_state_topic_hardware_interface); '' = none"),
     "joint_state_rate": (100.0, "Hz"),
     "diagnostics_rate": (2.0, "Hz"),
 }
+
+
+#: (from, to) of the scalar parameters (ints: integer range)
+RANGES: dict[str, tuple[float, float]] = {
+    "bus_bitrate": (10_000, 1_000_000), "sync_period": (0.0001, 1.0), "heartbeat_producer_ms": (0, 65535),
+    "heartbeat_timeout": (0.0, 60.0), "master_heartbeat_ms": (0, 65535),
+    "master_heartbeat_timeout_ms": (0, 65535), "master_node_id": (1, 127),
+    **{k: (lo, hi) for k, lo, hi in OPTION_RANGES}, "rpdo_timeout_ms": (-1, 65535),
+    "scaling_tolerance": (0.0, 1.0), "sync_timeout": (0.0, 60.0), "missed_cycle_tolerance": (0, 1000),
+    "boot_timeout": (0.0, 600.0), "boot_wait": (0.0, 3600.0), "setpoint_timeout": (0.0, 60.0),
+    "spin_margin": (0.0, 0.05), "scheduler_rt_priority": (-1, 99), "joint_state_rate": (0.1, 10_000.0),
+    "diagnostics_rate": (0.01, 1000.0),
+}
+#: allowed values of the string parameters
+CHOICES: dict[str, str] = {
+    "families": "each one of: epos4, epos2", "scaling_source": "one of: check, drive, config",
+    "setpoint_timing": "one of: sync, on_receipt", "sync_producer": "one of: master, external",
+}
+
+
+def descriptor(name: str) -> ParameterDescriptor:
+    """The ParameterDescriptor of bridge parameter ``name``: description with units, range or
+    allowed values. Not read-only in the ROS sense: the node shows the configuration in use in
+    them after configure; while configured, changes are refused (cleanup first)."""
+    default, text = PARAMS[name]
+    when = ("read at configure" if name in ("joint_state_rate", "diagnostics_rate")
+            else "read at configure; refused while configured")
+    d = ParameterDescriptor(name=name, description=f"{text} ({when})")
+    rng = RANGES.get(name)
+    if rng is not None and isinstance(default, int) and not isinstance(default, bool):
+        d.integer_range = [IntegerRange(from_value=int(rng[0]), to_value=int(rng[1]), step=0)]
+    elif rng is not None:
+        d.floating_point_range = [FloatingPointRange(from_value=float(rng[0]), to_value=float(rng[1]), step=0.0)]
+    if name in CHOICES:
+        d.additional_constraints = CHOICES[name]
+    return d
 
 
 def _flat_config(get: Callable[[str], Any]) -> dict[str, Any]:
@@ -190,6 +243,42 @@ def config_parameters(cfg: BridgeConfig) -> dict[str, Any]:
     return out
 
 
+class CommandRejected(ValueError):
+    """An effort command the bridge does not apply; the message says why."""
+
+
+def command_currents(names: Sequence[str], effort: Sequence[float], joint_names: Sequence[str],
+                     units: Sequence[DriveUnits], *, position: Sequence[float] = (),
+                     velocity: Sequence[float] = ()) -> list[float]:
+    """Motor currents (A, in the bridge's joint order) for a JointState effort command.
+
+    ``effort`` is N·m at the joint, one per ``names`` entry (names of other joints are ignored;
+    no names: one effort per bridge joint in its order); A = N·m / (gear_ratio x kt); a
+    non-finite effort is 0 A. CommandRejected for position/velocity commands, a missing joint or
+    a length mismatch."""
+    if len(position) or len(velocity):
+        raise CommandRejected("position/velocity commands are not supported (effort only: declare an "
+                              "'effort' command interface)")
+    n = len(joint_names)
+    if not len(names):
+        if len(effort) != n:
+            raise CommandRejected(f"{len(effort)} effort value(s) without names for {n} joint(s) "
+                                  f"{list(joint_names)}")
+        by_name = dict(zip(joint_names, effort))
+    else:
+        if len(effort) != len(names):
+            raise CommandRejected(f"{len(names)} name(s) but {len(effort)} effort value(s)")
+        by_name = dict(zip(names, effort))
+        missing = [j for j in joint_names if j not in by_name]
+        if missing:
+            raise CommandRejected(f"no effort for joint(s) {missing} (names {list(names)})")
+    out = []
+    for j, u in zip(joint_names, units):
+        tau = float(by_name[j])
+        out.append(tau / (u.gear_ratio * u.torque_constant) if math.isfinite(tau) else 0.0)
+    return out
+
+
 class _RosLogHandler(logging.Handler):
     """Forwards the libraries' python logging (ff_hwbridge.*, canopen) to the node's ROS logger."""
 
@@ -214,7 +303,7 @@ class BridgeNode(LifecycleNode):
     def __init__(self, config_file: str = "", channel: str = "", **kwargs: Any) -> None:
         super().__init__(NODE_NAME, **kwargs)
         for name, (default, _desc) in PARAMS.items():
-            self.declare_parameter(name, default)
+            self.declare_parameter(name, default, descriptor(name))
         self._override_file = config_file
         self._override_channel = channel
         self.config: Optional[BridgeConfig] = None
@@ -229,6 +318,15 @@ class BridgeNode(LifecycleNode):
         self._pub_applied: Any = None
         self._diag_now = threading.Event()
         self._last_sample_ns = 0        # bus ns of the last published drive sample
+        # who is in control of the currents: a running profile (id, latest stamp ns) or live
+        # non-zero effort commands (monotonic s of the latest)
+        self._profile: Optional[tuple[str, int]] = None
+        self._commands_live = 0.0
+        self._command_seq = 0
+        self.commands_accepted = 0
+        self.commands_refused = 0
+        self.last_command_refusal = ""
+        self._refusal_cause = ""        # logged once per cause, until a command is accepted
         self._log_handler = _RosLogHandler(self.get_logger())
         for name in ("ff_hwbridge", "canopen"):
             logging.getLogger(name).addHandler(self._log_handler)
@@ -330,6 +428,7 @@ class BridgeNode(LifecycleNode):
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Drop pending setpoints, zero current, disable operation (transition 5)."""
         self._active = False
+        self._profile, self._commands_live = None, 0.0
         if self.player is not None:
             self.player.clear()
         if self.master is not None:
@@ -407,6 +506,12 @@ class BridgeNode(LifecycleNode):
                                     callback_group=MutuallyExclusiveCallbackGroup())
         self._entities += [("pub", self._pub_js), ("pub", self._pub_cur), ("pub", self._pub_applied),
                            ("pub", self._pub_diag), ("sub", sub), ("srv", srv), ("srv", estop)]
+        topic = str(self._get("command_topic"))
+        if topic:
+            # best effort: takes reliable and best-effort publishers; the newest command wins
+            cmd = self.create_subscription(JointState, topic, self._on_command, qos_profile_sensor_data,
+                                           callback_group=MutuallyExclusiveCallbackGroup())
+            self._entities.append(("sub", cmd))
         self._timers.append(self.create_timer(1.0 / float(self._get("joint_state_rate")),
                                               self._publish_joint_states))
         self._timers.append(self.create_timer(1.0 / float(self._get("diagnostics_rate")),
@@ -422,9 +527,19 @@ class BridgeNode(LifecycleNode):
                                       throttle_duration_sec=1.0)
             return
         stamp_ns = int(msg.stamp.sec) * 1_000_000_000 + int(msg.stamp.nanosec)
+        pid = str(msg.profile_id)
+        live = time.monotonic() - self._commands_live
+        if pid and live < self._cfg().setpoint_timeout:
+            self.get_logger().warning(
+                f"setpoint {msg.seq} of profile {pid} ignored: effort commands on "
+                f"{self._get('command_topic')} are in control ({live * 1000.0:.0f} ms ago); "
+                "send zero effort or stop them first", throttle_duration_sec=1.0)
+            return
         try:
             player.submit(stamp_ns, list(msg.currents), seq=int(msg.seq),
-                          profile_id=str(msg.profile_id), last=bool(msg.last))
+                          profile_id=pid, last=bool(msg.last))
+            if pid:
+                self._profile = (pid, stamp_ns)
         except SetpointRejected as exc:
             if player.master.latched:
                 text = f"setpoint ignored: {exc}; call ~/fault_reset"
@@ -432,8 +547,59 @@ class BridgeNode(LifecycleNode):
                 text = f"setpoint {msg.seq} ignored: {exc}"
             self.get_logger().warning(text, throttle_duration_sec=1.0)
 
+    def _profile_running(self) -> Optional[str]:
+        """The id of the profile in control of the currents, or None: from its first setpoint
+        until its last one is applied, the safe state latches, or its latest stamp is
+        ``setpoint_timeout`` s past with nothing pending."""
+        prof, player = self._profile, self.player
+        if prof is None or player is None:
+            return None
+        if player.master.latched or (time.time_ns() > prof[1] + int(self._cfg().setpoint_timeout * 1e9)
+                                     and player.pending == 0):
+            self._profile = None
+            return None
+        return prof[0]
+
+    def _refuse_command(self, cause: str, text: str) -> None:
+        """Count a refused effort command; log it once per cause (until one is accepted)."""
+        self.commands_refused += 1
+        self.last_command_refusal = text
+        if cause != self._refusal_cause:
+            self._refusal_cause = cause
+            self.get_logger().warning(f"effort command ignored: {text}")
+
+    def _on_command(self, msg: Any) -> None:
+        """An effort command (JointState, N·m at the joint) -> motor currents at once."""
+        player = self.player
+        if player is None:
+            return
+        if not self._active:
+            self._refuse_command("inactive", "bridge is not active")
+            return
+        profile = self._profile_running()
+        if profile is not None:
+            self._refuse_command("profile", f"profile {profile} is running (a CurrentProfile and effort "
+                                 "commands never drive the arm at the same time)")
+            return
+        try:
+            amps = command_currents(list(msg.name), list(msg.effort), self._cfg().joint_names,
+                                    player.master.units, position=list(msg.position),
+                                    velocity=list(msg.velocity))
+            player.submit(time.time_ns(), amps, seq=self._command_seq)
+        except CommandRejected as exc:
+            self._refuse_command("message", str(exc))
+            return
+        except SetpointRejected as exc:
+            self._refuse_command("rejected", f"{exc}; call ~/fault_reset")
+            return
+        self._command_seq += 1
+        self.commands_accepted += 1
+        self._refusal_cause = ""
+        self._commands_live = time.monotonic() if any(a != 0.0 for a in amps) else 0.0
+
     def _on_fault(self, reason: str) -> None:
         """Master thread: safe state latched (the player drops its pending setpoints itself)."""
+        self._commands_live = 0.0         # latched: nothing is in control until a fault reset
         self._diag_now.set()              # the reason is logged by the master (forwarded)
 
     def _on_estop(self, request: Any, response: Any) -> Any:
@@ -472,6 +638,8 @@ class BridgeNode(LifecycleNode):
 
         reports: list[AppliedSetpoint] = self.player.take_applied() if self.player else []
         for a in reports:
+            if a.last and self._profile is not None and a.profile_id == self._profile[0]:
+                self._profile = None
             if a.reason and not a.latched:
                 self.get_logger().warning(f"setpoint {a.seq}: {a.reason}", throttle_duration_sec=1.0)
             msg = CurrentSetpoint()
@@ -514,6 +682,11 @@ class BridgeNode(LifecycleNode):
         if self.player is not None:
             st.update(self.player.diagnostics())
         st["active"] = self._active
+        st["commands.topic"] = self._get("command_topic")
+        st["commands.accepted"] = self.commands_accepted
+        st["commands.refused"] = self.commands_refused
+        st["commands.last_refusal"] = self.last_command_refusal
+        st["profile_running"] = self._profile_running() or ""
         status = DiagnosticStatus()
         status.name = f"{NODE_NAME}: drive group"
         status.hardware_id = ",".join(f"node{j.node_id}" for j in self._cfg().joints)

@@ -28,12 +28,13 @@ def bridge(ros_env):
     drive = MiniEpos(channel, 1, DriveUnits(nominal_current=3.0))
     ctx = rclpy.Context()
     rclpy.init(context=ctx)
-    # heartbeat_timeout 1 s: the stand-in drive shares this process (and its GIL) with the node and
-    # the test's executors, and was seen silent for 346 ms on a loaded machine; heartbeat-loss
+    # heartbeat_timeout 2 s: the stand-in drive shares this process (and its GIL) with the node and
+    # the test's executors, and was seen silent for 1148 ms on a loaded machine; heartbeat-loss
     # timing is tested across processes in test_bridge_sim_multiprocess.py
     params = [Parameter("bus_interface", value="virtual"), Parameter("bus_channel", value=channel),
-              Parameter("sync_period", value=0.005), Parameter("heartbeat_timeout", value=1.0),
-              Parameter("setpoint_timeout", value=0.3), Parameter("joint_state_rate", value=50.0)]
+              Parameter("sync_period", value=0.005), Parameter("heartbeat_timeout", value=2.0),
+              Parameter("setpoint_timeout", value=0.3), Parameter("joint_state_rate", value=50.0),
+              Parameter("sync_timeout", value=2.0)]   # the SYNC producer shares the GIL with the test too
     node = BridgeNode(context=ctx, parameter_overrides=params)
     client = Node("ff_bridge_test_client", context=ctx)
     ex = MultiThreadedExecutor(num_threads=3, context=ctx)
@@ -88,18 +89,21 @@ def test_lifecycle_setpoints_faults_and_reset(bridge):
     assert _wait(lambda: js and pub.get_subscription_count() > 0)
     assert list(js[-1].name) == ["joint1"]
 
+    # 1.5 A for 300 ms: several joint-state samples (50 Hz) see it on a loaded machine
     t0 = time.time_ns() + 200_000_000
+    offsets = (0, 300_000_000, 350_000_000)
     pub.publish(setpoint_msg(t0, [1.5], 0, "p"))
-    pub.publish(setpoint_msg(t0 + 50_000_000, [30.0], 1, "p"))   # clamped to 10 A
-    pub.publish(setpoint_msg(t0 + 100_000_000, [0.0], 2, "p", last=True))
+    pub.publish(setpoint_msg(t0 + offsets[1], [30.0], 1, "p"))   # clamped to 10 A
+    pub.publish(setpoint_msg(t0 + offsets[2], [0.0], 2, "p", last=True))
     assert _wait(lambda: len(applied) == 3)
     stamps = [a.stamp.sec * 10**9 + a.stamp.nanosec for a in applied]
     for k, s in enumerate(stamps):                  # applied at (not before) the stamp
-        assert s >= t0 + k * 50_000_000
+        assert s >= t0 + offsets[k]
     assert applied[1].currents[0] == pytest.approx(9.999, abs=1e-3)
     # joint states: effort N·m at the joint = gear x kt x the motor current published beside it,
     # both stamped with the drive sample's bus time, each sample once
     units = node.master.units[0]
+    assert _wait(lambda: any(abs(m.effort[0]) > 0.1 for m in list(cur)))
     by_stamp = {(m.header.stamp.sec, m.header.stamp.nanosec): m.effort[0] for m in list(cur)}
     pairs = [(m.effort[0], by_stamp[k]) for m in list(js)
              if (k := (m.header.stamp.sec, m.header.stamp.nanosec)) in by_stamp]
@@ -110,7 +114,7 @@ def test_lifecycle_setpoints_faults_and_reset(bridge):
     assert all(b > a for a, b in zip(stamps_js, stamps_js[1:]))
     assert all(0 < time.time_ns() - s < 30 * 10**9 for s in stamps_js)
     assert max(abs(sp) for _, sp in drive.rx_log) <= 3333
-    assert drive.setpoint_raw == 0
+    assert _wait(lambda: drive.setpoint_raw == 0)
 
     drive.raise_fault(0x3210)
     assert _wait(lambda: node.master.latched)
@@ -185,9 +189,9 @@ def test_parameters_show_the_config_in_use_and_estop(bridge):
     node.trigger_activate()
     assert node.active
     assert node.get_parameter("sync_period").value == 0.005
-    # resolved: max(3 x 100 ms, heartbeat_timeout 1 s); rpdo: max(500 ms, 2 x 1 s)
-    assert node.get_parameter("master_heartbeat_timeout_ms").value == 1000
-    assert node.get_parameter("rpdo_timeout_ms").value == 2000
+    # resolved: max(3 x 100 ms, heartbeat_timeout 2 s); rpdo: max(500 ms, 2 x 2 s)
+    assert node.get_parameter("master_heartbeat_timeout_ms").value == 2000
+    assert node.get_parameter("rpdo_timeout_ms").value == 4000
     assert node.get_parameter("bus_channel").value == node.config.bus.channel
     res = node.set_parameters([Parameter("setpoint_timeout", value=9.0)])[0]
     assert not res.successful and "cleanup" in res.reason
@@ -200,3 +204,35 @@ def test_parameters_show_the_config_in_use_and_estop(bridge):
     assert node.master.latched and "e-stop" in node.master.fault_reason
     assert _wait(lambda: drive.state.value != "Operation enabled")
     assert drive.setpoint_raw == 0
+
+
+def test_every_parameter_has_a_descriptor_with_its_range_and_out_of_range_values_are_refused(ros_env):
+    import rclpy
+    from rclpy.parameter import Parameter
+
+    from ff_hwbridge.ros.bridge_node import PARAMS, RANGES, BridgeNode
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    try:
+        node = BridgeNode(context=ctx)
+        for name, (default, text) in PARAMS.items():
+            d = node.describe_parameter(name)
+            assert d.description.startswith(text) and "read at configure" in d.description, name
+            if isinstance(default, (int, float)) and not isinstance(default, bool) and name in RANGES:
+                lo, hi = RANGES[name]
+                got = d.integer_range or d.floating_point_range
+                assert len(got) == 1 and (got[0].from_value, got[0].to_value) == (lo, hi), name
+                assert lo <= default <= hi, name
+        assert {n for n, (v, _) in PARAMS.items() if isinstance(v, (int, float))
+                and not isinstance(v, bool)} - set(RANGES) == set()
+        assert "on_receipt" in node.describe_parameter("setpoint_timing").additional_constraints
+        res = node.set_parameters([Parameter("spin_margin", value=0.5)])[0]
+        assert not res.successful and node.get_parameter("spin_margin").value == 0.0003
+        res = node.set_parameters([Parameter("master_node_id", value=128)])[0]
+        assert not res.successful
+        res = node.set_parameters([Parameter("setpoint_timeout", value=0.2)])[0]   # unconfigured: taken
+        assert res.successful and node.get_parameter("setpoint_timeout").value == 0.2
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
