@@ -131,16 +131,17 @@ class StackOptions:
     switch_interval: Optional[float] = 1e-4    # s, GIL switch interval of the sim driver and the
                                                # bridge (ff_executor.bringup.timed); None = Python's 5 ms
     separate_hub: bool = True                  # CAN hub in its own process (else the sim driver hosts it)
-    setpoint_timing: str = "on_receipt"        # "on_receipt": applied when they arrive, at their stamps;
-                                               # "sync": the drives latch setpoints at SYNC, produced by
-                                               # the hub's timer (separate hub) every SYNC_PERIOD (a
-                                               # cancel's zero current was seen not to take effect in
-                                               # this mode: not the default until that is fixed)
+    setpoint_timing: str = "sync"              # "sync": the drives latch setpoints at SYNC, produced by
+                                               # the hub's timer (separate hub) every SYNC_PERIOD;
+                                               # "on_receipt": applied when they arrive, at their stamps
     rt_priority: int = 0                       # 1..99: SCHED_FIFO for the sim driver process and the
                                                # bridge's scheduler thread (root/CAP_SYS_NICE); 0 = off
     timing_nice: Optional[int] = -10           # nice value for the sim driver and the bridge (the
                                                # timing-critical end); None = leave as is
     record: Optional[str] = None               # bag folder: record the run with ff-record (MCAP)
+    sim_friction: Mapping[str, float] = field(default_factory=dict)   # the simulated arm's friction
+                                               # that is not Eq. 9 (1-DOF): stribeck, stribeck_speed,
+                                               # coulomb_ripple, coulomb_period (sim driver friction.*)
 
     def true_friction(self) -> dict[str, float]:
         """The simulated arm's true parameters that differ from the planner's model."""
@@ -155,6 +156,17 @@ class StackOptions:
         out.update({k: float(v) for k, v in self.true_params.items()})
         base.replace(**out)     # ParameterError on unknown keys or bad values
         return out
+
+
+def _parameter_value(v: object) -> ParameterValue:
+    """A ROS parameter value of a Python bool, int, float or str."""
+    if isinstance(v, bool):
+        return ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=v)
+    if isinstance(v, int):
+        return ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=v)
+    if isinstance(v, float):
+        return ParameterValue(type=ParameterType.PARAMETER_DOUBLE, double_value=v)
+    return ParameterValue(type=ParameterType.PARAMETER_STRING, string_value=str(v))
 
 
 def free_port() -> int:
@@ -309,6 +321,7 @@ class Stack:
             "nominal_current": NOMINAL_CURRENT, "ground_truth_rate": 100.0,
             "physics_step": default_params(o.model).plant_step}
         sim.update({f"true_params.{k}": v for k, v in o.true_friction().items()})
+        sim.update({f"friction.{k}": float(v) for k, v in o.sim_friction.items()})
         sim.update(o.sim_overrides)
         return sim
 
@@ -332,6 +345,9 @@ class Stack:
         pp: dict[str, object] = {"library_path": str(self.run_dir / "motions.sqlite")}
         if self.options.setpoint_timing == "sync":     # switch times on the drives' SYNC cycle
             pp["switch_grid"] = SYNC_PERIOD
+        # currents on the simulated EPOS4's grid (target torque in per mille of the rated torque):
+        # the plan's predicted rest position is then the one of the profile the drive applies
+        pp["current_quantum"] = NOMINAL_CURRENT / 1000.0
         pp.update(self.options.planner_overrides)
         return [self.options.planner_params or str(CONFIG_DIR / "planner.yaml")], pp
 
@@ -442,15 +458,23 @@ class Stack:
     def set_true_params(self, values: Mapping[str, float], timeout: float = 10.0) -> None:
         """Change the simulated arm's true parameters at runtime (``true_params.<key>``, SI)."""
         default_params(self.options.model).replace(**values)   # refuse unknown keys early
+        self.set_sim_parameters({f"true_params.{k}": float(v) for k, v in values.items()}, timeout)
+
+    def set_sim_friction(self, values: Mapping[str, float], timeout: float = 10.0) -> None:
+        """Change the simulated arm's friction that is not Eq. 9 at runtime (``friction.<key>``:
+        stribeck, stribeck_speed, coulomb_ripple, coulomb_period; all levels 0 = Eq. 9)."""
+        self.set_sim_parameters({f"friction.{k}": float(v) for k, v in values.items()}, timeout)
+
+    def set_sim_parameters(self, values: Mapping[str, object], timeout: float = 10.0) -> None:
+        """Set parameters of the running ``ff_sim_driver`` (double, integer, bool or string
+        values), all in one call; BringupError if it refuses or does not answer."""
         node = self._probe()
         cli = node.create_client(SetParameters, "/ff_sim_driver/set_parameters")
         try:
             if not cli.wait_for_service(timeout_sec=timeout):
                 raise BringupError("ff_sim_driver's set_parameters service is not available")
-            req = SetParameters.Request(parameters=[
-                Parameter(name=f"true_params.{k}", value=ParameterValue(
-                    type=ParameterType.PARAMETER_DOUBLE, double_value=float(v)))
-                for k, v in values.items()])
+            req = SetParameters.Request(parameters=[Parameter(name=k, value=_parameter_value(v))
+                                                    for k, v in values.items()])
             fut = cli.call_async(req)
             ex = SingleThreadedExecutor(context=self._ctx)
             ex.add_node(node)
@@ -460,7 +484,7 @@ class Stack:
                 raise BringupError("ff_sim_driver did not answer set_parameters")
             bad = [r.reason for r in fut.result().results if not r.successful]
             if bad:
-                raise BringupError(f"ff_sim_driver refused the true parameters: {bad}")
+                raise BringupError(f"ff_sim_driver refused the parameters: {bad}")
         finally:
             node.destroy_client(cli)
 
@@ -554,10 +578,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--rt-priority", type=int, default=0, metavar="N",
                     help="SCHED_FIFO priority 1..99 for the simulated driver and the bridge's "
                          "scheduler thread (needs root/CAP_SYS_NICE; 0 = off, the default)")
-    ap.add_argument("--setpoint-timing", choices=("sync", "on_receipt"), default="on_receipt",
-                    help="on_receipt (default): setpoints applied when they arrive, at their stamps; "
-                         "sync: the drives latch setpoints at SYNC, produced by the CAN hub's timer "
-                         "(a cancel's zero current was seen not to take effect in this mode)")
+    ap.add_argument("--setpoint-timing", choices=("sync", "on_receipt"), default="sync",
+                    help="sync (default): the drives latch setpoints at SYNC, produced by the CAN hub's "
+                         "timer; on_receipt: setpoints applied when they arrive, at their stamps")
     return ap
 
 
