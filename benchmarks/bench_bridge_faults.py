@@ -10,99 +10,119 @@ was written to the rig's stdin (CLOCK_MONOTONIC is system-wide on Linux), so it 
 pipe and the rig's command handling: an upper bound of the bridge's own reaction. Prints JSON
 with p50 / max per fault, the reasons, and whether every reset re-enabled the drive.
 
-Then, per repetition, a master PROCESS (``ff-epos``, the shipped hardware settings: master
-heartbeat 100 ms consumed with 300 ms by the drive) holds 0.5 A and is killed (SIGKILL) or frozen
-(SIGSTOP): time from the signal to zero current at the simulated drive (the drive's own monotonic
-stamp of its error, which zeroes the current at once; also when the polling saw it) and the
-drive's state and fault code (what the user reads), through the rig's stdin (``info 1``).
+Then the fault-injection scenarios across processes (``ff_hwbridge.sim.faults``: master process
+SIGKILLed / SIGSTOPped, hub restarted, drive powered late, drive in Fault at start, scaling
+mismatch, EMCY warning vs error, envelope breach, e-stop), the executor SIGKILLed mid-motion on
+the ROS stack, each ``--fault-repeats`` times: time from the injection to the drive leaving
+OPERATION ENABLED and to 0 A by the simulated drive's own stamps, its state and error code, and
+the reason the user reads. Last, the stranger's master (canopen + the EPOS4 EDS only) on a fresh
+drive and on one left idle for ``--stranger-idle`` s (started first, so the idling overlaps the
+rest).
 
-    .venv/bin/python benchmarks/bench_bridge_faults.py --repeats 5
+    .venv/bin/python benchmarks/bench_bridge_faults.py --repeats 5 --fault-repeats 3
 """
 from __future__ import annotations
 
 import argparse
 import json
 import os
-import re
-import signal
-import subprocess
 import sys
 import tempfile
 import time
+from importlib import resources
+from pathlib import Path
 
 import numpy as np
 
 from ff_hwbridge.drive.epos import EposMaster
 from ff_hwbridge.protocol.cia402 import State
-from ff_hwbridge.sim.rig import RigConfig
+from ff_hwbridge.sim import faults
 from ff_hwbridge.sim.rig_process import RigProcess, rig_master_config
 
-
-def _info(sim: RigProcess) -> tuple[str, int, float, float]:
-    """(state, fault code, applied A, monotonic s of the drive's latest error) of node 1."""
-    reply = sim.cmd("info 1")
-    m_state = re.search(r"state='([^']*)'", reply)
-    m_fault = re.search(r"fault=0x([0-9A-F]{4})", reply)
-    m_amps = re.search(r" i=([-0-9.e]+)", reply)
-    m_t = re.search(r"error_t=([0-9.]+)", reply)
-    if not (m_state and m_fault and m_amps and m_t):
-        raise RuntimeError(f"unexpected rig reply: {reply}")
-    return m_state.group(1), int(m_fault.group(1), 16), float(m_amps.group(1)), float(m_t.group(1))
+# the executor-kill and stranger scenarios live with their tests (they use the ROS stack / no
+# project code at all): import them from the repository root
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
-def master_process_faults(sim: RigProcess, repeats: int) -> dict:
-    """Kill / freeze an ``ff-epos`` process holding 0.5 A; time to zero current at the drive."""
-    d = RigConfig().drive_configs()[0]
-    cfg_text = json.dumps({
-        "bus": {"interface": "remote", "channel": sim.url}, "sync_period": 0.002,
-        "heartbeat_producer_ms": 50, "heartbeat_timeout": 1.0, "setpoint_timeout": 30.0,
-        "sdo_timeout": 2.0, "master_heartbeat_ms": 100, "master_heartbeat_timeout_ms": 300,
-        "rpdo_timeout_ms": 0,
-        "joints": [{"name": "joint1", "node_id": 1, "family": "epos4", "current_limit": 10.0,
-                    "units": {"nominal_current": d.nominal_current, "torque_constant": d.torque_constant,
-                              "counts_per_rev": d.counts_per_rev, "gear_ratio": d.gear_ratio}}]})
+def _stats(values: list[float]) -> dict:
+    arr = np.asarray([v for v in values if v is not None], dtype=float) * 1000.0
+    if not arr.size:
+        return {"p50": None, "max": None}
+    return {"p50": float(np.median(arr)), "max": float(arr.max())}
+
+
+def scenario_faults(repeats: int) -> dict:
+    """Every scenario of ``ff_hwbridge.sim.faults`` ``repeats`` times: time to leaving OPERATION
+    ENABLED and to 0 A by the drive's own stamps, and what the user read."""
     out: dict = {}
-    with tempfile.NamedTemporaryFile("w", suffix=".yaml", delete=False) as fh:
-        fh.write(cfg_text)                   # JSON is YAML
-    try:
-        for name, sig in (("master_sigkill", signal.SIGKILL), ("master_sigstop", signal.SIGSTOP)):
-            times, polled, seen = [], [], set()
-            for _ in range(repeats):
-                sim.cmd("resetnode 1")       # power-cycle the drive (it is in Fault after a repeat)
-                p = subprocess.Popen([sys.executable, "-u", "-m", "ff_hwbridge.cli.epos", "--config",
-                                      fh.name, "--enable", "--current", "0.5", "--hold", "60"],
-                                     stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-                try:
-                    assert p.stdout is not None
-                    end = time.monotonic() + 30.0
-                    while time.monotonic() < end and '"enabled": true' not in p.stdout.readline():
-                        pass
-                    end = time.monotonic() + 5.0
-                    while abs(_info(sim)[2] - 0.5) > 0.003 and time.monotonic() < end:
-                        time.sleep(0.01)
-                    time.sleep(0.3)
-                    t0 = time.monotonic()
-                    os.kill(p.pid, sig)
-                    while _info(sim)[2] != 0.0 and time.monotonic() - t0 < 3.0:
-                        pass
-                    seen_ms = (time.monotonic() - t0) * 1000.0
-                    state, fault, _, t_err = _info(sim)
-                    times.append((t_err - t0) * 1000.0)     # the drive's own stamp (same clock)
-                    polled.append(seen_ms)
-                    seen.add(f"{state}, 0x{fault:04X}")
-                finally:
-                    if sig == signal.SIGSTOP:
-                        os.kill(p.pid, signal.SIGCONT)
-                    p.kill()
-                    p.wait(5)
-            arr = np.asarray(times)
-            out[name] = {"repeats": repeats, "to_zero_current_ms_p50": float(np.median(arr)),
-                         "to_zero_current_ms_max": float(arr.max()),
-                         "seen_by_polling_ms_max": float(max(polled)),
-                         "within_500ms": int((arr < 500.0).sum()), "drive_state_and_fault": sorted(seen)}
-    finally:
-        os.unlink(fh.name)
+    for name in faults.SCENARIOS:
+        runs, errors = [], []
+        for _ in range(repeats):
+            try:
+                runs.append(faults.run(name))
+            except Exception as exc:  # noqa: BLE001 - counted and shown, the others go on
+                errors.append(f"{type(exc).__name__}: {exc}"[:300])
+        if not runs:
+            out[name] = {"repeats": repeats, "errors": errors}
+            continue
+        left = [r.out_of_enabled_s for r in runs]
+        out[name] = {
+            "repeats": repeats, "errors": errors, "must_stop": runs[0].must_stop,
+            "stopped": sum(r.stopped for r in runs),
+            "out_of_enabled_ms": _stats(left), "zero_current_ms": _stats([r.zero_current_s for r in runs]),
+            "within_500ms": sum(1 for v in left if v is not None and v < 0.5),
+            "drive_state_and_fault": sorted({f"{r.drive_state}, {r.drive_fault}" for r in runs}),
+            "reasons": sorted({r.reason for r in runs}),
+            "notes": runs[-1].notes}
     return out
+
+
+def executor_kill_faults(repeats: int) -> dict:
+    """The executor process SIGKILLed mid-motion on the ROS stack (tests/ff_hwbridge/faults)."""
+    from tests.ff_hwbridge.faults import executor_kill
+
+    runs = [executor_kill.run() for _ in range(repeats)]
+    left = [r["out_of_enabled_s"] for r in runs]
+    return {"executor_sigkill": {
+        "repeats": repeats, "moving_at_kill": sum(bool(r["moving_at_kill"]) for r in runs),
+        "out_of_enabled_ms": _stats(left), "zero_current_ms": _stats([r["zero_current_s"] for r in runs]),
+        "within_500ms": sum(1 for v in left if v is not None and v < 0.5),
+        "statusword_after": sorted({str(r["statusword_after"]) for r in runs}),
+        "reasons": sorted({r["reason"] for r in runs})}}
+
+
+def stranger_master(idle_rig: "RigProcess | None", idle_since: float, idle_s: float) -> dict:
+    """The stranger's master (canopen + the EPOS4 EDS only) on a fresh drive and, when
+    ``idle_rig`` is given, on one left idle for ``idle_s`` s."""
+    from tests.ff_hwbridge.faults import stranger
+
+    eds = str(resources.files("ff_hwbridge.sim") / "epos4.eds")
+    out: dict = {}
+
+    def one(rig: RigProcess) -> dict:
+        seen = stranger.run({"interface": "remote", "channel": rig.url, "bitrate": 1_000_000}, 1, eds)
+        return {"ok": True, "heartbeat_emcy": f"0x{seen['heartbeat_emcy']:04X}",
+                "heartbeat_emcy_after_ms": seen["heartbeat_emcy_after_s"] * 1000.0,
+                "quick_stop_to_standstill_ms": seen["quick_stop_to_standstill_s"] * 1000.0,
+                "state_after_quick_stop": seen["state_after_quick_stop"],
+                "reactions_605A_605E_6007_1029": list(seen["reactions"])}
+
+    fresh = RigProcess(["--model", "arm1dof", "--node-ids", "1"], stderr=tempfile.TemporaryFile("w+"))
+    try:
+        try:
+            out["fresh"] = one(fresh)
+        except Exception as exc:  # noqa: BLE001 - reported, not fatal to the benchmark
+            out["fresh"] = {"ok": False, "error": str(exc)}
+    finally:
+        fresh.stop(10)
+    if idle_rig is not None:
+        time.sleep(max(0.0, idle_s - (time.monotonic() - idle_since)))
+        try:
+            out["idle"] = {"idle_s": time.monotonic() - idle_since, **one(idle_rig)}
+        except Exception as exc:  # noqa: BLE001
+            out["idle"] = {"ok": False, "error": str(exc)}
+    return out
+
 
 FAULTS = {
     "emcy": ("emcy 1 0x2310", "clear 1"),
@@ -117,7 +137,14 @@ def main() -> int:
     ap.add_argument("--heartbeat-ms", type=int, default=10)
     ap.add_argument("--heartbeat-timeout", type=float, default=0.04)
     ap.add_argument("--sync-period", type=float, default=0.001)
+    ap.add_argument("--fault-repeats", type=int, default=3, help="repeats of each fault scenario")
+    ap.add_argument("--no-stack", action="store_true", help="skip the executor kill (ROS stack)")
+    ap.add_argument("--stranger-idle", type=float, default=120.0,
+                    help="s the stranger's second drive is left idle (0 = skip that run)")
     a = ap.parse_args()
+    idle_rig = (RigProcess(["--model", "arm1dof", "--node-ids", "1"], stderr=tempfile.TemporaryFile("w+"))
+                if a.stranger_idle > 0 else None)
+    idle_since = time.monotonic()
     sim = RigProcess(["--model", "arm1dof", "--node-ids", "1"])
     master = None
     try:
@@ -132,7 +159,8 @@ def main() -> int:
         if not master.wait_for_state(State.OPERATION_ENABLED, 3.0):
             print(json.dumps({"error": f"not enabled: {master.states()} {master.fault_reason}"}))
             return 1
-        out: dict = {"benchmark": "bridge_faults", "heartbeat_producer_ms": a.heartbeat_ms,
+        out: dict = {"benchmark": "bridge_faults", "load_avg_1min_at_start": os.getloadavg()[0],
+                     "heartbeat_producer_ms": a.heartbeat_ms,
                      "heartbeat_timeout_s": a.heartbeat_timeout, "sync_period_s": a.sync_period,
                      "faults": {}, "cpu_count": os.cpu_count()}
         for name, (inject, clear) in FAULTS.items():
@@ -172,12 +200,11 @@ def main() -> int:
                 "recovered_after_reset": recovered}
         master.disconnect()
         master = None
-        # a clean command channel; the rig's logs (a killed client's websocket) kept apart
-        sim2 = RigProcess(["--model", "arm1dof", "--node-ids", "1"], stderr=tempfile.TemporaryFile("w+"))
-        try:
-            out["faults"].update(master_process_faults(sim2, a.repeats))
-        finally:
-            sim2.stop(10)
+        sim.stop(10)
+        out["faults"].update(scenario_faults(a.fault_repeats))
+        if not a.no_stack:
+            out["faults"].update(executor_kill_faults(a.fault_repeats))
+        out["stranger_master"] = stranger_master(idle_rig, idle_since, a.stranger_idle)
         out["load_avg_1min"] = os.getloadavg()[0]
         print(json.dumps(out, indent=1))
         return 0
@@ -185,6 +212,8 @@ def main() -> int:
         if master is not None:
             master.disconnect()
         sim.stop(10)
+        if idle_rig is not None:
+            idle_rig.stop(10)
 
 
 if __name__ == "__main__":

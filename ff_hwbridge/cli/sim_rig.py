@@ -6,6 +6,13 @@
 Prints ``sim rig ready`` once the drives have booted, reads commands from stdin (one a line,
 ``ff_hwbridge.sim.rig.run_command``), and on SIGINT/SIGTERM (or the command ``quit``) writes the
 setpoint arrival log as JSON to ``--record``.
+
+``--boot-delay S``: the drives are powered S s after ``sim rig ready`` (they answer nothing before,
+as a drive that is still off). ``--nominal-current A``: the motor data the drives are set up with.
+On a hub it joined (``--bus-url``) the rig treats a lost hub as bus off (the drives fault with
+0x81FD and drive no current), reconnects every 0.5 s and puts the drives back on the bus
+(PRE-OPERATIONAL, EMCY 0x81FD), and exits with code 3 when the hub is not back within
+``--reconnect-timeout`` s; each step is a line on stderr.
 """
 from __future__ import annotations
 
@@ -37,11 +44,21 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
                     help="true model parameter (e.g. pc=0.25), repeatable")
     ap.add_argument("--step", type=float, default=1e-4, help="s, physics sub-step")
+    ap.add_argument("--nominal-current", type=float, default=None, metavar="A",
+                    help="nominal current the drives are set up with (0x3001:01; default 3 A)")
+    ap.add_argument("--boot-delay", type=float, default=0.0, metavar="S",
+                    help="power the drives this many seconds after start (a drive powered late)")
+    ap.add_argument("--reconnect-timeout", type=float, default=30.0, metavar="S",
+                    help="with --bus-url: exit (code 3) when the hub is gone this long")
     ap.add_argument("--record", help="write the setpoint arrival log (JSON) here on exit")
     ap.add_argument("--switch-interval", type=float, default=SWITCH_INTERVAL, metavar="S",
                     help="python thread switch interval (s, python's default 0.005); smaller = "
                          "shorter waits of the CAN receive thread behind other threads")
     a = ap.parse_args(argv)
+    if not (a.boot_delay >= 0.0 and a.reconnect_timeout > 0.0):
+        print(f"ff-sim-rig: --boot-delay must be >= 0 s and --reconnect-timeout > 0 s, got "
+              f"{a.boot_delay} / {a.reconnect_timeout}", file=sys.stderr)
+        return 2
     if a.switch_interval and a.switch_interval > 0:
         sys.setswitchinterval(a.switch_interval)
     hub: Optional[CanHub] = None
@@ -55,7 +72,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         cfg = RigConfig(model=a.model, node_ids=tuple(int(x, 0) for x in a.node_ids.split(",")),
                         family=a.family, bus=bus,
                         true_params=params, q0=tuple(float(x) for x in a.q0.split(",")),
-                        step=a.step)
+                        step=a.step,
+                        **({"nominal_current": a.nominal_current} if a.nominal_current is not None else {}))
         rig = SimRig(cfg)
     except (ParameterError, SimConfigError, ValueError) as exc:
         print(f"ff-sim-rig: {exc}", file=sys.stderr)
@@ -63,8 +81,16 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             hub.close()
         return 2
     stop = threading.Event()
+    gave_up = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
+    if hub is None:
+        def give_up() -> None:
+            gave_up.set()
+            stop.set()
+
+        rig.watch_bus(lambda text: print(f"ff-sim-rig: {text}", file=sys.stderr, flush=True),
+                      give_up, a.reconnect_timeout)
 
     def read_stdin() -> None:
         for line in sys.stdin:          # EOF (stdin /dev/null) just ends the reader
@@ -73,9 +99,15 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                 return
             print(run_command(rig, line), flush=True)
 
-    rig.boot()
     if hub is not None:
         print(f"CAN hub on {hub.url}", flush=True)
+    if a.boot_delay > 0:
+        print(f"ff-sim-rig: drives powered in {a.boot_delay:g} s", file=sys.stderr, flush=True)
+        for d in rig.drives:
+            d.power_off()
+        threading.Timer(a.boot_delay, rig.boot).start()
+    else:
+        rig.boot()
     print("sim rig ready", flush=True)
     if not sys.stdin.isatty():
         threading.Thread(target=read_stdin, daemon=True).start()
@@ -87,7 +119,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if hub is not None:
         hub.close()
     print("sim rig stopped", flush=True)
-    return 0
+    return 3 if gave_up.is_set() else 0
 
 
 if __name__ == "__main__":

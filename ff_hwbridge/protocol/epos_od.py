@@ -8,13 +8,14 @@ PDO-mappable) that both sides build from: the master (``epos.py``) for its Remot
 error history, RxPDO 2-4 / TxPDO 3-4, quick stop option, further motor data). Motor data
 defaults come from ``MotorData`` (what a drive serves), e.g. ``MotorData.from_units(units)``.
 
-Contract objects: 0x1000 device type, 0x1001 error register, 0x1016:01-04 consumer heartbeat
+Contract objects: 0x1000 device type, 0x1001 error register, 0x1016:01-02 consumer heartbeat
 time ((node id << 16) | ms), 0x1017 producer heartbeat (ms), 0x1400/0x1600 RPDO1,
 0x1800/0x1A00 TPDO1, 0x1801/0x1A01 TPDO2, 0x6040 controlword, 0x6041 statusword, 0x6060/0x6061
 modes of operation (+display), 0x6064 position actual (inc), 0x606C velocity actual (rpm),
 0x1003 pre-defined error field (error history, newest first), 0x1018 identity (:01 vendor id),
 0x1029:01 communication error behaviour, 0x6007 abort connection option, 0x603F error code,
 0x605A quick stop option, 0x605E fault reaction option, 0x6085 quick stop deceleration (rpm/s),
+0x6084 profile deceleration (rpm/s, the "slow down ramp"; drive only),
 0x60A9 SI unit velocity, 0x60C2 interpolation time period (:01 value, :02 index), 0x6502
 supported drive modes, 0x3000:05 main sensor resolution (EPOS4, increments/rev), RxPDO1 event
 timer 0x1400:05 (ms, deadline monitoring),
@@ -51,6 +52,10 @@ VELOCITY_UNIT_RPM = 0x00B44700
 SUPPORTED_MODES = {"epos4": (1 << 0) | (1 << 2) | (1 << 5) | (1 << 7) | (1 << 8) | (1 << 9),
                    "epos2": (1 << 0) | (1 << 2) | (1 << 5) | (1 << 6)}
 PDO_VALID_BIT = 1 << 31          # set = PDO disabled (CiA 301 "not valid")
+PDO_NO_RTR_BIT = 1 << 30         # set = no RTR allowed on this TxPDO (maxon's default on TxPDOs)
+#: 0x605A quick stop option code at maxon's factory setting: 6 = quick-stop ramp, then stay in
+#: QUICK STOP ACTIVE
+FACTORY_QUICK_STOP_OPTION = 6
 
 
 @dataclass(frozen=True)
@@ -126,7 +131,8 @@ def _v(index: int, name: str, dtype: int, access: str = "rw", default: Default =
 def _pdo_objects() -> list[ObjectSpec]:
     """RxPDO / TxPDO 1-4 communication and mapping objects (the contract uses RxPDO1 and
     TxPDO1/2; the rest are drive-only). Defaults per maxon: RxPDO1 = controlword on 0x200+id,
-    TxPDO1 = statusword on 0x180+id, the others disabled (COB-ID bit 31) and empty."""
+    TxPDO1 = statusword on 0x180+id (inhibit time 1 ms), the others disabled (COB-ID bit 31) and
+    empty; TxPDO COB-IDs with bit 30 (no RTR) set."""
     out = []
     for n in range(4):
         bit = 0 if n == 0 else PDO_VALID_BIT
@@ -135,7 +141,7 @@ def _pdo_objects() -> list[ObjectSpec]:
             return (0x200 + 0x100 * n + c.node_id) | bit
 
         def tcob(c: _Ctx, n: int = n, bit: int = bit) -> int:
-            return (0x180 + 0x100 * n + c.node_id) | bit
+            return (0x180 + 0x100 * n + c.node_id) | bit | PDO_NO_RTR_BIT
 
         entries = [Entry(i, f"Mapped object {i}", UNSIGNED32, "rw", 0) for i in range(1, 9)]
         rmap = [Entry(1, "Mapped object 1", UNSIGNED32, "rw", 0x60400010)] if n == 0 else []
@@ -153,7 +159,7 @@ def _pdo_objects() -> list[ObjectSpec]:
             ObjectSpec(0x1800 + n, f"Transmit PDO {n + 1} parameter", (
                 Entry(1, "COB-ID used by TxPDO", UNSIGNED32, "rw", tcob),
                 Entry(2, "Transmission type", UNSIGNED8, "rw", 255),
-                Entry(3, "Inhibit time", UNSIGNED16, "rw", 0, "100 µs"),
+                Entry(3, "Inhibit time", UNSIGNED16, "rw", 10 if n == 0 else 0, "100 µs"),
                 Entry(5, "Event timer", UNSIGNED16, "rw", 0, "ms")), "record",
                 drive_only=tx_only),
             ObjectSpec(0x1A00 + n, f"Transmit PDO {n + 1} mapping",
@@ -178,7 +184,7 @@ OBJECTS: tuple[ObjectSpec, ...] = (
     _v(0x1014, "COB-ID EMCY", U32, "rw", lambda c: 0x80 + c.node_id, drive_only=True),
     ObjectSpec(0x1016, "Consumer heartbeat time",       # (node id << 16) | time ms
                tuple(Entry(i, f"Consumer heartbeat time {i}", U32, "rw", 0, "(id << 16) | ms")
-                     for i in range(1, 5)), "array"),
+                     for i in range(1, 3)), "array"),      # an EPOS4 has two entries
     _v(0x1017, "Producer heartbeat time", U16, "rw", 0, "ms"),
     ObjectSpec(0x1029, "Error behaviour", (         # CiA 301: 0 pre-operational, 1 none, 2 stopped
         Entry(1, "Communication error", U8, "rw", 0),), "array"),
@@ -195,6 +201,7 @@ OBJECTS: tuple[ObjectSpec, ...] = (
     _v(0x603F, "Error code", U16, "ro", 0, pdo=True),
     _v(0x605A, "Quick stop option code", I16, "rw", lambda c: c.quick_stop_option),
     _v(0x605E, "Fault reaction option code", I16, "rw", 2),      # 2 = quick stop ramp
+    _v(0x6084, "Profile deceleration", U32, "rw", 10000, "rpm/s", drive_only=True),
     _v(0x6085, "Quick stop deceleration", U32, "rw", 10000, "rpm/s"),
     _v(0x60A9, "SI unit velocity", U32, "rw", VELOCITY_UNIT_RPM),
     ObjectSpec(0x60C2, "Interpolation time period", (
@@ -258,7 +265,7 @@ def build_object_dictionary(family: str = "epos4", node_id: int = 1,
                             units: Optional[DriveUnits] = None,
                             output_current_limit_ma: int = 10000, *,
                             motor: Optional[MotorData] = None, drive: bool = False,
-                            quick_stop_option: int = 2,
+                            quick_stop_option: int = FACTORY_QUICK_STOP_OPTION,
                             device_name: Optional[str] = None) -> ObjectDictionary:
     """The object dictionary of one drive of ``family`` ('epos4' | 'epos2'), from ``OBJECTS``.
 

@@ -19,12 +19,19 @@ What it does, per the suite's CANopen contract (CiA 301/402):
   loop, tens of µs, a constant) and current-loop dynamics; the setpoint is a current step.
   The controlword drives the CiA 402 state machine (the tables of ``cia402``, plus the
   EPOS's "switch on & enable operation" 0x000F from READY TO SWITCH ON = transitions 3+4, and
-  the quick stop option code 0x605A: 0 = disable at once, 1-4 = current 0 then SWITCH ON
-  DISABLED once the motor stands still, 5-8 = stay in QUICK STOP ACTIVE), the setpoint becomes
+  the quick stop option code 0x605A: 0 = disable at once, 1-4 = stop, then SWITCH ON DISABLED
+  once the motor stands still, 5-8 = stop and stay in QUICK STOP ACTIVE), the setpoint becomes
   motor current, clamped to the drive's own output current limit like a real drive. Current is
   only driven in OPERATION ENABLED and in the drive's current mode (EPOS4 CST 10, EPOS2 -3).
+- Stop ramps: a quick stop (0x605A 1/2/5/6, 3/4/7/8 at the current limit) or a fault reaction
+  (0x605E 1/2; 0 = current 0 at once) of a moving motor brakes it under the drive's velocity
+  loop, the speed reference falling at 0x6085 quick stop deceleration (or 0x6084 profile
+  deceleration for the slow down ramp; rpm/s of the motor), to standstill; a fault waits in
+  FAULT REACTION ACTIVE meanwhile. 0x6085 is a velocity deceleration, so the ramp is a speed
+  ramp, not a torque ramp. The loop is tuned to ``DriveConfig.load_inertia`` (0: no ramp).
 - TPDOs with transmission type 1-240 sent on every n-th SYNC in OPERATIONAL, sampled at the SYNC's
-  arrival (event-driven TPDOs, types 254/255, are not produced: the contract uses SYNC);
+  arrival; event-driven TPDOs (254/255, maxon's default for TxPDO1) on a change of a mapped
+  value, no sooner than the inhibit time, and every event timer if set;
   heartbeat producer per 0x1017; EMCY (0x080+id) with error register 0x1001 and the
   pre-defined error field 0x1003 on a fault; fault reset by a rising controlword bit 7
   (EMCY "error reset" 0x0000 sent).
@@ -41,7 +48,13 @@ What it does, per the suite's CANopen contract (CiA 301/402):
   0x603F error code = the code of the present fault; 0x1003 the history, newest first.
 - Every received setpoint is recorded with its arrival time (``time.monotonic_ns`` and wall clock
   ``time.time_ns``), so benchmarks can compare the time a setpoint was due with when it applied.
-- Fault injection: stop heartbeat, raise EMCY, stop answering SDO, delay / drop frames.
+- Fault injection: stop heartbeat, raise EMCY, stop answering SDO, delay / drop frames, power
+  off (hears and sends nothing until ``boot``), bus lost (``bus_lost``: Fault 0x81FD CAN bus off,
+  current 0; ``reattach`` puts it on a new bus, PRE-OPERATIONAL, EMCY sent then).
+- Every state change is stamped by the drive (``state_log``, ``left_enabled_ns``,
+  ``zero_current_ns``: ``time.monotonic_ns``), for timing faults at the drive itself.
+- Factory settings as maxon's: 0x605A 6, 0x605E 2, 0x6007 3, 0x1029:01 0 (the objects and
+  defaults of ``ff_hwbridge/sim/epos4.eds``).
 
 Units on the wire (maxon EPOS4 Firmware Specification / object dictionary; the search tool here
 did not return maxon's own pages, so these are from maxon's EDS/firmware conventions as recalled,
@@ -78,7 +91,8 @@ from canopen.sdo import SdoAbortedError
 
 from ff_hwbridge.protocol import cia402, epos_od
 from ff_hwbridge.protocol.cia402 import Command, State
-from ff_hwbridge.protocol.epos_od import CURRENT_MODE, MAXON_VENDOR_ID, PDO_VALID_BIT, MotorData  # noqa: F401
+from ff_hwbridge.protocol.epos_od import (CURRENT_MODE, FACTORY_QUICK_STOP_OPTION, MAXON_VENDOR_ID,  # noqa: F401
+                                          PDO_VALID_BIT, MotorData)
 from ff_hwbridge.protocol.units import FAMILIES, DriveUnits
 
 _NUMBER_TYPES = od.NUMBER_TYPES
@@ -110,7 +124,10 @@ class DriveConfig:
     torque_constant: float = 0.0267     # Nm/A, 0x3001:05
     counts_per_rev: int = 2048          # encoder increments per motor revolution (quadcounts)
     gear_ratio: float = 54.0            # joint angle = motor angle / gear_ratio
-    quick_stop_option: int = 2          # 0x605A default (maxon default 2: stop, then SOD)
+    quick_stop_option: int = FACTORY_QUICK_STOP_OPTION   # 0x605A at power-on (maxon: 6)
+    load_inertia: float = 0.0           # kg m² at the joint, the velocity loop's tuning for stop
+                                        # ramps (0 = unknown: quick stop / fault reaction cut the
+                                        # current at once)
 
     def __post_init__(self) -> None:
         if not 1 <= int(self.node_id) <= 127:
@@ -121,6 +138,9 @@ class DriveConfig:
             v = getattr(self, k)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise SimConfigError(f"{k} must be a finite number > 0, got {v!r}")
+        if not (isinstance(self.load_inertia, (int, float)) and math.isfinite(self.load_inertia)
+                and self.load_inertia >= 0):
+            raise SimConfigError(f"load_inertia must be a finite number >= 0 kg m², got {self.load_inertia!r}")
         if int(self.counts_per_rev) <= 0:
             raise SimConfigError(f"counts_per_rev must be > 0, got {self.counts_per_rev}")
         lim_ma = 65535 if self.family == "epos2" else 2**32 - 1
@@ -146,11 +166,23 @@ class SetpointRecord:
     source: str           # 'rpdo' or 'sdo'
 
 
+@dataclass(frozen=True)
+class StateChange:
+    """One CiA 402 state change of the drive, stamped by the drive itself (monotonic ns, wall ns)
+    at the instant it took effect."""
+
+    mono_ns: int
+    wall_ns: int
+    state: State
+    transition: int
+
+
 @dataclass
 class FaultSettings:
     """Injected faults; change through SimEpos methods (thread-safe enough: plain attributes)."""
 
     heartbeat_stopped: bool = False
+    unpowered: bool = False          # switched off: hears and sends nothing
     sdo_silent: bool = False
     rx_delay_s: float = 0.0
     tx_delay_s: float = 0.0
@@ -169,6 +201,24 @@ class LinkStats:
 
 
 _POWERED = frozenset({State.OPERATION_ENABLED})
+_BRAKING = frozenset({State.QUICK_STOP_ACTIVE, State.FAULT_REACTION_ACTIVE})
+#: s, time constant of the drive's velocity loop while it brakes on a ramp
+RAMP_TAU = 0.02
+#: rad/s at the joint: below this the motor counts as standing still
+STANDSTILL = 0.002
+RPM_S = 2.0 * math.pi / 60.0      # rad/s² per rpm/s
+
+
+@dataclass
+class _Ramp:
+    """A stop on a deceleration ramp (quick stop 0x6085, slow down 0x6084, or at the current
+    limit): the speed reference falls from ``v0`` (rad/s, joint) to 0 at ``alpha`` rad/s²."""
+
+    kind: str               # 'quick_stop' or 'fault'
+    t0_ns: int
+    v0: float
+    alpha: float            # rad/s² at the joint (inf: at the current limit)
+    t_max: float            # s, the ramp is cut (current 0) after this
 SW_FOLLOWS_COMMAND = 1 << 12   # cyclic synchronous / current mode: drive follows the setpoint
 
 
@@ -341,7 +391,7 @@ class _Link:
             self.stats.rx_frames += 1
             self.rx_by_id[cid] = self.rx_by_id.get(cid, 0) + 1
             f = self.faults
-            if f.sdo_silent and cid == 0x600 + self.node_id:
+            if f.unpowered or (f.sdo_silent and cid == 0x600 + self.node_id):
                 return
             if self._drop("rx"):
                 self.stats.rx_dropped += 1
@@ -379,6 +429,8 @@ class _Link:
 
     def send_message(self, can_id: int, data: Any, remote: bool = False) -> None:
         data = bytes(data)
+        if self.faults.unpowered:
+            return
         if self._drop("tx"):
             self.stats.tx_dropped += 1
             return
@@ -449,6 +501,8 @@ class SimEpos:
         self._rpdo_seen: dict[int, float] = {}       # RPDO number -> monotonic s of the last one
         self._rpdo_tripped: set[int] = set()
         self._warning = False
+        self._rpdo_callbacks = False
+        self._pending_emcy: list[int] = []
         self.last_error_time = 0.0       # time.monotonic() s of the latest error or communication error
         self._reset_application()
 
@@ -468,6 +522,12 @@ class SimEpos:
             self._tpdo_structs: dict[tuple, struct.Struct] = {}
             self._pending_sync_rpdo: list[Any] = []
             self.transitions: list[int] = []
+            self.state_log: deque[StateChange] = deque(maxlen=1000)
+            self._left_enabled_ns = 0
+            self._zero_current_ns = 0
+            self._ramp: Optional[_Ramp] = None
+            self._brake = 0.0
+            self._tpdo_sent: dict[int, tuple[int, bytes]] = {}   # id(map) -> (monotonic ns, data)
             self._in_rpdo = False
         self.plant.set_current(0.0, time.monotonic_ns())
 
@@ -491,6 +551,16 @@ class SimEpos:
     @property
     def fault_code(self) -> int:
         return self._fault_code
+
+    @property
+    def zero_current_ns(self) -> int:
+        """``time.monotonic_ns()`` at which the power stage's current last dropped to 0 A (0: never)."""
+        return self._zero_current_ns
+
+    @property
+    def left_enabled_ns(self) -> int:
+        """``time.monotonic_ns()`` at which the drive last left OPERATION ENABLED (0: never)."""
+        return self._left_enabled_ns
 
     @property
     def attached(self) -> bool:
@@ -530,6 +600,9 @@ class SimEpos:
         """Cache the drive settings the 1 kHz path needs (re-read after writes to them)."""
         self._mode_c = int(self._raw(0x6060))
         self._qs_c = int(self._raw(0x605A))
+        self._fr_c = int(self._raw(0x605E))
+        self._qs_decel_c = float(self._raw(0x6085))
+        self._slow_decel_c = float(self._raw(0x6084)) if 0x6084 in self._dict else self._qs_decel_c
         self._abort_c = int(self._raw(0x6007))
         self._rpdo_timer_c = {n: self._raw(0x1400 + n - 1, 5) / 1000.0 for n in range(1, 5)
                               if 0x1400 + n - 1 in self._dict}
@@ -541,8 +614,8 @@ class SimEpos:
         else:
             self._scale_c = 1.0 / 1000.0
 
-    _SETTINGS = frozenset({0x6060, 0x605A, 0x6007, 0x1029, 0x3001, 0x6410, 0x6076,
-                           0x1400, 0x1401, 0x1402, 0x1403})
+    _SETTINGS = frozenset({0x6060, 0x605A, 0x605E, 0x6084, 0x6085, 0x6007, 0x1029, 0x3001, 0x6410,
+                           0x6076, 0x1400, 0x1401, 0x1402, 0x1403})
 
     def _mode(self) -> int:
         return self._mode_c
@@ -575,11 +648,57 @@ class SimEpos:
         link.subscribe(0, self._on_nmt)
         link.subscribe(self.node.sdo.rx_cobid, self._on_sdo)
         link.subscribe(0x80, self._on_sync)
-        for m in _maps(self.node.rpdo).values():
-            m.add_callback(self._on_rpdo)
+        if not self._rpdo_callbacks:
+            for m in _maps(self.node.rpdo).values():
+                m.add_callback(self._on_rpdo)
+            self._rpdo_callbacks = True
+
+    def detach(self) -> None:
+        """Leave the network (its bus is gone) without powering down: state, settings and the
+        watchdogs stay; ``reattach`` joins another one."""
+        self.node.nmt.stop_heartbeat()
+        if self._link is not None:
+            self._link.close()
+            self._link = None
+        self.node.remove_network()
+        self._consumers = {}          # their subscriptions went with the link
+        self._rpdo_seen.clear()
+
+    def bus_lost(self) -> None:
+        """The CAN bus is gone (bus off, or the hub this drive joined went away): EMCY 0x81FD
+        CAN bus off as a drive error (FAULT, current 0 at once, per ``raise_emcy``), sent once
+        the drive is on a bus again. The drive leaves the network."""
+        self.detach()
+        self.raise_emcy(0x81FD)
+        self._pending_emcy.append(0x81FD)
+
+    def reattach(self, network: canopen.Network) -> None:
+        """Back on a bus (bus-off recovery; no power cycle, so no boot-up frame): PDOs and heartbeat
+        consumers subscribed again, NMT PRE-OPERATIONAL (a communication error, 0x1029:01 = 0 as
+        well as 1 and 2 leave no PDOs running here), heartbeat per 0x1017, pending EMCYs sent."""
+        self.attach(network)
+        self._reload_pdos()
+        self._configure_consumers()
+        self._hb_seen.clear()
+        self._hb_tripped.clear()
+        self._rpdo_seen.clear()
+        self._rpdo_tripped.clear()
+        self.node.nmt.send_command(0x80 if self._comm_err_c != 2 else 0x02)
+        self.node.nmt.start_heartbeat(int(self._raw(0x1017)))
+        for code in self._pending_emcy:
+            self.node.emcy.send(code, self.error_register_for(code), b"")
+        self._pending_emcy.clear()
+
+    def power_off(self) -> None:
+        """Switch the drive off: no current, it hears and sends nothing, settings back to their
+        defaults; ``boot()`` powers it on again."""
+        self.node.nmt.stop_heartbeat()
+        self.faults.unpowered = True
+        self._reset_application()
 
     def boot(self) -> None:
         """Power-on: boot-up frame, PRE-OPERATIONAL, heartbeat per 0x1017."""
+        self.faults.unpowered = False
         self._reload_pdos()
         self._refresh_settings()
         self._rpdo_seen.clear()
@@ -626,7 +745,7 @@ class SimEpos:
         rpm = self._units.rad_s_to_rpm(qd)
         stopped = qd == 0.0
         with self._lock:
-            if (self.state is State.QUICK_STOP_ACTIVE and stopped
+            if (self.state is State.QUICK_STOP_ACTIVE and stopped and self._ramp is None
                     and 1 <= self._qs_c <= 4):
                 self._set_state(State.SWITCH_ON_DISABLED, 12, t_ns)   # quick stop done
         ma = int(round(amps * 1000.0))
@@ -668,6 +787,8 @@ class SimEpos:
         elif index == 0x1003 and subindex == 0 and value != 0:
             raise SdoAbortedError(ABORT_VALUE_RANGE)
         elif index == 0x605A and not -1 <= value <= 8:
+            raise SdoAbortedError(ABORT_VALUE_RANGE)
+        elif index == 0x605E and not 0 <= value <= 2:
             raise SdoAbortedError(ABORT_VALUE_RANGE)
 
     def _check_comm_write(self, index: int, subindex: int, value: int) -> None:
@@ -736,10 +857,85 @@ class SimEpos:
 
     # -- drive logic --------------------------------------------------------------------------
     def _set_state(self, new: State, transition: int, t_ns: int) -> None:
+        was_driving = self.state is State.OPERATION_ENABLED and self._in_current_mode()
+        if self.state is State.OPERATION_ENABLED and new is not State.OPERATION_ENABLED:
+            self._left_enabled_ns = t_ns
+        if new not in _BRAKING:
+            self._ramp = None
+        elif transition == 11 and was_driving:
+            self._begin_ramp("quick_stop", self._qs_c, t_ns)
+        elif transition == 13 and (was_driving or self._ramp is not None):
+            self._begin_ramp("fault", self._fr_c, t_ns)
         self.state = new
         self.transitions.append(transition)
+        self.state_log.append(StateChange(t_ns, t_ns + (time.time_ns() - time.monotonic_ns()),
+                                          new, transition))
         if new not in _POWERED:
             self._apply(t_ns)
+
+    # -- stop ramps (quick stop 0x605A, fault reaction 0x605E) ----------------------------------
+    def _begin_ramp(self, kind: str, option: int, t_ns: int) -> None:
+        """Brake the motor to standstill under the drive's velocity loop, as an EPOS4 does in CST
+        on a quick stop or a fault reaction: 0x605A 1/5 and 0x605E 1 on the slow down ramp
+        (0x6084 profile deceleration), 0x605A 2/6 and 0x605E 2 on the quick stop ramp (0x6085
+        quick stop deceleration), 0x605A 3/4/7/8 at the current limit; rpm/s of the motor.
+        0x605A 0 / 0x605E 0, a motor standing still, or no tuned velocity loop (``load_inertia``
+        0): no ramp, the current is cut at once."""
+        self._ramp = None
+        if option <= 0 or (kind == "fault" and option > 2) or self.config.load_inertia <= 0:
+            return
+        _, qd, _ = self.plant.sample(t_ns)
+        if abs(qd) < STANDSTILL:
+            return
+        slow = option in (1, 5)
+        at_limit = kind == "quick_stop" and option in (3, 4, 7, 8)
+        decel = self._slow_decel_c if slow else self._qs_decel_c
+        if at_limit:
+            alpha = math.inf
+        elif decel <= 0:
+            return
+        else:
+            alpha = decel * RPM_S / self.config.gear_ratio
+        t_ramp = 0.0 if math.isinf(alpha) else abs(qd) / alpha
+        self._ramp = _Ramp(kind, t_ns, qd, alpha, t_max=2.0 * t_ramp + 1.0)
+        self._brake = self._ramp_current(self._ramp, qd, 0.0)
+
+    def _ramp_current(self, r: _Ramp, qd: float, t: float) -> float:
+        """A the velocity loop asks for at ``t`` s into the ramp at joint speed ``qd`` rad/s:
+        the ramp's deceleration plus the speed error over ``RAMP_TAU``, through J / (n kt)."""
+        sign = 1.0 if r.v0 > 0 else -1.0
+        v_ref = 0.0 if math.isinf(r.alpha) else sign * max(0.0, abs(r.v0) - r.alpha * t)
+        a_ref = -sign * r.alpha if v_ref != 0.0 else 0.0
+        torque_per_amp = self.config.gear_ratio * self.config.torque_constant
+        return self.config.load_inertia * (a_ref + (v_ref - qd) / RAMP_TAU) / torque_per_amp
+
+    def _ramp_step(self) -> None:
+        """One step of a running stop ramp (the drive's own thread): new braking current, or the
+        end of the ramp: current 0, then transition 12 (0x605A 1-4) or 14 (fault reaction)."""
+        with self._lock:
+            r = self._ramp
+            if r is None:
+                return
+            now = time.monotonic_ns()
+            _, qd, _ = self.plant.sample(now)
+            t = (now - r.t0_ns) * 1e-9
+            ramp_over = math.isinf(r.alpha) or abs(r.v0) - r.alpha * t <= 0.0
+            stopped = abs(qd) < STANDSTILL or qd * r.v0 < 0.0
+            if (ramp_over and stopped) or t > r.t_max:
+                self._ramp, self._brake = None, 0.0
+                self._apply(now)
+                if r.kind == "fault" and self.state is State.FAULT_REACTION_ACTIVE:
+                    self._set_state(State.FAULT, 14, now)
+                elif self.state is State.QUICK_STOP_ACTIVE and 1 <= self._qs_c <= 4:
+                    self._set_state(State.SWITCH_ON_DISABLED, 12, now)
+                return
+            self._brake = self._ramp_current(r, qd, t)
+            self._apply(now)
+
+    @property
+    def braking(self) -> bool:
+        """True while the drive brakes on a stop ramp."""
+        return self._ramp is not None
 
     def _apply_controlword(self, cw: int, t_ns: int) -> None:
         with self._lock:
@@ -762,10 +958,14 @@ class SimEpos:
             self._commanded = self.setpoint_to_current(self._setpoint_raw)
             lim = self.current_limit()
             amps = max(-lim, min(lim, self._commanded))
-            if self.state not in _POWERED or not self._in_current_mode():
+            if self._ramp is not None and self.state in _BRAKING:
+                amps = max(-lim, min(lim, self._brake))
+            elif self.state not in _POWERED or not self._in_current_mode():
                 amps = 0.0
             if amps != self._applied or self._applied == 0.0:
                 self.plant.set_current(amps, t_ns)
+            if amps == 0.0 and self._applied != 0.0:
+                self._zero_current_ns = t_ns
             self._applied = amps
 
     def reapply(self) -> None:
@@ -853,6 +1053,35 @@ class SimEpos:
             self._tpdo_structs[key] = st
         return st
 
+    def _event_tpdos(self) -> None:
+        """Event-driven TPDOs (transmission type 254/255, CiA 301): sent when a mapped value
+        changed, no sooner than the inhibit time (0x1800+n:03, 100 µs) after the previous one,
+        and at least every event timer (0x1800+n:05, ms; 0 = on change only)."""
+        link = self._link
+        if link is None:
+            return
+        now = time.monotonic_ns()
+        live: Optional[dict] = None
+        for m in _maps(self.node.tpdo).values():
+            if not m.enabled or m.trans_type not in (254, 255) or not m.map:
+                continue
+            comm = m.com_record.od.index
+            subs = self._dict[comm]
+            present = set() if isinstance(subs, ODVariable) else set(subs.subindices)
+            inhibit_ns = int(self._raw(comm, 3)) * 100_000 if 3 in present else 0
+            timer_ns = int(self._raw(comm, 5)) * 1_000_000 if 5 in present else 0
+            last = self._tpdo_sent.get(id(m))
+            if last is not None and now - last[0] < inhibit_ns:
+                continue
+            if live is None:
+                live = self._live(now)
+            values = [live[key] if key in live else od_var.decode_raw(self.node.get_data(*key))
+                      for key, od_var in self._tpdo_layout(m)]
+            data = self._tpdo_struct(m).pack(*values)
+            if last is None or data != last[1] or (timer_ns and now - last[0] >= timer_ns):
+                self._tpdo_sent[id(m)] = (now, data)
+                link.send_message(m.cob_id, data)
+
     def _on_sdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
         if self.node.nmt.state != "STOPPED":          # CiA 301: no SDO in STOPPED
             self.node.sdo.on_request(can_id, data, timestamp)
@@ -915,9 +1144,16 @@ class SimEpos:
         self._hb_tripped.discard(nid)
 
     def _watch(self) -> None:
-        """The drive's watchdogs (every 2 ms): consumed heartbeats, RxPDO deadlines."""
+        """The drive's own thread (every 2 ms): stop ramps, event-driven TPDOs, consumed
+        heartbeats, RxPDO deadlines."""
         while not self._consumer_stop.wait(0.002):
             nmt = self.node.nmt.state
+            try:
+                self._ramp_step()
+                if nmt == "OPERATIONAL":
+                    self._event_tpdos()
+            except Exception:  # noqa: BLE001 - a frame that cannot go out must not end the watchdogs
+                pass
             if nmt not in ("PRE-OPERATIONAL", "OPERATIONAL"):
                 continue
             now = time.monotonic()
@@ -993,9 +1229,10 @@ class SimEpos:
         self.last_error_time = time.monotonic()
         with self._lock:
             self._fault_code, self._error_register = code, reg     # before the state: readers
-            if self.state is not State.FAULT:                       # see the code with Fault
-                self._set_state(State.FAULT_REACTION_ACTIVE, 13, t)
-                self._set_state(State.FAULT, 14, t)
+            if self.state not in (State.FAULT, State.FAULT_REACTION_ACTIVE):   # see the code
+                self._set_state(State.FAULT_REACTION_ACTIVE, 13, t)            # with Fault
+                if self._ramp is None:          # 0x605E 1/2 on a moving motor: brake first
+                    self._set_state(State.FAULT, 14, t)
             self.node.data_store.setdefault(0x603F, {})[0] = struct.pack("<H", code)
             hist = self.node.data_store.setdefault(0x1003, {})
             old = [struct.unpack("<L", hist[s])[0] for s in range(1, 9) if s in hist]

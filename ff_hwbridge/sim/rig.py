@@ -5,6 +5,7 @@ on one CAN bus. No ROS: the ``ff_sim_driver`` node, the ``ff-sim-rig`` command
 ``run_command`` executes one line of the rig's stdin command channel (for tests that inject
 faults into a running process). Commands:
 ``emcy NODE CODE`` · ``resetnode NODE`` (NMT reset node: power-cycle the drive) ·
+``power NODE off|on`` (switch the drive off; on = power-on boot) ·
 ``warn NODE [CODE]`` (warning EMCY, default 0xFF01) · ``warnclear NODE`` ·
 ``heartbeat NODE on|off`` · ``sdo NODE on|off`` · ``delay NODE MS [rx|tx|both]`` ·
 ``drop NODE FRACTION [rx|tx|both]`` · ``dropnext NODE N [rx|tx|both]`` · ``clear NODE`` ·
@@ -14,14 +15,15 @@ faults, heartbeat consumer, frame counts) · ``quit``.
 from __future__ import annotations
 
 import json
+import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Mapping, Optional, Sequence
+from typing import Any, Callable, Mapping, Optional, Sequence
 
 from ff_hwbridge.drive.bus import open_network
 from ff_hwbridge.sim.arm import AdvanceFn, Params, SimArm, joint_param
 from ff_hwbridge.sim.drive import DriveConfig, SimConfigError, SimEpos
-from ff_planner.model.params import default_params, n_joints
+from ff_planner.model.params import Arm1DofParams, default_params, n_joints
 
 #: Thread switch interval for simulator processes (s). Python's default 5 ms lets the hub's and
 #: the heartbeat's threads hold the CAN receive thread off for whole milliseconds; measured here
@@ -66,8 +68,21 @@ class RigConfig:
             out.append(DriveConfig(node_id=int(nid), family=self.family,
                                    nominal_current=float(noms[j]), current_limit=imax,
                                    torque_constant=kt, counts_per_rev=self.counts_per_rev,
-                                   gear_ratio=n))
+                                   gear_ratio=n, load_inertia=joint_inertia(p, j)))
         return out
+
+
+def joint_inertia(p: Params, joint: int) -> float:
+    """kg m² the drive's velocity loop is tuned for (as a regulation tuning on the real arm
+    would find): the 1-DOF arm's J; on the SCARA, joint 1 with the arm half folded (elbow at
+    90°), joint 2 its own link."""
+    if isinstance(p, Arm1DofParams):
+        return float(p.J)
+    jc1, jc2, m1, m2 = (float(getattr(p, k)) for k in ("Jc1", "Jc2", "m1", "m2"))
+    l1, lc1, lc2 = (float(getattr(p, k)) for k in ("l1", "lc1", "lc2"))
+    if joint == 0:
+        return jc1 + m1 * lc1 ** 2 + jc2 + m2 * (l1 ** 2 + lc2 ** 2)
+    return jc2 + m2 * lc2 ** 2
 
 
 class SimRig:
@@ -106,12 +121,68 @@ class SimRig:
         for d in self.drives:
             d.reapply()
 
+    def watch_bus(self, on_event: Callable[[str], None], on_give_up: Callable[[], None],
+                  reconnect_timeout: float = 30.0, period: float = 0.02) -> None:
+        """Watch the bus this rig opened (``config.bus``, e.g. a hub it joined). When it fails
+        (the hub went away: python-can's receive thread stops with the error), every drive
+        takes it as bus off (``SimEpos.bus_lost``: Fault 0x81FD, current 0 at once); the rig
+        then opens the bus again every 0.5 s and puts the drives back on it
+        (``SimEpos.reattach``: PRE-OPERATIONAL, EMCY 0x81FD, heartbeat), or calls
+        ``on_give_up`` after ``reconnect_timeout`` s without a bus. ``on_event`` gets a line
+        for each step."""
+        if not self._own_network:
+            raise SimConfigError("watch_bus needs a rig that opened its own bus")
+        self._watch_stop = threading.Event()
+
+        def run() -> None:
+            while not self._watch_stop.wait(period):
+                exc = getattr(getattr(self.network, "notifier", None), "exception", None)
+                if exc is None:
+                    continue
+                t_lost = time.monotonic()
+                for d in self.drives:
+                    d.bus_lost()
+                on_event(f"CAN bus lost ({type(exc).__name__}: {exc}); drives "
+                         f"{[d.node_id for d in self.drives]} in Fault 0x81FD (CAN bus off), "
+                         "current 0; reconnecting")
+                try:
+                    self.network.disconnect()
+                except Exception:  # noqa: BLE001 - the bus is gone already
+                    pass
+                while not self._watch_stop.is_set():
+                    try:
+                        net = open_network(self.config.bus)
+                    except Exception as err:  # noqa: BLE001 - not back yet
+                        if time.monotonic() - t_lost > reconnect_timeout:
+                            on_event(f"CAN bus not back within {reconnect_timeout:g} s ({err}); "
+                                     "giving up")
+                            on_give_up()
+                            return
+                        self._watch_stop.wait(0.5)
+                        continue
+                    self.network = net
+                    for d in self.drives:
+                        d.reattach(net)
+                    on_event(f"CAN bus back after {time.monotonic() - t_lost:.1f} s; drives in "
+                             "PRE-OPERATIONAL, Fault 0x81FD until a fault reset")
+                    break
+
+        self._watch_thread = threading.Thread(target=run, name="sim-rig-bus-watch", daemon=True)
+        self._watch_thread.start()
+
     def close(self) -> None:
+        stop = getattr(self, "_watch_stop", None)
+        if stop is not None:
+            stop.set()
+            self._watch_thread.join(timeout=2.0)
         self.arm.stop_clock()
         for d in self.drives:
             d.close()
         if self._own_network:
-            self.network.disconnect()
+            try:
+                self.network.disconnect()
+            except Exception:  # noqa: BLE001 - a bus that is gone cannot be closed cleanly
+                pass
 
     def __enter__(self) -> "SimRig":
         return self
@@ -138,6 +209,11 @@ def run_command(rig: SimRig, line: str) -> str:
             d.raise_emcy(int(args[1], 0))
         elif cmd == "resetnode":
             d.reset_node()
+        elif cmd == "power":
+            if args[1] == "off":
+                d.power_off()
+            else:
+                d.boot()
         elif cmd == "warn":
             d.raise_warning(int(args[1], 0) if len(args) > 1 else 0xFF01)
         elif cmd == "warnclear":
@@ -159,7 +235,9 @@ def run_command(rig: SimRig, line: str) -> str:
             hb_age = {k: round(now - v, 4) for k, v in d.heartbeats_seen().items()}
             rx_by_id = {hex(k): v for k, v in d.frames_by_id().items()} if d.attached else None
             return (f"info node={d.node_id} nmt={d.nmt_state} state={d.state.value!r} "
-                    f"fault=0x{d.fault_code:04X} error_t={d.last_error_time:.6f} i={d.applied_current} "
+                    f"fault=0x{d.fault_code:04X} error_t={d.last_error_time:.6f} "
+                    f"left_enabled_t={d.left_enabled_ns * 1e-9:.6f} "
+                    f"zero_current_t={d.zero_current_ns * 1e-9:.6f} i={d.applied_current} "
                     f"consumers={d.heartbeat_consumers()} hb_age={hb_age} "
                     f"faults={vars(d.faults)} link={vars(d.link_stats)} rx_by_id={rx_by_id}")
         else:

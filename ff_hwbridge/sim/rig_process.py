@@ -121,18 +121,27 @@ class RigProcess:
         return out or ""
 
 
-def rig_master_config(url: str, family: str = "epos4", current_limit: float = 10.0,
-                      node_id: int = 1, **settings: Any) -> BridgeConfig:
-    """EposMaster settings for joint 1 of a rig started with its default model (motor data as the
-    rig's drive serves them: nominal current A, kt Nm/A, counts per rev, gear ratio), over the hub
-    at ``url``; ``settings`` are further top-level keys of ``load_config`` (sync_period s,
-    heartbeat_timeout s, ...)."""
+def rig_master_data(url: str, family: str = "epos4", current_limit: float = 10.0,
+                    node_id: int = 1, joint: Optional[Mapping[str, Any]] = None,
+                    **settings: Any) -> dict[str, Any]:
+    """The ``load_config`` data of ``rig_master_config`` (for a YAML file of ``ff-epos``)."""
     d = RigConfig(family=family).drive_configs()[0]
-    return load_config({
+    return {
         **settings,
         "bus": {"interface": "remote", "channel": url},
         "joints": [{"name": "joint1", "node_id": node_id, "family": family,
                     "current_limit": current_limit,
                     "units": {"nominal_current": d.nominal_current,
                               "torque_constant": d.torque_constant,
-                              "counts_per_rev": d.counts_per_rev, "gear_ratio": d.gear_ratio}}]})
+                              "counts_per_rev": d.counts_per_rev, "gear_ratio": d.gear_ratio},
+                    **(joint or {})}]}
+
+
+def rig_master_config(url: str, family: str = "epos4", current_limit: float = 10.0,
+                      node_id: int = 1, joint: Optional[Mapping[str, Any]] = None,
+                      **settings: Any) -> BridgeConfig:
+    """EposMaster settings for joint 1 of a rig started with its default model (motor data as the
+    rig's drive serves them: nominal current A, kt Nm/A, counts per rev, gear ratio), over the hub
+    at ``url``; ``joint`` adds keys to the joint (position_limits rad, ...), ``settings`` are
+    further top-level keys of ``load_config`` (sync_period s, heartbeat_timeout s, ...)."""
+    return load_config(rig_master_data(url, family, current_limit, node_id, joint, **settings))

@@ -39,3 +39,7 @@ def test_bad_settings_exit_2(capsys):
     assert "loopback" in capsys.readouterr().err
     assert sim_rig.main(["--host-hub", "0", "--param", "no_such_key=1"]) == 2
     assert "ff-sim-rig" in capsys.readouterr().err
+    assert sim_rig.main(["--host-hub", "0", "--nominal-current", "-2.5"]) == 2
+    assert "nominal_current must be a finite number > 0" in capsys.readouterr().err
+    assert sim_rig.main(["--host-hub", "0", "--boot-delay", "-1"]) == 2
+    assert "--boot-delay must be >= 0 s" in capsys.readouterr().err

@@ -171,12 +171,13 @@ def test_cia402_transitions_by_controlword(rig):
         assert sdo[0x6041].raw & 0x6F == {State.READY_TO_SWITCH_ON: 0x21, State.SWITCHED_ON: 0x23,
                                           State.OPERATION_ENABLED: 0x27}.get(state, sdo[0x6041].raw & 0x6F)
     assert d.transitions == [2, 3, 4, 5, 4, 8, 3, 4, 9]
-    # quick stop, maxon default option 2: current 0, then SWITCH ON DISABLED when stopped (12)
+    # quick stop, option 2: current 0, then SWITCH ON DISABLED when stopped (12)
+    sdo[0x605A].raw = 2
     for cw in (0x06, 0x0F, 0x02):
         sdo[0x6040].raw = cw
     assert sdo[0x6041].raw & 0x4F == 0x40
     assert d.transitions[-2:] == [11, 12]
-    # option 6: stay in QUICK STOP ACTIVE, enable operation again (16)
+    # option 6 (maxon's factory setting): stay in QUICK STOP ACTIVE, enable operation again (16)
     sdo[0x605A].raw = 6
     for cw in (0x06, 0x0F, 0x02):
         sdo[0x6040].raw = cw
@@ -473,7 +474,7 @@ def test_epos4_objects_a_stranger_reads():
         assert sdo[0x6502].raw == SUPPORTED_MODES["epos4"] and sdo[0x6502].raw & (1 << 9)   # CST
         assert (sdo[0x60C2][1].raw, sdo[0x60C2][2].raw) == (0, -3)
         assert sdo[0x603F].raw == 0
-        assert (sdo[0x605A].raw, sdo[0x605E].raw, sdo[0x6007].raw, sdo[0x1029][1].raw) == (2, 2, 3, 0)
+        assert (sdo[0x605A].raw, sdo[0x605E].raw, sdo[0x6007].raw, sdo[0x1029][1].raw) == (6, 2, 3, 0)
         assert sdo[0x6085].raw == 10000
         assert sdo[0x3000][5].raw == 4096
         assert sdo[0x60A9].raw == VELOCITY_UNIT_RPM
@@ -508,3 +509,141 @@ def test_physics_runs_on_its_own_clock_not_in_the_can_thread():
     finally:
         r.close()
         arm.stop_clock()
+
+
+def _moving_rig(sdo_writes=None, speed: float = 1.5):
+    """A drive on the 1-DOF arm (its own clock), enabled in CST, the arm at ``speed`` rad/s."""
+    arm = SimArm(default_params("arm1dof"), 0.0)
+    arm.start_clock(0.002)
+    r = Rig(plant=arm.port(0), load_inertia=default_params("arm1dof").J)
+    r.drive.boot()
+    r.configure_contract_pdos()
+    for (index, sub), value in (sdo_writes or {}).items():
+        (r.node.sdo[index] if sub is None else r.node.sdo[index][sub]).raw = value
+    r.enable()
+    r.rpdo(0x0F, 300)                                     # 0.9 A
+    assert wait_for(lambda: arm.state().qd[0] > speed, 5.0)
+    return r, arm
+
+
+def test_quick_stop_brakes_on_the_quick_stop_ramp_and_stays_quick_stop_active():
+    """CST quick stop with maxon's 0x605A = 6: the drive brakes the motor under its velocity
+    loop at 0x6085 (rpm/s of the motor) to standstill, then holds QUICK STOP ACTIVE at 0 A."""
+    decel = 3000                                          # rpm/s -> 5.8 rad/s² at the joint
+    r, arm = _moving_rig({(0x6085, None): decel})
+    try:
+        v0 = arm.state().qd[0]
+        alpha = decel * 2 * 3.141592653589793 / 60 / r.cfg.gear_ratio
+        t0 = time.monotonic()
+        r.rpdo(0x02, 300)                                 # quick stop; the setpoint is ignored
+        assert wait_for(lambda: r.drive.state is State.QUICK_STOP_ACTIVE)
+        assert wait_for(lambda: r.drive.applied_current < -0.5)   # braking, not just 0 A
+        time.sleep(0.5 * v0 / alpha)
+        mid = arm.state().qd[0]
+        assert 0.2 * v0 < mid < 0.8 * v0, (v0, mid)      # on the ramp: neither cut nor coasting
+        assert wait_for(lambda: r.drive.applied_current == 0.0 and not r.drive.braking, 5.0)
+        t_stop = time.monotonic() - t0
+        assert 0.7 * v0 / alpha < t_stop < 3.0 * v0 / alpha + 0.3, (t_stop, v0 / alpha)
+        assert wait_for(lambda: abs(arm.state().qd[0]) < 0.01, 2.0)
+        assert r.drive.state is State.QUICK_STOP_ACTIVE and r.node.sdo[0x6041].raw & 0x6F == 0x07
+    finally:
+        r.close()
+        arm.stop_clock()
+
+
+def test_quick_stop_option_2_ends_switch_on_disabled_and_0_cuts_the_current():
+    r, arm = _moving_rig({(0x605A, None): 2})
+    try:
+        r.rpdo(0x02, 300)
+        assert wait_for(lambda: r.drive.braking)
+        assert wait_for(lambda: r.drive.state is State.SWITCH_ON_DISABLED, 5.0)
+        assert r.drive.transitions[-2:] == [11, 12] and r.drive.applied_current == 0.0
+    finally:
+        r.close()
+        arm.stop_clock()
+    r, arm = _moving_rig({(0x605A, None): 0})
+    try:
+        r.rpdo(0x02, 300)
+        assert wait_for(lambda: r.drive.state is State.SWITCH_ON_DISABLED)
+        assert not r.drive.braking and r.drive.applied_current == 0.0   # motor free at once
+    finally:
+        r.close()
+        arm.stop_clock()
+
+
+@pytest.mark.parametrize("option", [0, 2])
+def test_fault_reaction_option(option):
+    """0x605E: 0 = disable drive function (current 0 at once, FAULT); 2 = quick stop ramp in
+    FAULT REACTION ACTIVE, then FAULT (transition 14) at standstill."""
+    r, arm = _moving_rig({(0x605E, None): option})
+    try:
+        r.drive.raise_emcy(0x2310)
+        if option == 0:
+            assert r.drive.state is State.FAULT and r.drive.applied_current == 0.0
+        else:
+            assert r.drive.state is State.FAULT_REACTION_ACTIVE and r.drive.applied_current < 0.0
+            assert wait_for(lambda: r.drive.state is State.FAULT, 5.0)
+            assert r.drive.applied_current == 0.0
+            assert wait_for(lambda: abs(arm.state().qd[0]) < 0.01, 2.0)   # friction: at rest
+        assert r.drive.transitions[-1] == 14 and r.node.sdo[0x603F].raw == 0x2310
+    finally:
+        r.close()
+        arm.stop_clock()
+
+
+def test_event_driven_tpdo_on_change_with_inhibit_and_event_timer(rig):
+    """TxPDO1 at transmission type 255 (maxon's default): sent on a change of its statusword
+    without any SYNC; with an event timer also periodically."""
+    n = rig.node
+    n.tpdo.read()
+    t1 = n.tpdo[1]
+    t1.clear()
+    t1.add_variable(0x6041)
+    t1.trans_type = 255
+    t1.inhibit_time = 20                                  # 2 ms
+    t1.enabled = True
+    t1.save()
+    rig.node.sdo[0x6060].raw = 10
+    rig.node.nmt.send_command(0x01)
+    assert wait_for(lambda: rig.drive.nmt_state == "OPERATIONAL")
+    assert wait_for(lambda: len(rig.seen(0x181)) == 1)   # the present statusword once
+    time.sleep(0.1)
+    assert len(rig.seen(0x181)) == 1                      # no change, no event timer: silent
+    rig.rpdo(0x06)                                        # -> READY TO SWITCH ON
+    assert wait_for(lambda: len(rig.seen(0x181)) == 2)
+    assert struct.unpack("<H", rig.seen(0x181)[-1])[0] & 0x6F == 0x21
+    assert rig.seen(0x80) == []                           # no SYNC on the bus
+    n.sdo[0x1800][5].raw = 20                             # event timer 20 ms
+    time.sleep(0.3)
+    assert 5 <= len(rig.seen(0x181)) - 2 <= 20
+
+
+def test_a_drive_switched_off_is_silent_until_it_boots(rig):
+    rig.drive.power_off()
+    rig.node.sdo.RESPONSE_TIMEOUT = 0.2
+    n0 = len(rig.frames)
+    with pytest.raises(SdoCommunicationError):
+        _ = rig.node.sdo[0x1000].raw
+    assert not [i for _, i, _ in rig.frames[n0:] if i & 0x7F == 1]   # nothing from node 1
+    rig.drive.boot()
+    assert wait_for(lambda: b"\x00" in rig.seen(0x701))       # boot-up frame
+    assert rig.node.sdo[0x1000].raw & 0xFFFF == 402
+
+
+def test_a_lost_bus_faults_the_drive_and_it_reports_on_the_next_one(rig):
+    """bus_lost: Fault 0x81FD (CAN bus off) at once, current 0; reattach to a bus: EMCY 0x81FD,
+    PRE-OPERATIONAL, heartbeat and SDO as before (no boot-up frame: no power cycle)."""
+    rig.configure_contract_pdos()
+    rig.node.sdo[0x1017].raw = 20
+    rig.enable()
+    rig.rpdo(0x0F, 500)
+    assert wait_for(lambda: rig.drive.applied_current == pytest.approx(1.5))
+    rig.drive.bus_lost()
+    assert rig.drive.state is State.FAULT and rig.drive.fault_code == 0x81FD
+    assert rig.drive.applied_current == 0.0 and not rig.drive.attached
+    n_boot = len([d for d in rig.seen(0x701) if d == b"\x00"])
+    rig.drive.reattach(rig.net_s)
+    assert wait_for(lambda: any(d[:2] == b"\xfd\x81" for d in rig.seen(0x81)))   # EMCY 0x81FD
+    assert wait_for(lambda: rig.seen(0x701) and rig.seen(0x701)[-1] == b"\x7f")  # PRE-OPERATIONAL
+    assert len([d for d in rig.seen(0x701) if d == b"\x00"]) == n_boot
+    assert rig.node.sdo[0x603F].raw == 0x81FD
