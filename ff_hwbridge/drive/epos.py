@@ -153,6 +153,7 @@ class EposMaster:
         self._fault_listeners: list[Callable[[str], None]] = [] if on_fault is None else [on_fault]
         self.pending_fn: Callable[[], bool] = lambda: False
         self.network: Optional[canopen.Network] = None
+        self._bus_lost_told = False     # the notifier's exception was reported (once per connection)
         self._drives = [_Drive(cfg=j, units=j.units) for j in config.joints]
         self._send_lock = threading.RLock()
         self._monitor: Optional[threading.Thread] = None
@@ -246,6 +247,7 @@ class EposMaster:
         net.NOTIFIER_CYCLE = 0.1        # bounds how long disconnect() waits for the receiver
         net.connect()
         self.network = net
+        self._bus_lost_told = False
         for d in self._drives:
             od = build_object_dictionary(d.units.family, d.node_id)
             node = canopen.RemoteNode(d.node_id, od)
@@ -665,6 +667,9 @@ class EposMaster:
         """Heartbeat / feedback timeouts and the setpoint watchdog at ``now``; returns a new
         fault reason if this call latched the safe state."""
         timeout = self.config.heartbeat_timeout
+        reason = self._check_bus()
+        if reason:
+            return self.trip(reason)
         reason = self._check_sync(now)     # first: without SYNC the TPDOs stop too
         if reason:
             return self.trip(reason)
@@ -692,6 +697,18 @@ class EposMaster:
             self._react(reason)
             return reason
         return None
+
+    def _check_bus(self) -> Optional[str]:
+        """The bus itself failed: python-can's notifier stops its reader thread and keeps the
+        exception (bus off, adapter unplugged, the simulation's hub gone). Said at once, instead
+        of the heartbeat or SYNC loss that follows a timeout later. Once latched it is reported
+        once; a configure (a new connection) is needed to run again."""
+        notifier = getattr(self.network, "notifier", None)
+        exc = getattr(notifier, "exception", None)
+        if exc is None or self._bus_lost_told:
+            return None
+        self._bus_lost_told = True
+        return f"CAN bus lost: {type(exc).__name__}: {exc} (configure again once the bus is back)"
 
     def _check_sync(self, now: float) -> Optional[str]:
         """SYNC loss: none for ``sync_timeout`` s (before the first: ``state_timeout`` as well)."""

@@ -118,6 +118,24 @@ def test_heartbeat_loss_latches_safe_state(rig):
     assert drives[0].setpoint_raw == 0
 
 
+def test_a_failed_bus_is_said_at_once_and_stops_the_drive(rig):
+    import can
+
+    master, drives = rig
+    configure_and_enable(master)
+    master.command_currents([1.0])
+    assert _wait(lambda: drives[0].setpoint_raw != 0)
+    t0 = time.monotonic()
+
+    def dead(*_a, **_k):
+        raise can.CanOperationError("adapter gone")
+
+    master.network.bus.recv = dead          # python-can's notifier stops and keeps the exception
+    assert _wait(lambda: master.latched, 2.0)
+    assert master.fault_reason.startswith("CAN bus lost: CanOperationError: adapter gone"), master.fault_reason
+    assert time.monotonic() - t0 < master.config.heartbeat_timeout + 0.5
+
+
 def test_setpoint_watchdog_and_feedback_loss(rig):
     master, drives = rig
     configure_and_enable(master)
