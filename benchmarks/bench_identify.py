@@ -8,8 +8,17 @@ the table-2 guess with a ±50 % prior box) is measured with the simulated sensor
 fraction of 95 % intervals that contain the truth, the median interval half-width; the fraction
 of fits judged adequate, fit wall time, and the seconds of arm motion (profile time) used.
 ``--fit-inertia`` fits J too (true J drawn within ±10 % of 0.17 kg·m²). ``--stack N`` also runs
-N trials through the simulated ROS stack (``ff-identify --sim``: bridge joint states; an
-excitation whose envelope holds with a switch 20 ms late: ≤ 3 A), slow.
+N trials on ONE simulated ROS stack (``ff_executor.bringup.identify.identification_options``:
+setpoints latched at SYNC, timing from the CAN bus; the arm's true friction set at runtime per
+trial, the arm put back at 0 rad): an excitation whose envelope holds with a switch 20 ms late
+(≤ 3 A, 18.8 s of motion); per trial the truth, estimates, errors, 95 % intervals, adequacy,
+stack faults and the simulated arm's late current changes, and the same "checks" (a trial the
+stack could not complete is listed under "failed" with its one-line reason and counts against
+the coverage check); ``--stack-mismatch N`` N more trials per kind of friction that is not Eq. 9
+on the stack's arm (``friction.*`` of the sim driver), slow (~32 s a trial). ``--stack-plan N``:
+identify once on a stack with the planner (true friction pv −15 %, pc +20 %, pt −15 % of
+table 2), plan robust-box over the identified box and execute it N times: how many landed within
+the certificate (+ the switch timing the bus showed; ``ff_executor.bringup.loop``).
 
 ``--mismatch N``: N arms per kind of friction that is not Eq. 9 (a Stribeck rise of 30 % of pc
 below 0.1 rad/s; a Coulomb level varying ±10 % with position, period 0.25 rad), same draw, same
@@ -22,7 +31,7 @@ separately, of 3 robust motions: errors, coverage and information (bits) per exe
 3 %, pv within 10 %, at most 60 s of motion, 95 % intervals holding the truth in >= 18 of 20.
 
 Usage: python benchmarks/bench_identify.py [--trials 50] [--seed 0] [--fit-inertia] [--stack 0]
-       [--mismatch 0] [--learn 0] [--issue]
+       [--stack-mismatch 0] [--stack-seed S] [--stack-plan 0] [--mismatch 0] [--learn 0] [--issue]
 """
 from __future__ import annotations
 
@@ -151,12 +160,152 @@ def _checks(offline, rows):
             "motion_at_most_60s": motion <= 60.0, "coverage_at_least_18_of_20": min(cover.values()) >= 0.9 * n}
 
 
+STACK_ENVELOPE = Envelope(-1.0, 1.0, 3.0, i_max=3.0)
+STACK_TIMING_MARGIN = 0.02       # s: the envelope holds with the brake switch or the final zero this late
+
+
+def _stack_row(fit, true, wall, meta):
+    row = _row(fit, true, KEYS, 0.0)
+    row.update({"truth": {k: float(getattr(true, k)) for k in KEYS}, "estimates": dict(fit.estimates),
+                "interval95": {k: list(fit.interval95[k]) for k in KEYS}, "message": fit.message,
+                "rms_rad": fit.rms, "sigma_rad": fit.sigma, "stack_wall_s": wall,
+                "stack_faults": meta.get("stack_faults", []), "timing": meta.get("timing"),
+                "bus": meta.get("bus"),
+                "sim_late_switches": meta.get("sim_late_switches"),
+                "switch_delay_max_s": float(max((max(d) for d in meta["switch_delays"]), default=0.0))})
+    return row
+
+
+def _stack(rng, base, n, n_mismatch, seed):
+    """Identification on ONE simulated stack (sync setpoints, bus timing), the arm's true
+    friction set at runtime per trial; per trial estimates, errors and intervals."""
+    from ff_executor.bringup.identify import (StackProbe, bus_monitor, identification_options, identify_runs,
+                                              stack_q_resolution)
+    from ff_executor.bringup.stack import Stack
+    from ff_executor.ros.client import StackClient
+
+    if seed is not None:
+        rng = np.random.default_rng(seed)
+    env = STACK_ENVELOPE
+    ex = design_excitation(base, env, 0.0, timing_margin=STACK_TIMING_MARGIN)
+    q_res = stack_q_resolution(base)
+    out = {"excitation": {"levels_A": sorted({round(r.level, 4) for r in ex.runs}), "runs": len(ex.runs),
+                          "motion_s": ex.duration, "envelope": {"q": [env.q_min, env.q_max], "v_max": env.v_max,
+                                                                "i_max": env.i_max},
+                          "timing_margin_s": STACK_TIMING_MARGIN},
+           "q_resolution_rad": q_res, "seed": seed}
+    t_all = time.perf_counter()
+    with Stack(identification_options(), log=lambda s: None) as stack:
+        out["stack_options"] = {"setpoint_timing": stack.options.setpoint_timing,
+                                "executor": dict(stack.options.executor_overrides),
+                                "rt_priority": stack.options.rt_priority}
+        bus = bus_monitor(stack)
+        client = StackClient(stack.env, "bench_identify")
+        probe = StackProbe(client)
+        try:
+            def trial(true, friction=None):
+                stack.set_true_params({k: float(getattr(true, k)) for k in KEYS})
+                stack.set_sim_friction(friction or {"stribeck": 0.0, "coulomb_ripple": 0.0})
+                client.reset_arm([0.0])
+                t1 = time.perf_counter()
+                try:
+                    recs, meta = identify_runs(client, ex, q_res, env, bus=bus, probe=probe, log=lambda s: None)
+                except RuntimeError:
+                    # the trial counts as failed; a latched safe state must not fail the next ones
+                    probe.fault_reset()
+                    raise
+                wall = time.perf_counter() - t1
+                return _stack_row(fit_friction(recs, base), true, wall, meta)
+
+            rows, failed = [], []
+            for i in range(n):
+                true = _draw(rng, base, False)
+                try:
+                    rows.append(trial(true))
+                except RuntimeError as exc:        # an envelope stop or a stack fault: counted
+                    failed.append({"trial": i, "truth": {k: float(getattr(true, k)) for k in KEYS},
+                                   "error": str(exc).splitlines()[0]})
+            if n:
+                out["eq9"] = _summarise(rows, KEYS) if rows else {"trials": 0}
+                out["eq9"].update({"failed": failed, "runs": rows,
+                                   "coverage_count": {k: int(sum(r["cover"][k] for r in rows)) for k in KEYS}})
+                out["checks"] = _checks(None, rows) if rows else {}
+                if out["checks"]:       # a trial the stack did not complete counts against coverage
+                    c = out["checks"]
+                    c.update(failed_trials=len(failed), trials_attempted=n,
+                             coverage_at_least_18_of_20=min(c["coverage_count"].values()) >= 0.9 * n)
+            if n_mismatch:
+                out["mismatch"] = {}
+                for name, mm in MISMATCHES.items():
+                    fr = {"stribeck": mm.stribeck, "stribeck_speed": mm.stribeck_speed,
+                          "coulomb_ripple": mm.coulomb_ripple, "coulomb_period": mm.coulomb_period}
+                    mrows, mfailed = [], []
+                    for i in range(n_mismatch):
+                        true = _draw(rng, base, False)
+                        try:
+                            mrows.append(trial(true, fr))
+                        except RuntimeError as exc:
+                            mfailed.append({"trial": i, "error": str(exc).splitlines()[0]})
+                    out["mismatch"][name] = {
+                        "friction": fr, "trials": len(mrows), "failed": mfailed,
+                        "flagged": int(sum(not r["adequate"] for r in mrows)),
+                        "coverage_count": {k: int(sum(r["cover"][k] for r in mrows)) for k in KEYS},
+                        "rel_error": {k: _stats([r["err"][k] for r in mrows]) for k in KEYS} if mrows else {},
+                        "runs": mrows}
+                stack.set_sim_friction({"stribeck": 0.0, "coulomb_ripple": 0.0})
+            out["bus"] = {"syncs": bus.syncs, "tpdo_unpaired": bus.unpaired}
+        finally:
+            client.close()
+            bus.close()
+    out["wall_s"] = time.perf_counter() - t_all
+    return out
+
+
+#: the true friction of the --stack-plan arm: all three off table 2 (pv −15 %, pc +20 %, pt −15 %)
+PLAN_TRUTH = {"pv": -0.0425, "pc": 0.228, "pt": 0.187}
+
+
+def _stack_plan(base, n):
+    """Identify once on a stack (planner on), plan robust-box over the identified box through the
+    planner service and execute it n times from rest at 0 rad (every run counts): rest errors
+    against the certificate (+ the switch timing measured on the bus)."""
+    from ff_executor.bringup.identify import StackProbe, bus_monitor, identification_options
+    from ff_executor.bringup.loop import box_of, execute_plan, identify_friction, params_of, plan_request
+    from ff_executor.bringup.stack import Stack
+    from ff_executor.ros.client import StackClient
+
+    t0 = time.perf_counter()
+    with Stack(identification_options(PLAN_TRUTH, planner=True), log=lambda s: None) as stack:
+        bus = bus_monitor(stack)
+        try:
+            with StackClient(stack.env, "bench_identify_plan") as client:
+                probe = StackProbe(client)
+                idf = identify_friction(client, base, bus=bus, probe=probe)
+                req = plan_request("robust-box", params_of(idf.fit), box_of(idf))
+                runs = [execute_plan(client, f"run {k + 1}", req, bus=bus, probe=probe)[0].to_dict()
+                        for k in range(n)]
+        finally:
+            bus.close()
+    return {"truth": PLAN_TRUTH, "identification": idf.summary(PLAN_TRUTH), "runs": runs,
+            "within_certificate": int(sum(r["within_certificate"] for r in runs)),
+            "within_certificate_alone": int(sum(r["within_certificate_alone"] for r in runs)),
+            "executed": int(sum(r["executed"] for r in runs)), "n": n,
+            "rest_error_rad": _stats([r["error_truth"] for r in runs if r["executed"]]) if runs else None,
+            "wall_s": time.perf_counter() - t0}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trials", type=int, default=50)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--fit-inertia", action="store_true")
     ap.add_argument("--stack", type=int, default=0, help="trials on the simulated ROS stack too")
+    ap.add_argument("--stack-mismatch", type=int, default=0,
+                    help="trials per kind of friction that is not Eq. 9 on the stack's simulated arm")
+    ap.add_argument("--stack-plan", type=int, default=0, metavar="N",
+                    help="identify once on the stack, then run the box-robust plan over the identified box N times")
+    ap.add_argument("--stack-seed", type=int, default=None,
+                    help="seed of the stack trials' draw (default: continue the offline draw)")
     ap.add_argument("--mismatch", type=int, default=0, help="trials per kind of friction that is not Eq. 9")
     ap.add_argument("--learn", type=int, default=0, help="trials of the update from executions")
     ap.add_argument("--issue", action="store_true", help="--trials 20 --mismatch 20 --learn 20 and the checks")
@@ -194,33 +343,10 @@ def main() -> None:
         out["mismatch"]["wall_s"] = time.perf_counter() - t1
     if a.learn:
         out["learn"] = _learn(rng, base, a.learn)
-    if a.stack:
-        from ff_executor.bringup.identify import run_on_stack    # ROS only for this part
-
-        env_s = Envelope(-1.0, 1.0, 3.0, i_max=3.0)
-        ex_s = design_excitation(base, env_s, 0.0, timing_margin=0.02)
-        srows: list = []
-        failures: list = []
-        for _ in range(a.stack):
-            true = _draw(rng, base, False)
-            t1 = time.perf_counter()
-            try:
-                recs, meta = run_on_stack(ex_s, base, {k: getattr(true, k) for k in KEYS}, 0.0, log=lambda s: None)
-            except RuntimeError as exc:      # a run the loaded host disturbed beyond the gate
-                failures.append(str(exc).splitlines()[0])
-                continue
-            wall = time.perf_counter() - t1
-            t1 = time.perf_counter()
-            fit = fit_friction(recs, base)
-            row = _row(fit, true, KEYS, time.perf_counter() - t1)
-            row["stack_wall_s"] = wall
-            srows.append(row)
-        out["stack"] = _summarise(srows, KEYS) if srows else {"trials": 0}
-        out["stack"]["failed"] = failures
-        out["stack"]["excitation"] = {"levels_A": sorted({round(r.level, 4) for r in ex_s.runs}),
-                                      "motion_s": ex_s.duration}
-        out["stack"]["stack_wall_s"] = _stats([r["stack_wall_s"] for r in srows]) if srows else None
-        out["stack"]["runs"] = srows
+    if a.stack or a.stack_mismatch:
+        out["stack"] = _stack(rng, base, a.stack, a.stack_mismatch, a.stack_seed)
+    if a.stack_plan:
+        out["stack_plan"] = _stack_plan(base, a.stack_plan)
     print(json.dumps(out, indent=1))
 
 

@@ -15,9 +15,12 @@ which the end constraints can be met with |I| <= i_max. The same scores from the
 
 Every run counts: each controller runs once per friction value; the relative switch timing at
 the bridge of every run (max − min of applied − stamp over its switches) is in the JSON beside
-its error.
+its error. Beside the 32 controllers, the planner's own answer to the same task: a plan with
+objective robust-box (pv, pc, pt uncertain; the pc box ±35 % covers the study's 0.19 … 0.25 Nm)
+through the planner SERVICE, run at the same three friction values (``stack_run.robust_box``;
+``--no-box`` leaves it out).
 
-    python benchmarks/bench_section5.py [--quick] [--offline] [--out FILE]
+    python benchmarks/bench_section5.py [--quick] [--offline] [--no-box] [--out FILE]
 """
 from __future__ import annotations
 
@@ -97,15 +100,45 @@ def controllers(n: int, params) -> list[dict]:
     return out
 
 
-def run_on_stack(ctrls: list[dict], log) -> dict:
+#: the planner's box-robust plan beside the 32 controllers: pv, pc, pt uncertain, pc's box
+#: covering the study's 0.19 ... 0.25 Nm (+32 %), pv and pt ±20 %
+BOX = {"pv": 0.2, "pc": 0.35, "pt": 0.2}
+
+
+def box_robust(client, params, log) -> dict:
+    """Plan the study's task with objective robust-box through the planner SERVICE; a controller
+    record with the model's errors at the study's pc values and the plan's certificate."""
+    from ff_executor.bringup.loop import plan_request
+    from ff_msgs_py.convert import msg_to_profile
+
+    t0 = time.monotonic()
+    resp = client.plan(plan_request("robust-box", box=BOX, qf=QF, tf=TF))
+    if resp.profile.n_steps == 0:
+        raise RuntimeError(f"no robust-box plan: {resp.message}")
+    prof = msg_to_profile(resp.profile)
+    errs = [float(rest_position(params.replace(pc=pc), prof, [0.0])[0] - QF) for pc in PCS]
+    log(f"robust-box plan: {prof.n_steps} steps, {time.monotonic() - t0:.1f} s, certificate "
+        f"{resp.certificate.worst_rest_error * 1e3:.2f} mrad")
+    return {"objective": "robust-box", "box": BOX, "steps": int(prof.n_steps),
+            "currents_A": [float(x) for x in prof.currents[:, 0]],
+            "step_times_s": [float(x) for x in prof.step_times], "plan_time_s": time.monotonic() - t0,
+            "certificate_worst_rad": float(resp.certificate.worst_rest_error),
+            "model_errors_rad": errs, "model_rms_rad": float(np.sqrt(np.mean(np.square(errs)))),
+            "_msg": resp.profile}
+
+
+def run_on_stack(ctrls: list[dict], log, with_box: bool = True) -> dict:
     from ff_executor.bringup.stack import Stack, StackOptions
     from ff_executor.ros.client import StackClient
     from ff_msgs_py.convert import profile_to_msg
 
     t0 = time.monotonic()
     failures = 0
-    with Stack(StackOptions(planner=False, rt_priority=RT_PRIORITY), log=log) as stack:
+    box: dict = {}
+    with Stack(StackOptions(planner=with_box, rt_priority=RT_PRIORITY), log=log) as stack:
         with StackClient(stack.env, "ff_bench_section5") as client:
+            if with_box:
+                box = box_robust(client, default_params("arm1dof"), log)
             for pc in PCS:
                 stack.set_true_params({"pc": pc})
                 log(f"true pc = {pc} Nm")
@@ -122,11 +155,22 @@ def run_on_stack(ctrls: list[dict], log) -> dict:
                     c.setdefault("executor_errors_rad", []).append(
                         float(mv.result.position_error[0]) if ok and len(mv.result.position_error)
                         else math.nan)
+                if box:                    # the planner's plan, once per friction value too
+                    client.reset_arm([0.0])
+                    mv = client.execute(box["_msg"])
+                    ok = mv.succeeded and mv.rest_truth is not None
+                    failures += 0 if ok else 1
+                    box.setdefault("stack_errors_rad", []).append(float(mv.rest_truth[0] - QF) if ok else math.nan)
+                    box.setdefault("switch_spread_s", []).append(mv.switch_spread)
     for c in ctrls:
         errs = np.array(c["stack_errors_rad"])
         c["stack_rms_rad"] = float(np.sqrt(np.mean(np.square(errs))))
     spreads = [s for c in ctrls for s in c["switch_spread_s"]]
-    return {"runs": len(ctrls) * len(PCS), "failed_runs": failures,
+    if box:
+        box.pop("_msg", None)
+        box["stack_rms_rad"] = float(np.sqrt(np.mean(np.square(box["stack_errors_rad"]))))
+    return {"runs": len(ctrls) * len(PCS) + (len(PCS) if box else 0), "failed_runs": failures,
+            "robust_box": box or None,
             "switch_spread_median_s": float(np.median(spreads)) if spreads else math.nan,
             "switch_spread_max_s": float(np.max(spreads)) if spreads else math.nan,
             "wall_s": time.monotonic() - t0}
@@ -162,6 +206,7 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="8 controllers instead of 32")
     ap.add_argument("--offline", action="store_true", help="model only, no stack")
     ap.add_argument("--out", default=None, help="also write the JSON here")
+    ap.add_argument("--no-box", action="store_true", help="without the planner's robust-box plan")
     a = ap.parse_args(argv)
     params = default_params("arm1dof")
     n = 8 if a.quick else 32
@@ -174,7 +219,7 @@ def main(argv=None) -> int:
            "first_current_range_A": [ctrls[0]["currents_A"][0], ctrls[-1]["currents_A"][0]],
            "controllers": ctrls}
     if not a.offline:
-        out["stack_run"] = run_on_stack(ctrls, log)
+        out["stack_run"] = run_on_stack(ctrls, log, with_box=not a.no_box)
     out["summary"] = summarise(ctrls, stack=not a.offline)
     text = json.dumps(out, indent=2)
     print(text)

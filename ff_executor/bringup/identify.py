@@ -5,17 +5,23 @@ runner :func:`run_on_stack` handed in. ROS (rclpy, the stack, the client) is imp
 ``--sim`` runs, so ``ff-identify --records`` needs no ROS (and the planner package, which knows
 nothing of execution, never imports this one).
 
-:func:`run_on_stack` starts the simulated stack (``Stack``: sim driver with the given true
-parameters, bridge, executor; no planner), then for each run of the excitation checks that the
-arm is at rest (the bridge's joint states; a moving arm is refused), sends the run's profile
-from the measured position to the executor action (``StackClient.execute``) and keeps the
-bridge's joint states (rad, effort = measured current A) as a RunRecord, with the time origin at
-the stamp of the run's first setpoint and each switch moved by the delay the bridge applied it
-with. Units: rad, rad/s, A, s.
+:func:`run_on_stack` starts the simulated stack (``identification_options``: sim driver with the
+given true parameters — and, optionally, friction that is not Eq. 9 —, bridge latching setpoints
+at SYNC, executor; no planner) and hands it to :func:`identify_runs`, which works on any running
+stack: before the first run the executor and the bridge must answer and no drive may be in fault
+(``StackProbe.check_stack``: ``StackNotRunning``, ``DriveFault``), before each run the arm must be
+at rest (``ArmNotAtRest``); each run's profile goes from the measured position to the executor
+action (``StackClient.execute``) and the bridge's joint states (rad; effort = measured current A,
+``~/motor_currents``) become a RunRecord. The timing comes from the CAN bus
+(``ff_executor.bringup.bus_monitor``): each sample at the SYNC its TPDO answered, each current
+change at the SYNC that latched its RPDO, the currents as the drive decoded them (its 3 mA
+quantum); without a bus monitor, from the bridge's stamps and reported switch delays (less exact:
+a TPDO is stamped 0.2–1.1 ms after its SYNC, measured). Units: rad, rad/s, A, s.
 """
 from __future__ import annotations
 
 import math
+import os
 import sys
 import threading
 import time
@@ -24,6 +30,7 @@ from typing import Any, Callable, Mapping, Optional, Sequence
 
 import numpy as np
 
+from ff_executor.bringup.bus_monitor import BusMonitor
 from ff_planner.cli import identify as cli
 from ff_planner.identify.excitation import Envelope, Excitation
 from ff_planner.identify.records import RunRecord
@@ -44,24 +51,96 @@ class StackFault(RuntimeError):
     changes (a latched safe state). Not a timing judgement: a run that completed always counts."""
 
 
+class StackNotRunning(RuntimeError):
+    """The stack's executor or bridge does not answer: nothing was sent."""
+
+
+class DriveFault(RuntimeError):
+    """The bridge reports a latched safe state or a drive fault: nothing is sent until it is
+    cleared (``ff-ctl fault-reset`` after the cause is fixed)."""
+
+
 class StackProbe:
-    """The bridge's joint states and its fault reset, for the runner; made once per client (rclpy
-    entities are not destroyed while the client's executor thread spins)."""
+    """The bridge's joint states, its diagnostics and its fault reset, for the runner; made once
+    per client (rclpy entities are not destroyed while the client's executor thread spins)."""
 
     def __init__(self, client: Any) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
         from sensor_msgs.msg import JointState
         from std_srvs.srv import Trigger
 
+        self._client = client
         self._trigger = Trigger
         self._lock = threading.Lock()
         self._samples: deque[tuple[float, float]] = deque(maxlen=400)
+        self._diag: dict[str, tuple[int, str]] = {}      # status name -> (level, message)
+        self._late: Optional[tuple[float, int]] = None    # (monotonic s, sim driver's late_switches)
         client.node.create_subscription(JointState, "/ff_hwbridge/joint_states", self._on_js, 50)
+        client.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 20)
         self._reset = client.node.create_client(Trigger, "/ff_hwbridge/fault_reset")
 
     def _on_js(self, m: Any) -> None:
         if m.position:
             with self._lock:
                 self._samples.append((float(m.position[0]), float(m.velocity[0]) if m.velocity else 0.0))
+
+    def _on_diag(self, m: Any) -> None:
+        with self._lock:
+            for st in m.status:
+                if st.name.startswith("ff_hwbridge"):
+                    self._diag[st.name] = (int.from_bytes(st.level, "little") if isinstance(st.level, bytes)
+                                           else int(st.level), str(st.message))
+                elif st.name.startswith("ff_sim_driver"):
+                    for kv in st.values:
+                        if kv.key == "late_switches":
+                            self._late = (time.monotonic(), int(kv.value))
+
+    def sim_late_switches(self, fresh: float = 0.0) -> Optional[int]:
+        """The simulated arm's count of current changes that started late (their CAN frames
+        handled after the plant's lag: the bus then shows an instant the plant did not use), from
+        the sim driver's diagnostics, waiting up to 1.5 s for one newer than ``fresh`` s ago;
+        None without a simulated driver."""
+        end = time.monotonic() + (1.5 if fresh > 0.0 else 0.0)
+        while True:
+            with self._lock:
+                late = self._late
+            if late is not None and (fresh <= 0.0 or late[0] >= time.monotonic() - fresh):
+                return late[1]
+            if time.monotonic() >= end:
+                return late[1] if late is not None else None
+            time.sleep(0.05)
+
+    def check_stack(self, timeout: float = 5.0) -> None:
+        """StackNotRunning unless the executor action and the bridge's joint states answer within
+        ``timeout`` s; then ``check_drive``."""
+        if not self._client.action.wait_for_server(timeout_sec=timeout):
+            raise StackNotRunning(
+                f"no executor action /ff_executor/execute in ROS domain {os.environ.get('ROS_DOMAIN_ID', '0')} "
+                f"(loopback) within {timeout:g} s: is the stack running (ff-bringup)? nothing was sent")
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            with self._lock:
+                if self._samples and self._diag:
+                    break
+            time.sleep(0.05)
+        with self._lock:
+            seen, diag = bool(self._samples), bool(self._diag)
+        if not seen:
+            raise StackNotRunning(f"no joint states from the bridge (/ff_hwbridge/joint_states) within "
+                                  f"{timeout:g} s: is the bridge active? nothing was sent")
+        if not diag:
+            raise StackNotRunning(f"no diagnostics from the bridge (/diagnostics) within {timeout:g} s: "
+                                  "cannot tell whether its drives are in fault; nothing was sent")
+        self.check_drive()
+
+    def check_drive(self) -> None:
+        """DriveFault when the bridge's latest diagnostics report an error (a latched safe state,
+        a drive in fault)."""
+        with self._lock:
+            bad = [f"{name}: {msg}" for name, (level, msg) in self._diag.items() if level >= 2]
+        if bad:
+            raise DriveFault(f"the drive is in fault ({bad[0]}); clear the cause and call "
+                             "ff-ctl fault-reset; nothing was sent")
 
     def wait_at_rest(self, q_res: float, window: float = 0.3, rest_velocity: float = 1e-3,
                      timeout: float = 5.0) -> float:
@@ -84,14 +163,25 @@ class StackProbe:
         raise ArmNotAtRest(f"the arm is not at rest ({last}); identification moves an arm only from rest")
 
     def fault_reset(self, timeout: float = 5.0) -> str:
-        """Call the bridge's ``~/fault_reset`` (a latched safe state blocks every setpoint)."""
+        """Call the bridge's ``~/fault_reset`` (a latched safe state blocks every setpoint) and
+        wait up to ``timeout`` s for diagnostics sent after it that report no error."""
         if not self._reset.wait_for_service(timeout_sec=timeout):
             return "no /ff_hwbridge/fault_reset service"
         fut = self._reset.call_async(self._trigger.Request())
         end = time.monotonic() + timeout
         while not fut.done() and time.monotonic() < end:
             time.sleep(0.01)
-        return str(fut.result().message) if fut.done() else "no answer from /ff_hwbridge/fault_reset"
+        if not fut.done():
+            return "no answer from /ff_hwbridge/fault_reset"
+        with self._lock:
+            self._diag.clear()                     # only diagnostics sent after the reset count
+        while time.monotonic() < end:
+            with self._lock:
+                levels = [lv for lv, _ in self._diag.values()]
+            if levels and max(levels) < 2:
+                break
+            time.sleep(0.05)
+        return str(fut.result().message)
 
 
 def applied_profile(profile: CurrentProfile, delays: Sequence[float]) -> CurrentProfile:
@@ -106,10 +196,14 @@ def applied_profile(profile: CurrentProfile, delays: Sequence[float]) -> Current
     return CurrentProfile(st, profile.currents, profile.tf, profile.tf - float(st[-1]))
 
 
-def record_of(outcome: Any, profile: CurrentProfile, q_res: float, measure: str = "joints") -> RunRecord:
-    """RunRecord from a MoveOutcome, time 0 at the profile's first stamp: ``measure`` "joints" =
-    the bridge's joint states (the encoder as the bridge reports it, stamped when published);
-    "truth" = the simulated arm's ground truth rounded to the encoder quantum (stamped when sampled)."""
+def record_of(outcome: Any, profile: CurrentProfile, q_res: float, measure: str = "joints",
+              bus: Optional[BusMonitor] = None) -> RunRecord:
+    """RunRecord from a MoveOutcome: ``measure`` "joints" = the bridge's joint states (the
+    encoder as the bridge reports it), "truth" = the simulated arm's ground truth rounded to the
+    encoder quantum (stamped when sampled). With ``bus`` (joints only) the timing is the bus's
+    (``bus_timing``): each sample at its SYNC instant, the profile as the drive applied it;
+    otherwise time 0 is the profile's first stamp, samples at the bridge's stamps and each switch
+    moved by the delay the bridge reports."""
     if measure not in MEASURES:
         raise ValueError(f"measure must be one of {MEASURES}, got {measure!r}")
     t, q, _, eff = (outcome.joints if measure == "joints" else outcome.truth).arrays()
@@ -117,24 +211,71 @@ def record_of(outcome: Any, profile: CurrentProfile, q_res: float, measure: str 
         q = np.floor(q / q_res + 0.5) * q_res
     if t.size < 10 or outcome.profile_start is None:
         raise RuntimeError(f"the run recorded {t.size} joint states; too few to fit")
-    tr = t - float(outcome.profile_start)
-    order = np.argsort(tr, kind="stable")
-    tr, q, eff = tr[order], q[order, 0], eff[order, 0]
-    keep = np.concatenate([[True], np.diff(tr) > 0.0])
-    return RunRecord(tr[keep], q[keep], eff[keep], applied_profile(profile, outcome.switch_delays), q_res)
+    q, eff = q[:, 0], eff[:, 0]
+    applied = None
+    if bus is not None and measure == "joints":
+        timed = bus_timing(bus, t, profile, float(outcome.profile_start))
+        if timed is None:         # the drive did not apply the profile as sent: no data
+            raise StackFault("the CAN bus did not show the run's current changes in order (or too few "
+                             "samples could be placed at their SYNC): the run gave no data")
+        t, applied, keep = timed
+        q, eff = q[keep], eff[keep]
+    if applied is None:
+        t = t - float(outcome.profile_start)
+        applied = applied_profile(profile, outcome.switch_delays)
+    order = np.argsort(t, kind="stable")
+    t, q, eff = t[order], q[order], eff[order]
+    keep = np.concatenate([[True], np.diff(t) > 0.0])
+    return RunRecord(t[keep], q[keep], eff[keep], applied, q_res)
+
+
+def bus_timing(bus: BusMonitor, stamps: np.ndarray, profile: CurrentProfile, start: float, tol: float = 0.01,
+               latched: Optional[bool] = None) -> Optional[tuple[np.ndarray, CurrentProfile, np.ndarray]]:
+    """(sample times s, applied profile, mask of the stamps kept) on the bus's clock, time 0 at
+    the RPDO that started the profile: the drive's current changes between ``start`` − 0.1 s
+    and the profile's end + 0.2 s (the bus time of each RPDO that changed it; the currents as
+    the drive decoded them, each within ``tol`` A of a commanded one, in order), and each joint
+    state at the SYNC its TPDO1 answered. None when the bus did not show the profile's changes
+    in order ending at zero, or too few samples could be placed. ``latched`` (None:
+    the monitor's): the drive latches setpoints at SYNC (``setpoint_timing: sync``), each change
+    at the first SYNC after its RPDO."""
+    changes = bus.current_changes(start - 0.1, start + (profile.tf - profile.coast) + 0.2, latched)
+    while changes and changes[0][1] == 0.0:
+        changes.pop(0)
+    if len(changes) < 2 or changes[-1][1] != 0.0:
+        return None
+    amps = np.array([a for _, a in changes[:-1]])
+    # the drive's currents are the commanded ones in order (a step latched together with the
+    # next one at a late SYNC never took effect: it is missing, not wrong)
+    cmd, j = list(profile.currents[:, 0]), 0
+    for a in amps:
+        while j < len(cmd) and abs(a - cmd[j]) > tol:
+            j += 1
+        if j == len(cmd):
+            return None
+        j += 1
+    t0 = changes[0][0]
+    st = np.array([c[0] - t0 for c in changes])          # the steps' starts and the last one's end
+    applied = CurrentProfile(st, amps.reshape(-1, 1), float(st[-1]) + profile.coast, profile.coast)
+    inst = bus.sample_instants(stamps)
+    keep = np.isfinite(inst)
+    if keep.sum() < max(10, 0.8 * stamps.size):
+        return None
+    return inst[keep] - t0, applied, keep
 
 
 def execute_run(client: Any, probe: StackProbe, run: Any, q_res: float, envelope: Envelope, *,
-                log: Callable[[str], None] = print,
-                measure: str = "joints") -> tuple[RunRecord, list[float]]:
+                log: Callable[[str], None] = print, measure: str = "joints",
+                bus: Optional[BusMonitor] = None) -> tuple[RunRecord, list[float]]:
     """Execute one run from rest and check it. Every completed run counts, however late its
-    switches (no timing gate): the fit uses the switch times as the bridge applied them, so a late
-    switch is data, not noise. A run that left ``envelope`` stops the identification
-    (RuntimeError); one that did not complete, or whose current changes the bridge did not all
-    apply (a latched safe state), raises StackFault."""
+    switches (no timing gate): the fit uses the switch times as the drive applied them (``bus``)
+    or as the bridge reports them, so a late switch is data, not noise. A run that left
+    ``envelope`` stops the identification (RuntimeError); one that did not complete, or whose
+    current changes the bridge did not all apply (a latched safe state), raises StackFault."""
     from ff_msgs_py.convert import profile_to_msg
 
     q = probe.wait_at_rest(q_res)
+    probe.check_drive()
     msg = profile_to_msg(run.profile, "arm1dof", [q], [q + run.q_end - run.q0])
     mv = client.execute(msg, timeout=run.profile.tf + 15.0)
     _, qs, _, _ = mv.joints.arrays()
@@ -147,56 +288,143 @@ def execute_run(client: Any, probe: StackProbe, run: Any, q_res: float, envelope
     if len(mv.switch_delays) != run.profile.n_steps + 1:
         raise StackFault(f"the bridge applied {len(mv.switch_delays)} of {run.profile.n_steps + 1} current "
                          f"changes of a run (safe state? ff-ctl diag)")
-    return record_of(mv, run.profile, q_res, measure), [float(x) for x in mv.switch_delays]
+    if bus is not None:
+        time.sleep(0.05)                 # the monitor's last frames of the run
+    rec = record_of(mv, run.profile, q_res, measure, bus)
+    if float(np.ptp(rec.q)) < 100.0 * q_res:         # every run moves the arm by tenths of a rad
+        raise StackFault(f"the arm moved {float(np.ptp(rec.q)):.3g} rad in a run: the drive did not apply it")
+    return rec, [float(x) for x in mv.switch_delays]
+
+
+def identify_runs(client: Any, ex: Excitation, q_res: float, envelope: Envelope, *,
+                  probe: Optional[StackProbe] = None, bus: Optional[BusMonitor] = None,
+                  log: Callable[[str], None] = print, measure: str = "joints",
+                  retries: int = 2) -> tuple[list[RunRecord], dict]:
+    """Run every profile of ``ex`` through a running stack's executor (``client``: a
+    ``StackClient``), return (records, meta). Before the first run: the stack must answer
+    (``StackProbe.check_stack``) and the drive must not be in fault; before each run the arm must
+    be at rest. A run that produced no data (StackFault: the executor aborted it, or the bridge
+    latched a safe state before all its current changes: there is no partial data) is run again
+    after a fault reset, at most ``retries`` times, and named in ``meta["stack_faults"]``; a run
+    that completed always counts."""
+    probe = probe or StackProbe(client)
+    probe.check_stack()
+    late0 = probe.sim_late_switches(fresh=2.0)
+    records: list[RunRecord] = []
+    delays: list[list[float]] = []
+    faults: list[str] = []
+    t0 = time.monotonic()
+    for k, run in enumerate(ex.runs):
+        for attempt in range(1, retries + 2):
+            try:
+                rec, dl = execute_run(client, probe, run, q_res, envelope, log=log, measure=measure, bus=bus)
+                break
+            except StackFault as exc:      # no data: reset the bridge, run it again
+                faults.append(f"run {k + 1}: {exc}; fault reset: {probe.fault_reset()}")
+                log(f"  stack fault, run {k + 1} again: {faults[-1]}")
+                if attempt > retries:
+                    raise
+            except DriveFault as exc:      # latched since the last run (e.g. its final zero was late)
+                if k == 0 and attempt == 1 or attempt > retries:
+                    raise                  # a fault before anything moved, or one a reset does not clear
+                faults.append(f"before run {k + 1}: {exc}; fault reset: {probe.fault_reset()}")
+                log(f"  safe state, reset, run {k + 1}: {faults[-1]}")
+        records.append(rec)
+        delays.append(dl)
+        log(f"  run {k + 1}/{len(ex.runs)}: {run.direction * run.level:+.3g} A, "
+            f"{rec.t.size} samples, switch delays {np.round(dl, 4).tolist()} s")
+    timing = "bus (SYNC instants, RPDO bus times)" if bus is not None else "bridge stamps"
+    meta = {"source": f"simulated stack ({measure}; timing: {timing})", "wall_s": time.monotonic() - t0,
+            "switch_delays": delays, "stack_faults": faults, "q_resolution": q_res,
+            "timing": "bus" if bus is not None else "bridge"}
+    if bus is not None:
+        meta["bus"] = {"syncs": bus.syncs, "tpdo_unpaired": bus.unpaired}
+    late1 = probe.sim_late_switches(fresh=1.0) if late0 is not None else None
+    if late0 is not None and late1 is not None:
+        meta["sim_late_switches"] = late1 - late0
+    return records, meta
+
+
+def stack_q_resolution(base: Arm1DofParams) -> float:
+    """rad per encoder count of the simulated stack's joint (2π / (counts per rev · gear))."""
+    from ff_executor.bringup.stack import COUNTS_PER_REV
+
+    return 2.0 * math.pi / (COUNTS_PER_REV * float(base.n))
+
+
+#: executor settings of an identification stack: setpoints 0.8 s ahead of their stamps (a late
+#: brake switch cannot be corrected by a feedforward run: it overshoots), moves starting 1 s out
+IDENTIFY_EXECUTOR = {"lead_time": 0.8, "start_margin": 1.0}
+
+
+def identification_options(true_params: Mapping[str, float] = {}, *, q_start: float = 0.0,
+                           friction: Optional[Mapping[str, float]] = None, run_dir: Optional[str] = None,
+                           rt_priority: int = 10, setpoint_timing: str = "sync", planner: bool = False,
+                           **more: Any) -> Any:
+    """StackOptions of a simulated stack to identify on: ``true_params`` (SI) and ``friction``
+    (not Eq. 9, ``StackOptions.sim_friction``) for the arm, setpoints latched at SYNC
+    (``setpoint_timing`` "sync": an instant the bus shows exactly), ``IDENTIFY_EXECUTOR`` timing,
+    SCHED_FIFO ``rt_priority`` for the simulated drive and the bridge's scheduler where permitted,
+    with ``planner`` a planner that rounds its plans' currents to the drive's setpoint quantum
+    (EPOS4: per mille of the nominal current) and certifies the rounded profile; ``more``: other
+    StackOptions fields."""
+    from ff_executor.bringup.stack import NOMINAL_CURRENT, StackOptions
+
+    ex_over = dict(IDENTIFY_EXECUTOR)
+    ex_over.update(more.pop("executor_overrides", {}) or {})
+    pl_over = {"current_quantum": NOMINAL_CURRENT / 1000.0}     # EPOS4: per mille of the nominal current
+    pl_over.update(more.pop("planner_overrides", {}) or {})
+    return StackOptions(true_params=dict(true_params), planner=planner, q0=[float(q_start)], run_dir=run_dir,
+                        rt_priority=int(rt_priority), sim_friction=dict(friction or {}),
+                        setpoint_timing=setpoint_timing, executor_overrides=ex_over, planner_overrides=pl_over,
+                        **more)
+
+
+def bus_monitor(stack: Any) -> BusMonitor:
+    """A BusMonitor on ``stack``'s CAN hub for its first drive (latched setpoints in sync mode)."""
+    from ff_executor.bringup.stack import NOMINAL_CURRENT
+
+    return BusMonitor(stack.hub_url, nominal_current=NOMINAL_CURRENT,
+                      latched=stack.options.setpoint_timing == "sync")
 
 
 def run_on_stack(ex: Excitation, base: Arm1DofParams, true_params: Mapping[str, float], q_start: float,
                  log: Callable[[str], None] = print, run_dir: Optional[str] = None,
                  stack_log: Optional[Callable[[str], None]] = None,
                  measure: str = "joints", envelope: Optional[Envelope] = None,
-                 rt_priority: int = 10) -> tuple[list[RunRecord], dict]:
-    """Start the simulated stack with ``true_params``, run every profile of ``ex`` through the
-    executor, return (records, meta); ``measure`` as in ``record_of``; ``envelope`` (default: the
-    excitation's) bounds the measured positions; ``rt_priority``: SCHED_FIFO priority of the
-    simulated drive and the bridge's scheduler thread where permitted (as ``ff-demo``; 0 = normal).
-    Every completed run counts; a run that produced no data (StackFault) is run once more after a
-    fault reset, and named in ``meta["stack_faults"]``. The stack and the client stop on return or
-    error."""
+                 rt_priority: int = 10, bus_times: bool = True,
+                 friction: Optional[Mapping[str, float]] = None,
+                 setpoint_timing: str = "sync") -> tuple[list[RunRecord], dict]:
+    """Start the simulated stack (``identification_options``: ``true_params``, ``friction`` —
+    the arm's friction that is not Eq. 9 —, ``setpoint_timing``, ``rt_priority``), run every
+    profile of ``ex`` through the executor (``identify_runs``), return (records, meta);
+    ``measure`` as in ``record_of``; ``envelope`` (default: the excitation's) bounds the measured
+    positions; ``bus_times``: time the samples and switches on the CAN bus (``BusMonitor``)
+    instead of by the bridge's stamps. The stack and the client stop on return or error."""
     if measure not in MEASURES:
         raise ValueError(f"measure must be one of {MEASURES}, got {measure!r}")
-    from ff_executor.bringup.stack import COUNTS_PER_REV, Stack, StackOptions
+    from ff_executor.bringup.stack import Stack
     from ff_executor.ros.client import StackClient
 
     env = envelope or ex.envelope
     if env is None:
         raise ValueError("run_on_stack needs the envelope the excitation was designed for")
-    q_res = 2.0 * math.pi / (COUNTS_PER_REV * float(base.n))
-    opts = StackOptions(true_params=dict(true_params), planner=False, q0=[float(q_start)], run_dir=run_dir,
-                        rt_priority=int(rt_priority))
-    records: list[RunRecord] = []
-    delays: list[list[float]] = []
-    faults: list[str] = []
+    opts = identification_options(true_params, q_start=q_start, friction=friction, run_dir=run_dir,
+                                  rt_priority=rt_priority, setpoint_timing=setpoint_timing)
     t0 = time.monotonic()
     with Stack(opts, log=stack_log or (lambda s: None)) as stack:
+        bus = bus_monitor(stack) if bus_times else None
         client = StackClient(stack.env, "ff_identify")
         try:
-            probe = StackProbe(client)
-            for k, run in enumerate(ex.runs):
-                try:
-                    rec, dl = execute_run(client, probe, run, q_res, env, log=log, measure=measure)
-                except StackFault as exc:      # no data: reset the bridge, run it once more
-                    faults.append(f"run {k + 1}: {exc}; fault reset: {probe.fault_reset()}")
-                    log(f"  stack fault, run {k + 1} again: {faults[-1]}")
-                    rec, dl = execute_run(client, probe, run, q_res, env, log=log, measure=measure)
-                records.append(rec)
-                delays.append(dl)
-                log(f"  run {k + 1}/{len(ex.runs)}: {run.direction * run.level:+.3g} A, "
-                    f"{rec.t.size} samples, switch delays {np.round(dl, 4).tolist()} s")
+            records, meta = identify_runs(client, ex, stack_q_resolution(base), env, bus=bus, log=log,
+                                          measure=measure)
         finally:
             client.close()
-    meta = {"source": f"simulated stack ({measure})", "wall_s": time.monotonic() - t0, "switch_delays": delays,
-            "stack_faults": faults,
-            "q_resolution": q_res}
+            if bus is not None:
+                bus.close()
+    meta["wall_s"] = time.monotonic() - t0
+    if friction:
+        meta["friction_mismatch"] = dict(friction)
     return records, meta
 
 

@@ -10,6 +10,10 @@ Parameters (see ``PARAMETERS``; ``config/sim_*.yaml``):
   bus.bitrate, true_preset + ``true_params.<key>`` (the TRUE model parameters, e.g.
   ``true_params.pc``; changeable at runtime), q0 (rad), physics_step (s), counts_per_rev,
   nominal_current (A), ground_truth_rate (Hz), diagnostics_rate (Hz).
+  Friction that is not Eq. 9 (1-DOF arm, changeable at runtime; ``FRICTION_PARAMETERS``):
+  ``friction.stribeck`` (extra static friction, fraction of pc), ``friction.stribeck_speed``
+  (rad/s), ``friction.coulomb_ripple`` (fraction of pc), ``friction.coulomb_period`` (rad): the
+  Coulomb level pc·(1 + stribeck·exp(−(q̇/stribeck_speed)²))·(1 + coulomb_ripple·sin(2π·q/period)).
   Fault injection, per drive, changeable at runtime (``fault.n<ID>.<name>``): heartbeat_stopped
   (bool), sdo_silent (bool), delay_ms (float) + delay_direction ('rx'|'tx'|'both'),
   drop_fraction (0..1) + drop_direction, drop_next (int: set N > 0 to drop the next N frames),
@@ -36,6 +40,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from ff_hwbridge.drive.bus import CanConfigError
+from ff_hwbridge.sim.arm import FrictionMismatch
 from ff_hwbridge.sim.can_hub import CanHub, start_hub
 from ff_hwbridge.sim.drive import SimConfigError, SimEpos
 from ff_hwbridge.sim.rig import RigConfig, SimRig
@@ -61,6 +66,9 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
     "ground_truth_rate": (100.0, "Hz"),
     "diagnostics_rate": (1.0, "Hz"),
     "switch_interval": (0.0005, "s, python thread switch interval (latency of the CAN thread)"),
+}
+FRICTION_PARAMETERS: dict[str, float] = {
+    "stribeck": 0.0, "stribeck_speed": 0.1, "coulomb_ripple": 0.0, "coulomb_period": 0.25,
 }
 FAULT_PARAMETERS: dict[str, Any] = {
     "heartbeat_stopped": False, "sdo_silent": False, "delay_ms": 0.0, "delay_direction": "both",
@@ -112,6 +120,9 @@ class SimDriverNode(Node):
         for nid in node_ids:
             for name, default in FAULT_PARAMETERS.items():
                 self.declare_parameter(f"fault.n{nid}.{name}", default)
+        for name, value in FRICTION_PARAMETERS.items():
+            self.declare_parameter(f"friction.{name}", value)
+        self._apply_friction({k: float(self._p(f"friction.{k}")) for k in FRICTION_PARAMETERS})
         self.add_on_set_parameters_callback(self._on_params)
         self._apply_faults_from_params()
 
@@ -132,10 +143,17 @@ class SimDriverNode(Node):
     # -- parameters at runtime ------------------------------------------------------------------
     def _on_params(self, params: list) -> SetParametersResult:
         true_updates: dict[str, Any] = {}
+        friction: dict[str, float] = {}
         try:
             for p in params:
                 if p.name.startswith("true_params."):
                     true_updates[p.name.split(".", 1)[1]] = p.value
+                elif p.name.startswith("friction."):
+                    key = p.name.split(".", 1)[1]
+                    if key not in FRICTION_PARAMETERS:
+                        return SetParametersResult(successful=False, reason=(
+                            f"unknown friction parameter {key!r}; known: {list(FRICTION_PARAMETERS)}"))
+                    friction[key] = float(p.value)
                 elif p.name.startswith("fault."):
                     _, n, key = p.name.split(".", 2)
                     self._apply_fault(self.rig.drive(int(n[1:])), key, p.value)
@@ -146,9 +164,20 @@ class SimDriverNode(Node):
                 new = self.rig.arm.params.replace(**true_updates)
                 self.rig.arm.set_params(new)
                 self.get_logger().info(f"true parameters now {new.to_dict()}")
+            if friction:
+                now = {k: float(self._p(f"friction.{k}")) for k in FRICTION_PARAMETERS}
+                self._apply_friction({**now, **friction})
         except (ParameterError, SimConfigError, ValueError) as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         return SetParametersResult(successful=True)
+
+    def _apply_friction(self, values: dict[str, float]) -> None:
+        """Friction that is not Eq. 9 on the simulated arm (all zero levels: Eq. 9)."""
+        mm = FrictionMismatch(**values)
+        mm.validate()
+        self.rig.arm.set_friction(mm)
+        if mm.active:
+            self.get_logger().info(f"friction that is not Eq. 9: {values}")
 
     def _apply_faults_from_params(self) -> None:
         for d in self.rig.drives:

@@ -12,6 +12,12 @@ model is stepped in sub-steps of at most ``step`` s (default 0.1 ms). ``start_cl
 runs the plant on its own thread, advancing it to a little before now every ``period`` s, so that
 a caller (a CAN callback) only ever integrates the last few ms, however long the rig was idle.
 Thread-safe (one lock). Units: rad, rad/s, A, s.
+
+``set_friction(FrictionMismatch(...))`` (1-DOF arm only) gives the arm friction that is not
+Eq. 9 — a Stribeck rise of the Coulomb level at low speed, a Coulomb level that varies with
+position (``ff_planner.identify.measure.FrictionMismatch``): each sub-step is then the exact
+Eq. 9 motion with the Coulomb level of the sub-step's start state, as the offline measurement
+simulates it, so that identification on the stack can be tested for honesty.
 """
 from __future__ import annotations
 
@@ -22,10 +28,13 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from ff_planner.model.params import ParameterError, Params
+from ff_planner.identify.measure import FrictionMismatch
+from ff_planner.model.arm1dof import advance_core
+from ff_planner.model.params import Arm1DofParams, ParameterError, Params
 from ff_planner.model.registry import model_spec
 
-__all__ = ["AdvanceFn", "ArmState", "JointPort", "Params", "SimArm", "joint_param", "planner_advance"]
+__all__ = ["AdvanceFn", "ArmState", "FrictionMismatch", "JointPort", "Params", "SimArm", "joint_param",
+           "mismatch_advance", "planner_advance"]
 
 #: advance(params, q, qd, currents, dt) -> (q, qd): per-joint arrays of shape (n_joints,),
 #: rad, rad/s, A, s (the registry's convention).
@@ -37,6 +46,24 @@ def planner_advance(params: Params) -> AdvanceFn:
     # the models compile with numba: imported when a plant is built, not with this module
 
     return model_spec(params.model).advance
+
+
+def mismatch_advance(mismatch: FrictionMismatch) -> AdvanceFn:
+    """A 1-DOF one-step model whose Coulomb level is ``mismatch.coulomb(pc, q, q̇)`` at the
+    step's start (Nm), the rest exact Eq. 9 (pv, pt, J, kt, n of the parameters)."""
+    mismatch.validate()
+
+    def advance(params: Params, q: np.ndarray, qd: np.ndarray, currents: np.ndarray,
+                dt: float) -> tuple[np.ndarray, np.ndarray]:
+        p = params
+        assert isinstance(p, Arm1DofParams)
+        q0, v0 = float(q[0]), float(qd[0])
+        q1, v1 = advance_core(float(p.J), float(p.torque_per_amp), float(p.pv),
+                              mismatch.coulomb(float(p.pc), q0, v0), float(p.pt), q0, v0,
+                              float(currents[0]), float(dt))
+        return np.array([q1]), np.array([v1])
+
+    return advance
 
 
 def joint_param(params: Params, key: str, joint: int) -> float:
@@ -75,6 +102,8 @@ class SimArm:
         self.n_joints = params.n_joints
         self.step = float(step)
         self._advance = advance if advance is not None else planner_advance(params)
+        self._own_advance = self._advance
+        self.friction: Optional[FrictionMismatch] = None    # None: the model's Eq. 9
         self._clock = clock
         self._lock = threading.Lock()
         self._q, self._qd = self._vec(q0, "q0"), self._vec(0.0 if qd0 is None else qd0, "qd0")
@@ -195,6 +224,18 @@ class SimArm:
         with self._lock:
             self._advance_to(self._clock())
             self.params = params
+
+    def set_friction(self, mismatch: Optional[FrictionMismatch]) -> None:
+        """From now on, friction that is not Eq. 9 (1-DOF arm only; None or an inactive
+        mismatch: back to the model's Eq. 9)."""
+        active = mismatch is not None and mismatch.active
+        if active and not isinstance(self.params, Arm1DofParams):
+            raise ParameterError("friction that is not Eq. 9 is offered for the 1-DOF arm only")
+        adv = mismatch_advance(mismatch) if active and mismatch is not None else self._own_advance
+        with self._lock:
+            self._advance_to(self._clock())
+            self._advance = adv
+            self.friction = mismatch if active else None
 
     def port(self, joint: int) -> "JointPort":
         """The connection one drive uses to push current into motor ``joint``."""

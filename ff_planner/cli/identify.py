@@ -45,7 +45,7 @@ from ff_planner.model.profile import CurrentProfile
 PROG = "ff-identify"
 
 #: runs the excitation on the ROS stack: (excitation, base params, true params, q_start, log,
-#: measure=...) -> (records, meta); supplied by ``ff_executor.bringup.identify``
+#: measure=..., friction=...) -> (records, meta); supplied by ``ff_executor.bringup.identify``
 SimRunner = Callable[..., tuple[list[RunRecord], dict]]
 
 
@@ -101,14 +101,14 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--q-min", type=float, default=-1.0, metavar="RAD")
     e.add_argument("--q-max", type=float, default=1.0, metavar="RAD")
     e.add_argument("--v-max", type=float, default=3.0, metavar="RAD/S")
-    e.add_argument("--i-max", type=float, default=None, metavar="A", help="default: the model's limit")
+    e.add_argument("--i-max", type=float, default=None, metavar="A",
+                   help="default: the model's limit (--sim: 3 A, the stack's excitation)")
     e.add_argument("--q-start", type=float, default=0.0, metavar="RAD", help="where the arm rests (--simulate)")
     e.add_argument("--levels", type=int, default=4, help="current levels (each run in both directions)")
     e.add_argument("--min-step", type=float, default=0.02, metavar="S",
                    help="shortest drive phase (longer phases are less sensitive to switch timing)")
-    e.add_argument("--timing-margin", type=float, default=0.0, metavar="S",
-                   help="the envelope must hold with a switch this late, e.g. 0.02 with --sim --i-max 3 "
-                        "on a busy host (default 0)")
+    e.add_argument("--timing-margin", type=float, default=None, metavar="S",
+                   help="the envelope must hold with a switch this late (default 0; --sim: 0.02, a busy host)")
     e.add_argument("--spread", type=float, default=0.5,
                    help="prior box of the guess, relative (the envelope must hold for all of it)")
     p.add_argument("--seed", type=int, default=0, help="noise seed (--simulate)")
@@ -178,18 +178,19 @@ def run(args: argparse.Namespace, sim_runner: Optional[SimRunner] = None,
             raise UsageError("--sim needs the on-stack runner: use the ff-identify console script "
                              "(python -m ff_executor.bringup.identify)")
         mismatch = _mismatch(args.sim_friction) if args.sim_friction else None
-        if mismatch is not None and args.sim:
-            raise UsageError("--sim-friction applies to --simulate (the simulated stack's arm follows Eq. 9)")
         base = _guess(args.params)
         true_vals = dict(args.sim_set)
         true = base.replace(**true_vals)
-        env = Envelope(args.q_min, args.q_max, args.v_max, args.i_max)
+        i_max = args.i_max if args.i_max is not None else (3.0 if args.sim else None)
+        margin = args.timing_margin if args.timing_margin is not None else (0.02 if args.sim else 0.0)
+        env = Envelope(args.q_min, args.q_max, args.v_max, i_max)
         ex = design_excitation(base, env, args.q_start, n_levels=args.levels, spread=args.spread,
-                                min_step=args.min_step, timing_margin=args.timing_margin)
+                                min_step=args.min_step, timing_margin=margin)
         log(f"{PROG}: {len(ex.runs)} runs at {sorted({round(r.level, 3) for r in ex.runs})} A, "
             f"{ex.duration:.1f} s of motion")
         if args.sim and sim_runner is not None:
-            records, meta = sim_runner(ex, base, true_vals, args.q_start, log, measure=args.sim_measure)
+            records, meta = sim_runner(ex, base, true_vals, args.q_start, log, measure=args.sim_measure,
+                                       friction=dict(args.sim_friction) if mismatch is not None else None)
             source = "the simulated stack"
         else:
             records = measure_runs(true, ex.profiles, args.q_start, Sensors(), np.random.default_rng(args.seed),

@@ -98,10 +98,10 @@ def simulate_mismatch(params: Arm1DofParams, profile: CurrentProfile, q0: float,
         while tt < target - 1e-12:
             tn = min(target, tt + mismatch.step)
             for b in bounds:
-                if tt + 1e-12 < b < tn:
-                    tn = b
+                if b > tt + 1e-12:          # the next switch (one within 1e-12 s counts as passed)
+                    tn = min(tn, b)
                     break
-            i = profile.current_at(tt)[0]
+            i = profile.current_at(tt + 1e-12)[0]
             q, v = advance_core(J, c, pv, mismatch.coulomb(pc, q, v), pt, q, v, i, tn - tt)
             tt = tn
         out[k] = q

@@ -92,6 +92,11 @@ def test_sim_driver_node(ros_env, rclpy_node):
         bad = set_params(rclpy_node, client, model="scara2")[0]
         assert not bad.successful and "restart" in bad.reason
         assert set_params(rclpy_node, client, true_params__pc=0.3)[0].successful
+        # friction that is not Eq. 9, at runtime: valid levels taken, bad ones refused with the reason
+        assert set_params(rclpy_node, client, friction__stribeck=0.3, friction__stribeck_speed=0.05)[0].successful
+        bad = set_params(rclpy_node, client, friction__coulomb_ripple=1.5)[0]
+        assert not bad.successful and "coulomb_ripple" in bad.reason
+        assert set_params(rclpy_node, client, friction__stribeck=0.0)[0].successful
         assert not set_params(rclpy_node, client, true_params__J=-1.0)[0].successful
 
         reset = rclpy_node.create_client(Trigger, "/ff_sim_driver/reset")

@@ -14,7 +14,7 @@ from ff_hwbridge.sim.drive import SimConfigError
 from ff_hwbridge.sim.rig import RigConfig, SimRig
 from ff_planner.model import arm1dof, scara2
 from ff_planner.model.params import ParameterError, preset
-from tests.support.canopen_helpers import open_network
+from tests.support.canopen_helpers import open_network, waiter
 
 
 class FakeClock:
@@ -163,8 +163,7 @@ def test_scara_rig_two_drives_on_one_bus():
         master.subscribe(0x702, lambda i, d, t: boots.append(2))
         try:
             rig.boot()
-            time.sleep(0.05)
-            assert sorted(boots) == [1, 2]
+            assert waiter(3.0)(lambda: sorted(boots) == [1, 2]), boots
             nodes = [master.add_node(n, rig.drive(n).node.object_dictionary) for n in (1, 2)]
             for node in nodes:
                 node.sdo.RESPONSE_TIMEOUT = 2.0
@@ -182,3 +181,41 @@ def test_scara_rig_two_drives_on_one_bus():
             assert [r.source for r in rig.drive(1).setpoint_log()] == ["sdo"]
         finally:
             master.disconnect()
+
+
+def test_friction_that_is_not_eq9_matches_the_offline_measurement_and_can_be_switched_off():
+    from ff_planner.identify.measure import FrictionMismatch, simulate_mismatch
+    from ff_planner.model.params import default_params
+    from ff_planner.model.profile import CurrentProfile
+
+    p = preset("table2")
+    prof = CurrentProfile(np.array([0.0, 0.3, 0.55]), np.array([[2.0], [-2.0]]), 1.5, 0.95)
+    samples = [0.2, 0.45, 0.8, 1.5]
+    events = sorted([(t, "q", None) for t in samples]
+                    + [(0.0, "i", 2.0), (0.3, "i", -2.0), (0.55, "i", 0.0)])
+
+    def run(arm, t0):
+        out = []
+        for t, kind, cur in events:
+            if kind == "i":
+                arm.set_current(0, cur, t0 + int(round(t * 1e9)))
+            else:
+                out.append(arm.state(t0 + int(round(t * 1e9))).q[0])
+        return np.array(out)
+
+    clk = FakeClock()
+    eq9 = run(SimArm(p, 0.0, clock=clk), clk.t)
+    for mm in (FrictionMismatch(stribeck=0.3, stribeck_speed=0.1),
+               FrictionMismatch(coulomb_ripple=0.1, coulomb_period=0.25)):
+        arm = SimArm(p, 0.0, clock=clk)
+        arm.set_friction(mm)
+        assert arm.friction is mm
+        q = run(arm, clk.t)
+        np.testing.assert_allclose(q, simulate_mismatch(p, prof, 0.0, np.array(samples), mm), atol=1e-9)
+        assert np.max(np.abs(q - eq9)) > 1e-3                 # not the Eq. 9 arm
+        arm.set_friction(FrictionMismatch())                  # inactive: the model's Eq. 9 again
+        assert arm.friction is None
+    with pytest.raises(ParameterError, match="1-DOF"):
+        SimArm(default_params("scara2"), 0.0).set_friction(FrictionMismatch(stribeck=0.2))
+    with pytest.raises(ParameterError):
+        SimArm(p, 0.0).set_friction(FrictionMismatch(stribeck=5.0))

@@ -58,6 +58,32 @@ def test_bad_input_is_one_line_exit_2(argv, msg, capsys):
     assert msg in err and len(err.splitlines()) == 1
 
 
+def test_sim_refuses_a_too_small_envelope_before_it_starts_anything(capsys):
+    calls = []
+
+    def runner(*args, **kwargs):            # the on-stack runner: starting it would move the arm
+        calls.append((args, kwargs))
+        raise AssertionError("the stack was started")
+
+    assert main(["--sim", "--q-min", "-0.05", "--q-max", "0.05"], sim_runner=runner) == 2
+    err = capsys.readouterr().err.strip()
+    assert "envelope too small" in err and len(err.splitlines()) == 1 and calls == []
+
+
+def test_sim_hands_the_friction_that_is_not_eq9_to_the_stack(capsys):
+    seen = {}
+
+    def runner(ex, base, true, q_start, log, measure="joints", friction=None):
+        seen.update(friction=friction, true=true, runs=len(ex.runs))
+        raise RuntimeError("stack not started in this test")
+
+    assert main(["--sim", "--sim-set", "pc=0.2", "--sim-friction", "stribeck=0.3", "--levels", "2"],
+                sim_runner=runner) == 1
+    assert seen == {"friction": {"stribeck": 0.3}, "true": {"pc": 0.2}, "runs": 4}
+    assert main(["--sim", "--sim-friction", "wobble=1"], sim_runner=runner) == 2
+    assert "unknown key" in capsys.readouterr().err
+
+
 def _motion_files(tmp_path):
     """Two energy-optimal baselines planned on table 2, written as ff-motion/1 files."""
     from ff_planner.export.motion_file import write_motion
