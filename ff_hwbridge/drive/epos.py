@@ -100,8 +100,8 @@ class JointFeedback:
     velocity_raw: int = 0
     current_raw: int = 0
     stamp: float = 0.0            # monotonic s of the latest TPDO1
-    sample_ns: int = 0            # wall-clock ns the latest TPDO1 was on the bus (its bus
-                                  #   timestamp; the arrival time where the bus gives none)
+    sample_ns: int = 0            # wall-clock ns the latest TPDO1's values were sampled: the
+                                  #   SYNC it answers, else its bus timestamp (or arrival time)
     stamp_motion: float = 0.0     # monotonic s of the latest TPDO2
 
 
@@ -859,7 +859,7 @@ class EposMaster:
                 self._gate_changed()
             now = self.clock()
             fb.stamp = now
-            fb.sample_ns = int(round(timestamp * 1e9)) if timestamp else time.time_ns()
+            fb.sample_ns = self._sample_instant(int(round(timestamp * 1e9)) if timestamp else time.time_ns())
             d.tpdo_seen = True
             if proxy:
                 # no echo of our own SYNC: the first drive's synchronous TPDO1 marks the cycle
@@ -867,6 +867,16 @@ class EposMaster:
             self._step(d, now)
         proxy = (d is self._drives[0] and self.config.sync_producer == "master" and not self.echo)
         return on_tpdo1
+
+    def _sample_instant(self, tpdo_ns: int) -> int:
+        """Wall ns at which a synchronous TPDO's values were sampled: the SYNC it answers (the
+        latest one seen, if the TPDO came within one period after it), else its own bus time."""
+        if self.config.sync_producer == "master" and not self.echo:
+            return tpdo_ns              # our own SYNC is not seen on this bus: no better instant
+        ev = self.sync_watch.latest()
+        if ev is not None and 0 <= tpdo_ns - ev.bus_ns < self.sync_watch.period_ns:
+            return ev.bus_ns
+        return tpdo_ns
 
     def _make_tpdo2_cb(self, d: _Drive) -> Callable[[int, bytearray, float], None]:
         fmt = d.tx2_fmt

@@ -19,7 +19,8 @@ Interfaces (relative to the node: /ff_hwbridge/...):
 - sub ``~/setpoints``   ff_msgs/msg/CurrentSetpoint: applied at ``stamp`` (ROS system clock).
 - pub ``~/joint_states`` sensor_msgs/JointState: position rad, velocity rad/s, effort = joint
   torque N·m (gear_ratio x kt x measured motor current, as ros2_control expects); stamped with
-  the bus time of the drive's position sample (TPDO1), published once per new sample.
+  the instant the drive sampled the position (the SYNC its TPDO1 answers, on the bus clock),
+  published once per new sample.
 - pub ``~/motor_currents`` sensor_msgs/JointState: the same samples with effort = measured motor
   current A (what the drive reports; what the executor compares with its setpoints).
 - sub ``~/joint_commands`` (parameter ``command_topic``) sensor_msgs/JointState: effort commands
@@ -654,7 +655,7 @@ class BridgeNode(LifecycleNode):
 
     def _publish_joint_states(self) -> None:
         """One JointState (effort N·m) and one motor-current JointState (effort A) per new drive
-        sample, stamped with the bus time of the latest position sample."""
+        sample, stamped with the instant of the latest position sample (its SYNC)."""
         if self.master is None:
             return
         fb = self.master.feedback()

@@ -118,6 +118,17 @@ def test_heartbeat_loss_latches_safe_state(rig):
     assert drives[0].setpoint_raw == 0
 
 
+def test_feedback_is_stamped_with_the_sync_it_answers(rig):
+    master, drives = rig
+    configure_and_enable(master)
+    assert master.echo                        # the virtual bus shows the master its own SYNC
+    for _ in range(5):
+        time.sleep(0.02)
+        fb = master.feedback()[0]
+        syncs = {ev.bus_ns for ev in master.sync_watch.since(0)}
+        assert fb.sample_ns in syncs, (fb.sample_ns, sorted(syncs)[-3:])
+
+
 def test_a_failed_bus_is_said_at_once_and_stops_the_drive(rig):
     import can
 
