@@ -32,7 +32,7 @@ from typing import Any, Optional
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rcl_interfaces.msg import SetParametersResult
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
@@ -66,7 +66,35 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
     "ground_truth_rate": (100.0, "Hz"),
     "diagnostics_rate": (1.0, "Hz"),
     "switch_interval": (0.0005, "s, python thread switch interval (latency of the CAN thread)"),
+    "reconnect_timeout": (30.0, "s, after the hub was lost (drives in Fault 0x81FD, bus off): reconnect "
+                                "every 0.5 s for this long, then exit with code 3"),
 }
+#: inclusive ranges of the numeric parameters (units as in their descriptions)
+RANGES: dict[str, tuple[float, float]] = {
+    "hub_port": (1, 65535), "bus.bitrate": (10_000, 8_000_000), "physics_step": (1e-6, 1e-2),
+    "counts_per_rev": (1, 1 << 24), "nominal_current": (0.001, 1000.0), "ground_truth_rate": (0.1, 10_000.0),
+    "diagnostics_rate": (0.01, 1000.0), "switch_interval": (0.0, 0.1), "reconnect_timeout": (0.0, 3600.0),
+    "fault.delay_ms": (0.0, 60_000.0), "fault.drop_fraction": (0.0, 1.0), "fault.drop_next": (0, 1_000_000),
+    "fault.emcy_code": (0, 0xFFFF), "fault.warning_code": (0, 0xFFFF), "friction.stribeck_speed": (1e-6, 100.0),
+    "friction.coulomb_period": (1e-6, 100.0),
+}
+LIVE_HELP = {"true_params": "true arm parameter (SI units of the model's table), changeable while running",
+             "friction": "friction that is not Eq. 9 on the simulated arm, changeable while running",
+             "fault": "fault injection on this drive, changeable while running"}
+
+
+def descriptor(name: str, text: str = "") -> ParameterDescriptor:
+    """ParameterDescriptor for sim driver parameter ``name``: description (units) and range."""
+    group = name.split(".", 1)[0]
+    key = f"fault.{name.split('.', 2)[-1]}" if group == "fault" else name
+    d = ParameterDescriptor(name=name, description=text or LIVE_HELP.get(group, ""))
+    if key in RANGES:
+        lo, hi = RANGES[key]
+        if isinstance(lo, int) and isinstance(hi, int):
+            d.integer_range = [IntegerRange(from_value=lo, to_value=hi, step=0)]
+        else:
+            d.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)]
+    return d
 FRICTION_PARAMETERS: dict[str, float] = {
     "stribeck": 0.0, "stribeck_speed": 0.1, "coulomb_ripple": 0.0, "coulomb_period": 0.25,
 }
@@ -82,8 +110,8 @@ class SimDriverNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("ff_sim_driver", **kwargs)
-        for name, (default, _descr) in PARAMETERS.items():
-            self.declare_parameter(name, default)
+        for name, (default, text) in PARAMETERS.items():     # read at start: a change is refused with the reason
+            self.declare_parameter(name, default, descriptor(name, f"{text} (read at start; restart to change)"))
         if float(self._p("switch_interval")) > 0:
             sys.setswitchinterval(float(self._p("switch_interval")))
         model = check_model(self._p("model"))
@@ -92,7 +120,7 @@ class SimDriverNode(Node):
             raise ParameterError(f"true_preset {self._p('true_preset')!r} is for model "
                                  f"'{base.model}', not '{model}'")
         for key, value in base.to_dict().items():
-            self.declare_parameter(f"true_params.{key}", value)
+            self.declare_parameter(f"true_params.{key}", value, descriptor(f"true_params.{key}"))
         params = base.replace(**{k: self._p(f"true_params.{k}") for k in base.keys()})
         node_ids = tuple(int(x) for x in self._p("node_ids"))
         q0 = tuple(float(x) for x in self._p("q0"))
@@ -119,9 +147,9 @@ class SimDriverNode(Node):
             raise SimConfigError(f"joint_names needs {len(node_ids)} name(s), got {self.joint_names}")
         for nid in node_ids:
             for name, default in FAULT_PARAMETERS.items():
-                self.declare_parameter(f"fault.n{nid}.{name}", default)
+                self.declare_parameter(f"fault.n{nid}.{name}", default, descriptor(f"fault.n{nid}.{name}"))
         for name, value in FRICTION_PARAMETERS.items():
-            self.declare_parameter(f"friction.{name}", value)
+            self.declare_parameter(f"friction.{name}", value, descriptor(f"friction.{name}"))
         self._apply_friction({k: float(self._p(f"friction.{k}")) for k in FRICTION_PARAMETERS})
         self.add_on_set_parameters_callback(self._on_params)
         self._apply_faults_from_params()
@@ -133,6 +161,10 @@ class SimDriverNode(Node):
         self.create_timer(1.0 / float(self._p("ground_truth_rate")), self._publish_truth)
         self.create_timer(1.0 / float(self._p("diagnostics_rate")), self._publish_diagnostics)
         self.rig.boot()
+        self.exit_code = 0
+        if self.hub is None:        # a hub elsewhere may go away: bus off, reconnect or give up
+            self.rig.watch_bus(lambda line: self.get_logger().error(line), self._on_bus_gone,
+                               reconnect_timeout=float(self._p("reconnect_timeout")))
         where = self.hub.url if self.hub is not None else bus.get("channel")
         self.get_logger().info(f"{READY_LINE}: {model} drives {list(node_ids)} ({cfg.family}) "
                                f"on {where}, true params {params.to_dict()}")
@@ -260,6 +292,13 @@ class SimDriverNode(Node):
         self.get_logger().info(f"reset: {response.message}")
         return response
 
+    def _on_bus_gone(self) -> None:
+        """No bus for ``reconnect_timeout``: say so and end the process (exit code 3)."""
+        self.get_logger().error(f"CAN bus not back within {float(self._p('reconnect_timeout')):.1f} s: "
+                                "the simulated drives stop (exit 3)")
+        self.exit_code = 3
+        self.context.try_shutdown()
+
     def close(self) -> None:
         self.rig.close()
         if self.hub is not None:
@@ -281,11 +320,14 @@ def main(argv: Optional[list[str]] = None) -> None:
         print(f"ff_sim_driver: {exc}", flush=True)
         raise SystemExit(2) from exc
     finally:
+        code = node.exit_code if node is not None else 0
         if node is not None:
             node.close()
             node.destroy_node()
         if rclpy.ok():
             rclpy.shutdown()
+    if code:
+        raise SystemExit(code)
 
 
 if __name__ == "__main__":

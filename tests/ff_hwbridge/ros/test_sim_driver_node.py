@@ -88,7 +88,8 @@ def test_sim_driver_node(ros_env, rclpy_node):
         except canopen.SdoCommunicationError:
             pass
         assert set_params(rclpy_node, client, fault__n1__sdo_silent=False)[0].successful
-        assert set_params(rclpy_node, client, fault__n1__drop_fraction=2.0)[0].successful is False
+        bad = set_params(rclpy_node, client, fault__n1__drop_fraction=2.0)[0]
+        assert bad.successful is False and "range" in bad.reason      # the descriptor's 0..1
         bad = set_params(rclpy_node, client, model="scara2")[0]
         assert not bad.successful and "restart" in bad.reason
         assert set_params(rclpy_node, client, true_params__pc=0.3)[0].successful
@@ -108,3 +109,30 @@ def test_sim_driver_node(ros_env, rclpy_node):
             net.disconnect()
         code = proc.stop()
     assert code == 0, proc.output()
+
+
+def test_a_lost_hub_faults_the_drives_and_after_the_reconnect_timeout_ends_the_node(ros_env):
+    port = free_port()
+    hub = start_module("ff_can_hub", "ff_hwbridge.cli.can_hub", ["--port", str(port)], ros_env)
+    proc = None
+    try:
+        assert wait_for_line(hub, "CAN hub on ws://127.0.0.1", 30), hub.output()
+        proc = start_module("ff_sim_driver", "ff_hwbridge.ros.sim_driver_node",
+                            ["--ros-args", "--params-file", "config/sim_arm1dof.yaml",
+                             "-p", "host_hub:=false", "-p", f"bus.channel:=ws://127.0.0.1:{port}/",
+                             "-p", "reconnect_timeout:=1.5"], ros_env)
+        assert wait_for_line(proc, "ff_sim_driver ready", 40), proc.output()
+        t0 = time.monotonic()
+        hub.stop()
+        assert wait_for_line(proc, "CAN bus lost", 10), proc.output()
+        end = time.monotonic() + 20
+        while proc.popen.poll() is None and time.monotonic() < end:
+            time.sleep(0.05)
+        assert proc.popen.poll() == 3, proc.output()
+        assert time.monotonic() - t0 >= 1.5
+        assert "not back within 1.5 s" in proc.output()
+    finally:
+        if proc is not None and proc.popen.poll() is None:
+            proc.stop()
+        if hub.popen.poll() is None:
+            hub.stop()
