@@ -20,6 +20,7 @@ import argparse
 import json
 import math
 import sys
+import threading
 import time
 from typing import Any, NoReturn, Optional, Sequence
 
@@ -383,7 +384,81 @@ def execute(s: Session, a: argparse.Namespace) -> int:
     return _send_goal(s, a, msg)
 
 
+#: the /diagnostics statuses that speak of the drives: the bridge's and the simulated drives'
+DRIVE_STATUSES = ("ff_hwbridge:", "ff_sim_driver:")
+
+
+def _number_value(st: Any, key: str) -> Optional[float]:
+    """A numeric key/value of a diagnostic status, None when absent or not a number."""
+    for kv in st.values:
+        if kv.key == key:
+            try:
+                return float(kv.value)
+            except ValueError:
+                return None
+    return None
+
+
+def late_switches(statuses: Sequence[Any]) -> tuple[int, float]:
+    """The simulated arm's current changes that started late (the simulator's ``late_switches``,
+    summed over its drives) and the worst lateness (``late_switch_max_us``, µs); (0, 0) without a
+    simulator."""
+    count, worst = 0, 0.0
+    for st in statuses:
+        n = _number_value(st, "late_switches")
+        if n is not None:
+            count += int(n)
+            worst = max(worst, _number_value(st, "late_switch_max_us") or 0.0)
+    return count, worst
+
+
+def timing_notes(before: Sequence[Any], after: Sequence[Any]) -> list[str]:
+    """What /diagnostics say about a move, from the statuses seen before and after it: a latched
+    safe state (level ERROR) and current changes the simulated arm started late."""
+    notes = [f"{st.name}: {st.message}" for st in after
+             if (st.level if isinstance(st.level, int) else int.from_bytes(st.level, "little")) >= 2]
+    (n0, _w0), (n1, w1) = late_switches(before), late_switches(after)
+    if n1 > n0:
+        notes.append(f"the simulated arm started {n1 - n0} current change(s) late during the move (the "
+                     f"worst so far {w1 / 1e3:.1f} ms): the simulator handled their CAN frames after its "
+                     "plant's lag (a loaded machine), so the rest error comes from the simulation, not "
+                     "from the plan or the bridge")
+    return notes
+
+
+class _DiagWatch:
+    """The latest /diagnostics status per name and when it came (monotonic s), kept in the background."""
+
+    def __init__(self, s: Session, topic: str = "/diagnostics") -> None:
+        self._lock = threading.Lock()
+        self.latest: dict[str, tuple[float, Any]] = {}
+        s.node.create_subscription(DiagnosticArray, topic, self._on_msg, 50)
+
+    def _on_msg(self, msg: DiagnosticArray) -> None:
+        now = time.monotonic()
+        with self._lock:
+            for st in msg.status:
+                self.latest[st.name] = (now, st)
+
+    def statuses(self) -> list[Any]:
+        with self._lock:
+            return [st for _t, st in self.latest.values()]
+
+    def fresh_after(self, t: float, timeout: float) -> list[Any]:
+        """The statuses once the drives' (the bridge's and the simulator's) seen so far have been
+        updated after ``t`` (at most ``timeout`` s)."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            with self._lock:
+                drives = [seen for name, (seen, _st) in self.latest.items() if name.startswith(DRIVE_STATUSES)]
+                if drives and all(seen > t for seen in drives):
+                    break
+            time.sleep(0.05)
+        return self.statuses()
+
+
 def _send_goal(s: Session, a: argparse.Namespace, profile_msg: Any) -> int:
+    watch = _DiagWatch(s)
     client = SafeActionClient(s.node, ExecuteProfile, a.action_name)
     if not client.wait_for_server(timeout_sec=a.timeout):
         raise CallFailed(f"the executor action {a.action_name} is not available "
@@ -399,6 +474,7 @@ def _send_goal(s: Session, a: argparse.Namespace, profile_msg: Any) -> int:
               f"q = {_fmt(fb.measured_positions)} rad   qd = {_fmt(fb.measured_velocities)} rad/s", flush=True)
 
     tf = float(profile_msg.move_time)
+    before = watch.statuses()
     handle = s.wait(client.send_goal_async(ExecuteProfile.Goal(profile=profile_msg), feedback_callback=on_feedback),
                     a.timeout, "send goal")
     if not handle.accepted:
@@ -413,6 +489,8 @@ def _send_goal(s: Session, a: argparse.Namespace, profile_msg: Any) -> int:
         _print_result(res)
         return 130
     _print_result(res)
+    for note in timing_notes(before, watch.fresh_after(time.monotonic(), timeout=2.5)):
+        print(f"  diagnostics: {note}")
     if not (res.status == GoalStatus.STATUS_SUCCEEDED and res.result.success):
         return 1
     err = max((abs(e) for e in res.result.position_error), default=math.inf)

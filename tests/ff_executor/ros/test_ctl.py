@@ -89,3 +89,23 @@ def test_execute_prints_the_models_prediction_beside_the_measured_rest():
     assert "predicted rest [1.002200] rad" in line and "measured [1.003700] rad" in line
     assert "[1.500] mrad" in line
     assert "unknown" in predicted_vs_measured([], [1.0])
+
+
+def _status(name: str, level: int = 0, message: str = "", **values: str):
+    from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+
+    return DiagnosticStatus(name=name, level=level, message=message,
+                            values=[KeyValue(key=k, value=v) for k, v in values.items()])
+
+
+def test_timing_notes_say_when_the_simulator_was_late_or_the_bridge_latched():
+    quiet = [_status("ff_hwbridge: drive group", 0, "operation enabled"),
+             _status("ff_sim_driver: drive 1", late_switches="2", late_switch_max_us="108143")]
+    assert ctl.late_switches(quiet) == (2, 108143.0)
+    assert ctl.late_switches([_status("ff_planner: planning", requests="3")]) == (0, 0.0)
+    assert ctl.timing_notes(quiet, quiet) == []                 # nothing new during the move
+    late = [quiet[0], _status("ff_sim_driver: drive 1", late_switches="5", late_switch_max_us="228138")]
+    (note,) = ctl.timing_notes(quiet, late)
+    assert "started 3 current change(s) late" in note and "228.1 ms" in note and "simulation" in note
+    latched = [_status("ff_hwbridge: drive group", 2, "safe state: setpoint missed its SYNC cycle"), quiet[1]]
+    assert ctl.timing_notes(quiet, latched) == ["ff_hwbridge: drive group: safe state: setpoint missed its SYNC cycle"]

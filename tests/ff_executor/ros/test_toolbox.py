@@ -14,6 +14,7 @@ from mcap.reader import make_reader
 
 from ff_executor.bringup.stack import Stack, StackOptions
 from ff_executor.ros import ctl
+from tests.ff_executor.ros.test_plotjuggler_layout import layout_plots, plotjuggler_series
 from tests.ff_msgs_py.test_definitions import decoder
 
 pytestmark = pytest.mark.integration
@@ -114,6 +115,7 @@ def test_plan_then_execute_a_motion_file_while_recording(stack, capsys, tmp_path
     (mcap,) = bag.glob("*.mcap")
     counts: Counter[str] = Counter()
     measured, feedback, js_times = [], [], []
+    series: set[str] = set()
     with open(mcap, "rb") as f:
         decoders = {}
         for schema, channel, message in make_reader(f).iter_messages():
@@ -121,6 +123,7 @@ def test_plan_then_execute_a_motion_file_while_recording(stack, capsys, tmp_path
                 decoders[schema.id] = decoder(schema.name, schema.data.decode())
             m = decoders[schema.id](message.data)    # every message decodes
             counts[channel.topic] += 1
+            series |= plotjuggler_series(channel.topic, m)
             if channel.topic == "/ff_hwbridge/joint_states":
                 measured.append(m.position[0])
                 js_times.append(message.log_time)
@@ -138,4 +141,7 @@ def test_plan_then_execute_a_motion_file_while_recording(stack, capsys, tmp_path
         assert counts[topic] > 0, (topic, tail)
     assert counts["/ff_hwbridge/setpoints"] >= 6          # 5 steps + the final zero
     assert max(feedback) >= 0.9
+    # config/plotjuggler/ff_run.xml plots series that this bag has
+    missing = [c for cs in layout_plots().values() for c in cs if c not in series]
+    assert not missing, (missing, sorted(s for s in series if not s.startswith("/rosout")))
     assert os.path.getsize(mcap) > 10_000
