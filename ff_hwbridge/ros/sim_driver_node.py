@@ -268,6 +268,8 @@ class SimDriverNode(Node):
             stats = d.link_stats
             values = {"late_switches": str(self.rig.arm.late_changes),
                       "late_switch_max_us": f"{self.rig.arm.late_max_ns / 1e3:.0f}",
+                      "rewound_switches": str(self.rig.arm.rewound_changes),
+                      "rewound_switch_max_us": f"{self.rig.arm.rewound_max_ns / 1e3:.0f}",
                       "nmt": d.nmt_state, "statusword": f"0x{d.statusword():04X}",
                       "applied_current_A": f"{d.applied_current:.4f}",
                       "setpoints_received": str(len(d.setpoint_log())),
@@ -282,7 +284,7 @@ class SimDriverNode(Node):
             self.get_logger().warning(
                 f"{late} current change(s) so far started late on the simulated arm (up to "
                 f"{self.rig.arm.late_max_ns / 1e3:.0f} us): their CAN frames were handled after the "
-                f"plant's lag; a move's error then comes from the simulation, not from the bridge")
+                f"plant's history ends; a move's error then comes from the simulation, not from the bridge")
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         self.rig.reset_arm()

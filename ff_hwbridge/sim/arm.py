@@ -21,8 +21,10 @@ simulates it, so that identification on the stack can be tested for honesty.
 """
 from __future__ import annotations
 
+import bisect
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 from typing import Callable, Optional, Sequence
 
@@ -84,9 +86,21 @@ class ArmState:
     current: tuple[float, ...]
 
 
-#: ns: a current change asked for this much before the plant's time counts as late (it starts at
-#: the plant's time instead: the frame carrying it was handled after the plant's lag)
+#: ns: a current change asked for this much before the plant's time is rewound: the plant goes back
+#: to its state before that instant and integrates again with the change where it belongs (a real
+#: drive's timing does not depend on when a process gets the CPU; the simulated one's should not)
 LATE_NS = 50_000
+#: ns: how far back the plant can rewind (its history); a change older than this starts late, at
+#: the plant's time, and is counted in ``late_changes``
+REWIND_NS = 2_000_000_000
+
+
+@dataclass(frozen=True)
+class _Snapshot:
+    t_ns: int
+    q: np.ndarray
+    qd: np.ndarray
+    i: np.ndarray
 
 
 class SimArm:
@@ -112,8 +126,13 @@ class SimArm:
         self._ticker: Optional[threading.Thread] = None
         self._tick_stop = threading.Event()
         self._lag_ns = 0           # while the own clock runs: how far behind now readers look
-        self.late_changes = 0      # current changes asked for an instant the plant had passed
-        self.late_max_ns = 0       # ... the largest such lateness (ns): the switch started late
+        self.late_changes = 0      # current changes older than the history: started late
+        self.late_max_ns = 0       # ... the largest such lateness (ns)
+        self.rewound_changes = 0   # current changes the plant had passed, put in their place
+        self.rewound_max_ns = 0    # ... the largest rewind (ns)
+        self._snaps: deque[_Snapshot] = deque()              # plant states, oldest first
+        self._changes: deque[tuple[int, int, float]] = deque()   # (t ns, joint, A) since the oldest
+        self._snapshot()
 
     # -- own clock -----------------------------------------------------------------------------
     def start_clock(self, period: float = 0.002, lag: float = 0.01) -> None:
@@ -136,6 +155,7 @@ class SimArm:
             while not self._tick_stop.wait(period):
                 with self._lock:
                     self._advance_to(self._clock() - lag_ns)
+                    self._snapshot()
 
         self._ticker = threading.Thread(target=run, name="sim-arm-clock", daemon=True)
         self._ticker.start()
@@ -165,6 +185,49 @@ class SimArm:
             self._q[:], self._qd[:] = q, qd
             dt -= h
 
+    def _snapshot(self) -> None:
+        """Keep the state at the plant's time; forget what is older than ``REWIND_NS``."""
+        self._snaps.append(_Snapshot(self._t_ns, self._q.copy(), self._qd.copy(), self._i.copy()))
+        oldest = self._t_ns - REWIND_NS
+        while len(self._snaps) > 1 and self._snaps[1].t_ns <= oldest:
+            self._snaps.popleft()
+        while self._changes and self._changes[0][0] < self._snaps[0].t_ns:
+            self._changes.popleft()
+
+    def _forget_history(self) -> None:
+        """The trajectory so far can no longer be replayed (new state, parameters or law)."""
+        self._snaps.clear()
+        self._changes.clear()
+        self._snapshot()
+
+    def _rewind(self, t_ns: int, joint: int, current: float) -> bool:
+        """Put a change at ``t_ns`` < the plant's time in its place: back to the latest state at or
+        before it, then forward again through every change since, the new one included. False if
+        the history does not reach back that far."""
+        if self._t_ns - t_ns > REWIND_NS:
+            return False
+        times = [sn.t_ns for sn in self._snaps]
+        k = bisect.bisect_right(times, t_ns) - 1
+        if k < 0:
+            return False
+        t_end, snap = self._t_ns, self._snaps[k]
+        replay = [c for c in self._changes if c[0] > snap.t_ns]
+        pos = bisect.bisect_right([c[0] for c in replay], t_ns)
+        replay.insert(pos, (t_ns, joint, float(current)))
+        while len(self._snaps) > k + 1:
+            self._snaps.pop()
+        while self._changes and self._changes[-1][0] > snap.t_ns:
+            self._changes.pop()
+        self._q, self._qd, self._i = snap.q.copy(), snap.qd.copy(), snap.i.copy()
+        self._t_ns = snap.t_ns
+        for t, j, c in replay:
+            self._advance_to(t)
+            self._i[j] = c
+            self._changes.append((t, j, c))
+        self._advance_to(t_end)
+        self._snapshot()
+        return True
+
     def _advance_to(self, t_ns: int) -> None:
         if t_ns > self._t_ns:                 # events arriving a hair out of order: no time travel
             self._integrate((t_ns - self._t_ns) * 1e-9)
@@ -185,11 +248,18 @@ class SimArm:
         if not 0 <= joint < self.n_joints:
             raise ParameterError(f"joint index must be 0..{self.n_joints - 1}, got {joint}")
         with self._lock:
-            if t_ns is not None and self._t_ns - t_ns > LATE_NS and float(current) != self._i[joint]:
-                self.late_changes += 1
-                self.late_max_ns = max(self.late_max_ns, self._t_ns - t_ns)
+            if t_ns is not None and self._t_ns - t_ns > LATE_NS:
+                if self._rewind(t_ns, joint, current):
+                    self.rewound_changes += 1
+                    self.rewound_max_ns = max(self.rewound_max_ns, self._t_ns - t_ns)
+                    return
+                if float(current) != self._i[joint]:
+                    self.late_changes += 1
+                    self.late_max_ns = max(self.late_max_ns, self._t_ns - t_ns)
             self._advance_to(self._clock() if t_ns is None else t_ns)
             self._i[joint] = float(current)
+            self._changes.append((self._t_ns, joint, float(current)))
+            self._snapshot()
 
     def state(self, t_ns: Optional[int] = None) -> ArmState:
         """Ground truth at ``t_ns`` (default: the ``horizon()``, so that reading the state never
@@ -216,6 +286,7 @@ class SimArm:
             self._q, self._qd = self._vec(q0, "q0"), self._vec(0.0 if qd0 is None else qd0, "qd0")
             self._i[:] = 0.0
             self._t_ns = self._clock()
+            self._forget_history()
 
     def set_params(self, params: Params) -> None:
         """Change the true parameters from now on (state kept; same model type only)."""
@@ -224,6 +295,7 @@ class SimArm:
         with self._lock:
             self._advance_to(self._clock())
             self.params = params
+            self._forget_history()
 
     def set_friction(self, mismatch: Optional[FrictionMismatch]) -> None:
         """From now on, friction that is not Eq. 9 (1-DOF arm only; None or an inactive
@@ -236,6 +308,7 @@ class SimArm:
             self._advance_to(self._clock())
             self._advance = adv
             self.friction = mismatch if active else None
+            self._forget_history()
 
     def port(self, joint: int) -> "JointPort":
         """The connection one drive uses to push current into motor ``joint``."""

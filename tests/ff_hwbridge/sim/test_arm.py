@@ -48,6 +48,32 @@ def test_matches_planner_model_with_switch_at_arrival_instant():
     assert abs(arm2.state(t0 + 300 * MS).q[0] - s.q[0]) > 1e-3
 
 
+def test_a_change_handled_late_lands_where_it_belongs_and_one_older_than_the_history_starts_late():
+    from ff_hwbridge.sim.arm import REWIND_NS
+
+    p = preset("table2")
+    clk = FakeClock()
+    t0 = clk.t
+    steps = [(t0, 6.0), (t0 + 120 * MS, -4.0), (t0 + 230 * MS, 0.0)]
+    on_time = SimArm(p, 0.0, clock=clk)
+    for t, c in steps:
+        on_time.set_current(0, c, t)
+    ref = on_time.state(t0 + 600 * MS)
+    late = SimArm(p, 0.0, clock=clk)
+    late.set_current(0, 6.0, t0)
+    late.state(t0 + 180 * MS)                        # the plant ran on: its readers looked
+    late.set_current(0, -4.0, t0 + 120 * MS)         # 60 ms late
+    late.state(t0 + 400 * MS)
+    late.set_current(0, 0.0, t0 + 230 * MS)          # 170 ms late
+    got = late.state(t0 + 600 * MS)
+    assert got.q[0] == pytest.approx(ref.q[0], abs=1e-12) and got.qd[0] == pytest.approx(ref.qd[0], abs=1e-12)
+    assert late.rewound_changes == 2 and late.rewound_max_ns == 170 * MS and late.late_changes == 0
+    # beyond the history: the change starts at the plant's time and is counted as late
+    late.state(t0 + 600 * MS + REWIND_NS + 10 * MS)
+    late.set_current(0, 1.0, t0 + 590 * MS)
+    assert late.late_changes == 1 and late.state().current == (1.0,)
+
+
 def test_true_friction_differs_from_planner():
     clk = FakeClock()
     nominal = SimArm(preset("table2"), 0.0, clock=clk)
@@ -65,8 +91,9 @@ def test_stiction_and_no_time_travel():
     arm.set_current(0, 0.1, clk.t)                   # below breakaway (≈0.169 A)
     assert arm.state(clk.t + 100 * MS).q[0] == 0.5
     before = arm.state(clk.t + 200 * MS)
-    arm.set_current(0, 5.0, clk.t + 150 * MS)        # stamped in the past: applies "now"
-    assert arm.state(clk.t + 150 * MS).t_ns == before.t_ns
+    arm.set_current(0, 5.0, clk.t + 150 * MS)        # stamped in the past: the plant rewinds
+    after = arm.state(clk.t + 150 * MS)              # never earlier than the plant's time
+    assert after.t_ns == before.t_ns and after.q[0] > 0.5 and arm.rewound_changes == 1
     arm.reset(1.0)
     s = arm.state()
     assert s.q == (1.0,) and s.qd == (0.0,) and s.current == (0.0,)
