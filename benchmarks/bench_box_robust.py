@@ -14,7 +14,12 @@ and 256 uniform points (seed 0; not the planner's own samples). Planners, each o
 Figures: exact max |∂q(tf)/∂p| (scaled by |p|), worst rest error (median and worst over seeds),
 plan time (median, p90), the N and coast chosen, and the plan's own certificate worst.
 
+With ``--continuation`` only: N = 8 (the default N) against its continuation in N to 12
+(``box_robust.continue_steps``: split one step in two, refine with free times, repeat), per
+seed: both worsts as judged here and the CPU time of each (s; the machine may be shared).
+
 Usage: python benchmarks/bench_box_robust.py [--seeds 20] [--auto-seeds 5] [--out FILE]
+       python benchmarks/bench_box_robust.py --continuation [--seeds 8]
 """
 from __future__ import annotations
 
@@ -82,16 +87,47 @@ def run(label: str, seeds: int, scales: np.ndarray, **kw) -> dict:
             if np.any(np.isfinite(quant)) else None}
 
 
+def continuation(seeds: int, scales: np.ndarray) -> dict:
+    """N = 8 plans and their continuation in N (``continue_steps``), per seed."""
+    from ff_planner.optimize.box_robust import continue_steps
+
+    rows = []
+    for s in range(seeds):
+        req = PlanRequest(objective="robust-box", steps=8, seed=s, time_budget=120.0)
+        c0 = time.process_time()
+        r = plan(req)
+        c1 = time.process_time()
+        c = continue_steps(req, r)
+        c2 = time.process_time()
+        rows.append({"seed": s, "n8_worst_rad": worst_rest(r, scales), "n8_cpu_s": c1 - c0,
+                     "continued_worst_rad": worst_rest(c, scales),
+                     "continued_n": c.profile.n_steps if c.profile is not None else 0,
+                     "continuation_cpu_s": c2 - c1,
+                     "per_n": [(row["steps"], row["box_worst"]) for row in
+                               c.extra["continuation"]]})
+    med = {k: float(np.median([row[k] for row in rows])) for k in
+           ("n8_worst_rad", "continued_worst_rad", "n8_cpu_s", "continuation_cpu_s")}
+    return {"rows": rows, "median": med}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20)
     ap.add_argument("--auto-seeds", type=int, default=None,
                     help="seeds of the steps = 0 row (default: --seeds)")
     ap.add_argument("--out", default=None, help="also write the JSON here")
+    ap.add_argument("--continuation", action="store_true",
+                    help="only N = 8 against its continuation in N to 12")
     a = ap.parse_args()
     load0 = os.getloadavg()[0]
     scales = judge_box()
     plan(PlanRequest(objective="robust-box", starts=20))      # compile / load the kernels
+    if a.continuation:
+        res = {"benchmark": "box_robust continuation", "seeds": a.seeds,
+               **continuation(a.seeds, scales), "load_1min_before": load0,
+               "load_1min_after": os.getloadavg()[0]}
+        print(json.dumps(res, indent=2))
+        return
     rows = [run("energy-optimal baseline", 1, scales, objective="energy-optimal"),
             run("robust-derivative N=5 (the paper's objective)", a.seeds, scales,
                 objective="robust-derivative"),

@@ -146,3 +146,22 @@ def test_robust_box_chosen_steps_ladder():
     seen.clear()
     r = plan_auto_1dof(PlanRequest(objective="robust-box"), Route(fake, False))
     assert seen == [8] and not r.extra["auto"]["box_target_met"]
+
+
+def test_continuation_in_steps_keeps_a_verified_plan_and_never_worsens(n5_plan):
+    from ff_planner.optimize.box_robust import continue_steps
+
+    req = PlanRequest(objective="robust-box", steps=5, seed=0)
+    start = n5_plan.extra["box_worst"]
+    r = continue_steps(req, n5_plan, n_max=6, target=0.0)
+    rows = r.extra["continuation"]
+    assert [row["steps"] for row in rows] == [6]
+    assert rows[0]["splits_ranked"] >= 1
+    assert r.success and r.robust and r.extra["box_worst"] <= start
+    ver = verify(r.params, r.profile, 0.0, 1.0, KEYS)
+    assert ver["robust"] and ver["max_abs_derivative"] <= 1e-6
+    # the split of a step is the same profile: the continuation starts from its start's worst
+    assert rows[0]["box_worst"] <= start + 1e-12
+    assert corner_worst(r) <= r.extra["box_worst"] + 1e-9
+    if r.profile.n_steps == 6:
+        assert np.all(np.diff(r.profile.step_times) >= MIN_STEP - 1e-12)
