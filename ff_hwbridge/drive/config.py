@@ -56,6 +56,7 @@ Example (``config/bridge_epos4_1dof.yaml``)::
         family: epos4
         current_limit: 10.0       # A, every command is clamped to this
         units: {nominal_current: 3.0, torque_constant: 0.0267, counts_per_rev: 2048, gear_ratio: 54}
+        eds: /path/to/EPOS4.eds       # optional: the drive's EDS/DCF instead of the built-in dictionary
         position_limits: [-3.2, 3.2]  # rad, optional: outside -> safe state
         velocity_limit: 20.0          # rad/s, optional: |velocity| above -> safe state
 
@@ -118,6 +119,10 @@ class JointConfig:
     velocity_limit:        rad/s, None = none: |joint velocity| above it -> safe state.
     write_current_limit:   on configure, also write the drive's own output current limit
                            (EPOS4 0x3001:02, EPOS2 0x6410:02) = current_limit.
+    eds:                   path of the drive's EDS/DCF (CiA 306, e.g. maxon's file for its
+                           firmware): the master's object dictionary is read from it (checked
+                           on connect for every object the master uses) instead of the built-in
+                           one; None = built in.
     """
 
     name: str
@@ -128,6 +133,7 @@ class JointConfig:
     write_current_limit: bool = True
     position_limits: Optional[tuple[float, float]] = None
     velocity_limit: Optional[float] = None
+    eds: Optional[str] = None
 
     @property
     def family(self) -> str:
@@ -286,7 +292,7 @@ def _joint(i: int, data: Any) -> JointConfig:
     if not isinstance(data, Mapping):
         raise ConfigError(f"{where} must be a mapping with name, node_id, family, current_limit, units")
     known = {"name", "node_id", "family", "current_limit", "units", "read_motor_data",
-             "write_current_limit", "position_limits", "velocity_limit"}
+             "write_current_limit", "position_limits", "velocity_limit", "eds"}
     unknown = sorted(set(data) - known)
     if unknown:
         raise ConfigError(f"{where}: unknown key(s) {unknown}; known: {sorted(known)}")
@@ -328,11 +334,18 @@ def _joint(i: int, data: Any) -> JointConfig:
             raise ConfigError(f"{where}.velocity_limit must be a number of rad/s, got {vel!r}") from None
         if not (math.isfinite(vel) and vel > 0.0):
             raise ConfigError(f"{where}.velocity_limit must be finite and > 0 rad/s, got {vel!r}")
+    eds = data.get("eds")
+    if eds is not None:
+        path = Path(str(eds)).expanduser()
+        if not path.is_file():
+            raise ConfigError(f"{where}.eds: no such file {str(path)!r} (the drive's EDS/DCF; leave it "
+                              "out to use the built-in object dictionary)")
+        eds = str(path)
     return JointConfig(name=str(data.get("name", f"joint{i + 1}")), node_id=node_id,
                        current_limit=limit, units=units,
                        read_motor_data=bool(data.get("read_motor_data", False)),
                        write_current_limit=bool(data.get("write_current_limit", True)),
-                       position_limits=pos, velocity_limit=vel)
+                       position_limits=pos, velocity_limit=vel, eds=eds)
 
 
 def config_from_mapping(data: Mapping[str, Any]) -> BridgeConfig:

@@ -234,6 +234,7 @@ class EposMaster:
         """Open the bus (or use ``bus``, a python-can bus) and add one RemoteNode per joint."""
         if self.network is not None:
             return
+        ods = [self._object_dictionary(d) for d in self._drives]    # a bad EDS: nothing opened
         if bus is None:
             cfg = self.config.bus.as_dict()
             if self.config.synchronous and cfg["interface"] in ECHO_INTERFACES:
@@ -248,8 +249,7 @@ class EposMaster:
         net.connect()
         self.network = net
         self._bus_lost_told = False
-        for d in self._drives:
-            od = build_object_dictionary(d.units.family, d.node_id)
+        for d, od in zip(self._drives, ods):
             node = canopen.RemoteNode(d.node_id, od)
             node.sdo.RESPONSE_TIMEOUT = self.config.sdo_timeout
             node.sdo.MAX_RETRIES = 2            # a drive busy right after boot-up may answer late
@@ -867,6 +867,31 @@ class EposMaster:
             self._step(d, now)
         proxy = (d is self._drives[0] and self.config.sync_producer == "master" and not self.echo)
         return on_tpdo1
+
+    @staticmethod
+    def _object_dictionary(d: _Drive) -> Any:
+        """The master's object dictionary of a drive: built in, or read from the joint's EDS/DCF
+        (canopen.import_od) and checked to hold every object and sub-index the master uses."""
+        built = build_object_dictionary(d.units.family, d.node_id)
+        if d.cfg.eds is None:
+            return built
+        try:
+            od = canopen.import_od(d.cfg.eds, d.node_id)
+        except Exception as exc:  # noqa: BLE001 - any parse error is the file's
+            raise EposError(f"node {d.node_id} ({d.cfg.name}): cannot read the EDS {d.cfg.eds!r}: {exc}") from exc
+        missing = []
+        for obj in built.values():
+            if obj.index not in od:
+                missing.append(f"0x{obj.index:04X}")
+                continue
+            subs = getattr(obj, "subindices", None)
+            if subs:
+                have = od[obj.index]
+                missing += [f"0x{obj.index:04X}:{k:02X}" for k in subs if k not in getattr(have, "subindices", {})]
+        if missing:
+            raise EposError(f"node {d.node_id} ({d.cfg.name}): the EDS {d.cfg.eds!r} lacks object(s) the "
+                            f"master uses: {', '.join(missing[:12])}" + (" ..." if len(missing) > 12 else ""))
+        return od
 
     def _sample_instant(self, tpdo_ns: int) -> int:
         """Wall ns at which a synchronous TPDO's values were sampled: the SYNC it answers (the

@@ -118,6 +118,37 @@ def test_heartbeat_loss_latches_safe_state(rig):
     assert drives[0].setpoint_raw == 0
 
 
+def test_the_object_dictionary_can_come_from_the_drives_eds(tmp_path):
+    import re
+    from pathlib import Path
+
+    import ff_hwbridge.sim as sim
+
+    eds = Path(sim.__file__).parent / "epos4.eds"
+    channel = unique_channel("ff-test")
+    cfg = mini_config(channel, "epos4", 1, joint={"eds": str(eds)})
+    drive = MiniEpos(channel, 1, cfg.joints[0].units)
+    master = EposMaster(cfg)
+    try:
+        master.connect()
+        configure_and_enable(master)
+        master.command_currents([1.5])
+        assert _wait(lambda: drive.setpoint_raw == 500)       # 1.5 A of 3 A nominal, per mille
+    finally:
+        master.disconnect()
+        drive.close()
+    # an EDS without the target torque: refused on connect, naming what is missing
+    text = re.sub(r"\[6071\][^\[]*", "", eds.read_text(errors="replace"))
+    text = text.replace("0x6071", "0x6072")                  # and out of the object lists
+    bad = tmp_path / "no6071.eds"
+    bad.write_text(text)
+    m2 = EposMaster(mini_config(unique_channel("ff-test"), "epos4", 1, joint={"eds": str(bad)}))
+    with pytest.raises(EposError, match="lacks object.*0x6071"):
+        m2.connect()
+    with pytest.raises(Exception, match="no such file"):
+        mini_config(channel, "epos4", 1, joint={"eds": str(tmp_path / "missing.eds")})
+
+
 def test_feedback_is_stamped_with_the_sync_it_answers(rig):
     master, drives = rig
     configure_and_enable(master)
