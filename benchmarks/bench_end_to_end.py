@@ -10,7 +10,7 @@ from the bridge's joint states), switch-time statistics and feedback rates, and 
 exact prediction for the same profile beside it. Every run counts: each motion runs once per
 friction value, no repeats.
 
-    python benchmarks/bench_end_to_end.py [--scales 0.8,1.0,1.2] [--out FILE]
+    python benchmarks/bench_end_to_end.py [--scales 0.8,1.0,1.2] [--out FILE] [--record BAG_DIR]
 """
 from __future__ import annotations
 
@@ -36,6 +36,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scales", default="0.8,1.0,1.2", help="true pc / model pc")
     ap.add_argument("--out", default=None)
+    ap.add_argument("--record", default=None, metavar="DIR",
+                    help="keep the run's bag: record its topics into this rosbag2 folder (MCAP)")
     a = ap.parse_args(argv)
     scales = [float(s) for s in a.scales.split(",")]
     model = default_params("arm1dof")
@@ -44,7 +46,7 @@ def main(argv=None) -> int:
 
     rows = []
     t0 = time.monotonic()
-    with Stack(StackOptions(rt_priority=10), log=log) as stack:   # SCHED_FIFO where permitted
+    with Stack(StackOptions(rt_priority=10, record=a.record), log=log) as stack:   # SCHED_FIFO where permitted
         with StackClient(stack.env, "ff_bench_e2e") as client:
             for sc in scales:
                 stack.set_true_params({"pc": model.pc * sc})

@@ -127,7 +127,7 @@ def box_robust(client, params, log) -> dict:
             "_msg": resp.profile}
 
 
-def run_on_stack(ctrls: list[dict], log, with_box: bool = True) -> dict:
+def run_on_stack(ctrls: list[dict], log, with_box: bool = True, record: str | None = None) -> dict:
     from ff_executor.bringup.stack import Stack, StackOptions
     from ff_executor.ros.client import StackClient
     from ff_msgs_py.convert import profile_to_msg
@@ -135,7 +135,7 @@ def run_on_stack(ctrls: list[dict], log, with_box: bool = True) -> dict:
     t0 = time.monotonic()
     failures = 0
     box: dict = {}
-    with Stack(StackOptions(planner=with_box, rt_priority=RT_PRIORITY), log=log) as stack:
+    with Stack(StackOptions(planner=with_box, rt_priority=RT_PRIORITY, record=record), log=log) as stack:
         with StackClient(stack.env, "ff_bench_section5") as client:
             if with_box:
                 box = box_robust(client, default_params("arm1dof"), log)
@@ -207,6 +207,8 @@ def main(argv=None) -> int:
     ap.add_argument("--offline", action="store_true", help="model only, no stack")
     ap.add_argument("--out", default=None, help="also write the JSON here")
     ap.add_argument("--no-box", action="store_true", help="without the planner's robust-box plan")
+    ap.add_argument("--record", default=None, metavar="DIR",
+                    help="keep the run's bag: record its topics into this rosbag2 folder (MCAP)")
     a = ap.parse_args(argv)
     params = default_params("arm1dof")
     n = 8 if a.quick else 32
@@ -219,7 +221,7 @@ def main(argv=None) -> int:
            "first_current_range_A": [ctrls[0]["currents_A"][0], ctrls[-1]["currents_A"][0]],
            "controllers": ctrls}
     if not a.offline:
-        out["stack_run"] = run_on_stack(ctrls, log, with_box=not a.no_box)
+        out["stack_run"] = run_on_stack(ctrls, log, with_box=not a.no_box, record=a.record)
     out["summary"] = summarise(ctrls, stack=not a.offline)
     text = json.dumps(out, indent=2)
     print(text)
