@@ -49,7 +49,7 @@ from typing import Any, Callable, Optional
 
 import numpy as np
 import rclpy
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from lifecycle_msgs.srv import GetState
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
@@ -166,6 +166,8 @@ class ExecutorNode(Node):
         self._bridge_missed: Optional[int] = None  # the bridge's missed-cycle counter, when it reports one
         self._applied_rx_ns = 0                   # ns (ROS clock): the last applied report arrived
         self._diag_rx_ns = 0                      # ns: the last status of the bridge arrived
+        self._bridge_latch = ""                   # the bridge's safe-state message ("" = none)
+        self._latch_seen_ns = 0                   # ns: the last status that said "safe state" arrived
 
         sensor_qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT,
                                 history=HistoryPolicy.KEEP_LAST)
@@ -256,10 +258,15 @@ class ExecutorNode(Node):
                 counter = _number(values, "missed_cycles", None)
             missed = None if counter is None else int(counter)
             now = self._now_ns()
+            latched = (status.level == DiagnosticStatus.ERROR
+                       and str(status.message).startswith("safe state"))
             with self._state_lock:
                 self._sync_period = period if period > 0.0 and np.isfinite(period) else 0.0
                 self._bridge_missed = missed
                 self._diag_rx_ns = now
+                self._bridge_latch = str(status.message) if latched else ""
+                if latched:
+                    self._latch_seen_ns = now
 
     def _state(self) -> tuple[Optional[np.ndarray], Optional[np.ndarray], int]:
         with self._state_lock:
@@ -315,6 +322,11 @@ class ExecutorNode(Node):
             if label != "active":
                 return None, (f"bridge '{self._p('bridge_node')}' is '{label}', not 'active'; "
                               "configure and activate it (or fault-reset it) first")
+        with self._state_lock:
+            latch, fresh = self._bridge_latch, self._now_ns() - self._diag_rx_ns < 5 * NS
+        if latch and fresh:
+            return None, (f"the bridge is in its {latch}; nothing would move: clear it first "
+                          f"(ff-ctl fault-reset, or the service /{self._p('bridge_node')}/fault_reset)")
         pos, vel, t = self._state()
         if pos is not None and self._now_ns() - t > self._p("joint_state_timeout") * NS:
             pos = None
@@ -472,6 +484,11 @@ class ExecutorNode(Node):
         if pos is None:
             return self._finish(goal_handle, False, "no joint state to judge the move",
                                 motion, stream, start_delay, how="abort", missed_before=missed_before)
+        not_driven = self._not_driven(stream, received)
+        if not_driven:
+            return self._finish(goal_handle, False, f"aborted: {not_driven}; the arm is at "
+                                f"{np.round(pos, 6).tolist()} rad", motion, stream, start_delay,
+                                how="abort", missed_before=missed_before)
         err = pos - motion.qf
         late = stream.late()
         text = (f"{'settled' if settled else 'NOT settled'} at {np.round(pos, 6).tolist()} rad, "
@@ -483,6 +500,21 @@ class ExecutorNode(Node):
             text += f"; {len(late)} setpoint(s) reached the bridge after their stamp"
         return self._finish(goal_handle, True, text, motion, stream, start_delay, how="succeed",
                             missed_before=missed_before)
+
+    def _not_driven(self, stream: Stream, since_ns: int) -> str:
+        """Why the bridge did not drive the profile as streamed ("" = it did): it latched its safe
+        state during the move, or it reports applied setpoints but not every current change."""
+        with self._state_lock:
+            latch_ns, latch = self._latch_seen_ns, self._bridge_latch
+            applied, applied_rx = dict(self._applied), self._applied_rx_ns
+        if latch_ns >= since_ns:
+            return f"the bridge latched its {latch or 'safe state'} during the move"
+        if applied_rx >= since_ns:
+            switches = [p.setpoint for p in stream.published if p.setpoint.switch]
+            got = sum((sp.profile_id, sp.seq) in applied for sp in switches)
+            if got < len(switches):
+                return f"the bridge applied {got} of the profile's {len(switches)} current changes"
+        return ""
 
     def _wait_settled(self, feedback: Callable[[int], None], period: float, timeout: float) -> bool:
         """Wait until the arm has settled (True) or ``timeout`` s passed (False), sending feedback."""

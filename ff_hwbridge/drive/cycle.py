@@ -185,15 +185,16 @@ class CycleScheduler:
 
     def stats(self) -> SwitchStats:
         """Switch error = SYNC instant − stamp (µs); ``late`` = missed setpoints."""
-        if not self.records:
+        recs = self.records.copy()        # one C-level copy: the thread appends meanwhile
+        if not recs:
             nan = float("nan")
             return SwitchStats(0, self.missed, self.stale, nan, nan, nan, nan)
-        err = np.array([a - t for t, a in self.records], dtype=float) / 1000.0
+        err = np.array([a - t for t, a in recs], dtype=float) / 1000.0
         return SwitchStats(int(err.size), self.missed, self.stale, float(np.percentile(err, 50)),
                            float(np.percentile(err, 99)), float(err.max()), float(err.min()))
 
     def cycle_stats(self) -> CycleStats:
-        leads = np.array(self._leads, dtype=float) / 1000.0
+        leads = np.array(self._leads.copy(), dtype=float) / 1000.0
         if leads.size == 0:
             leads = np.array([float("nan")])
         return CycleStats(self.missed, self.missed_max, self.superseded,

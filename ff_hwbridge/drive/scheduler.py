@@ -151,10 +151,11 @@ class StampScheduler:
 
     def stats(self) -> SwitchStats:
         """p50 / p99 / max of sent − stamp (µs) over the recorded setpoints."""
-        if not self.records:
+        recs = self.records.copy()        # one C-level copy: the thread appends meanwhile
+        if not recs:
             return SwitchStats(0, self.late, self.stale, float("nan"), float("nan"),
                                float("nan"), float("nan"))
-        err = np.array([s - t for t, s in self.records], dtype=float) / 1000.0
+        err = np.array([s - t for t, s in recs], dtype=float) / 1000.0
         return SwitchStats(int(err.size), self.late, self.stale, float(np.percentile(err, 50)),
                            float(np.percentile(err, 99)), float(err.max()), float(err.min()))
 

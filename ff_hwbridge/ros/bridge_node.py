@@ -676,7 +676,14 @@ class BridgeNode(LifecycleNode):
         self._pub_cur.publish(msgs[1])
 
     def _publish_diagnostics(self) -> None:
+        """The drive group's status on /diagnostics; a failure is logged, never ends the node."""
+        try:
+            self._publish_diagnostics_now()
+        except Exception as exc:  # noqa: BLE001 - a report must not take the executor down
+            self.get_logger().error(f"diagnostics not published: {type(exc).__name__}: {exc}",
+                                    throttle_duration_sec=5.0)
 
+    def _publish_diagnostics_now(self) -> None:
         if self.master is None:
             return
         st = self.master.status()

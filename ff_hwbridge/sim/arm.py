@@ -89,7 +89,7 @@ class ArmState:
 #: ns: a current change asked for this much before the plant's time is rewound: the plant goes back
 #: to its state before that instant and integrates again with the change where it belongs (a real
 #: drive's timing does not depend on when a process gets the CPU; the simulated one's should not)
-LATE_NS = 50_000
+LATE_NS = 1_000
 #: ns: how far back the plant can rewind (its history); a change older than this starts late, at
 #: the plant's time, and is counted in ``late_changes``
 REWIND_NS = 2_000_000_000

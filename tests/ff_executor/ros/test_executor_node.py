@@ -63,6 +63,8 @@ class FakeBridge(Node):
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.sync_period = 0.0            # s; > 0: setpoints latched at SYNC
         self.miss_seqs: set[int] = set()  # SYNC mode: these take effect one cycle late
+        self.latch = ""                   # != "": report a latched safe state with this reason
+        self.drop_seqs: set[int] = set()  # setpoints it never applies (nor reports)
         self.running = True
         self.thread = threading.Thread(target=self._loop, daemon=True)
         self.thread.start()
@@ -82,6 +84,8 @@ class FakeBridge(Node):
             if self.sync_period > 0:
                 period = int(round(self.sync_period * 1e9))
                 at = -(-stamp // period) * period + (period if seq in self.miss_seqs else 0)
+            if seq in self.drop_seqs:
+                return
             self.pending.append((at, seq, float(cur[0]), pid, msg))
             self.pending.sort(key=lambda x: (x[0], x[1]))
 
@@ -132,8 +136,9 @@ class FakeBridge(Node):
     def _publish_diagnostics(self):
         values = {"synchronous": int(self.sync_period > 0), "sync_period_us": self.sync_period * 1e6,
                   "missed_setpoints": self.missed_count}
-        st = DiagnosticStatus(name="fake_bridge: drive group", level=DiagnosticStatus.OK,
-                              message="operation enabled",
+        level, text = ((DiagnosticStatus.ERROR, f"safe state: {self.latch}") if self.latch
+                       else (DiagnosticStatus.OK, "operation enabled"))
+        st = DiagnosticStatus(name="fake_bridge: drive group", level=level, message=text,
                               values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
         self.diag_pub.publish(DiagnosticArray(status=[st]))
 
@@ -258,22 +263,46 @@ def test_sync_latched_bridge_result_carries_prediction_sync_period_and_missed_cy
 
 @pytest.mark.parametrize("kind, text", [
     ("limit", "limit"), ("joints", "do not match"), ("inactive", "not 'active'"),
-    ("not_at_q0", "move the arm to q0")])
+    ("not_at_q0", "move the arm to q0"), ("latched", "safe state: e-stop")])
 def test_refuses_with_a_reason_and_sends_nothing(stack, kind, text):
     bridge, client, _ = stack
     bridge.reset(0.5 if kind == "not_at_q0" else 0.0)
     bridge.state_label = "inactive" if kind == "inactive" else "active"
+    bridge.latch = "e-stop: service ~/estop" if kind == "latched" else ""
     time.sleep(0.3)
     try:
         goal, _ = goal_for(currents=[1.0, 12.0, -1.0] if kind == "limit" else CUR,
                            names=("elbow",) if kind == "joints" else ("joint1",))
         status, result = run_goal(client, goal)
     finally:
-        bridge.state_label = "active"
+        bridge.state_label, bridge.latch = "active", ""
     assert status == GoalStatus.STATUS_ABORTED and not result.success
     assert result.message.startswith("refused:") and text in result.message, result.message
     time.sleep(0.2)
     assert bridge.received == []
+
+
+@pytest.mark.parametrize("how", ["latched", "dropped"])
+def test_a_move_the_bridge_did_not_drive_is_aborted_not_succeeded(stack, how):
+    bridge, client, _ = stack
+    bridge.reset(0.0)
+    time.sleep(0.3)
+    goal, _ = goal_for()
+    handle = wait(client.send_goal_async(goal))
+    assert handle.accepted
+    try:
+        if how == "latched":
+            time.sleep(0.8)                      # start margin 0.6 s, then the bridge latches
+            bridge.latch = "setpoint watchdog"
+        else:
+            bridge.drop_seqs = {2}               # one current change never applied
+        res = wait(handle.get_result_async(), 15.0)
+    finally:
+        bridge.latch, bridge.drop_seqs = "", set()
+    assert res.status == GoalStatus.STATUS_ABORTED and not res.result.success, res.result.message
+    want = "latched its safe state: setpoint watchdog" if how == "latched" else "applied 5 of the profile's 6"
+    assert want in res.result.message, res.result.message
+    time.sleep(0.3)
 
 
 def test_second_goal_is_refused_while_one_runs(stack):

@@ -125,3 +125,32 @@ def test_stamp_scheduler_applies_a_stale_stop_and_reports_a_failing_apply():
         assert "no buffer space" in errors[0] and sched.errors == 1
     finally:
         sched.stop()
+
+
+def test_statistics_can_be_read_while_the_thread_records():
+    import sys
+    import threading
+
+    rig = Rig()
+    stop = threading.Event()
+
+    def record() -> None:                 # what the scheduler thread does on each applied setpoint
+        k = 0
+        while not stop.is_set():
+            rig.sched.records.append((k, k + 1000))
+            rig.sched._leads.append(k)
+            k += 1
+
+    old = sys.getswitchinterval()
+    sys.setswitchinterval(1e-6)           # switch threads as often as the interpreter allows
+    t = threading.Thread(target=record, daemon=True)
+    t.start()
+    try:
+        for _ in range(12):
+            assert rig.sched.stats().count >= 0
+            rig.sched.cycle_stats()
+    finally:
+        stop.set()
+        t.join()
+        sys.setswitchinterval(old)
+        rig.close()
