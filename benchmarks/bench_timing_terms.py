@@ -1,9 +1,11 @@
 """Each term between the model's rest position and the simulated stack's, measured alone; JSON.
 
 For the robust 0 → 1 rad plan (robust-derivative, pv, pc, pt uncertain; planned here with the
-library facade, or read from ``--motion FILE``) and the true friction of the benchmark (Coulomb
-+20 %), the exact simulator's rest position (``ff_planner.model.simulate.rest_position``) is the
-reference; each term changes ONE thing and reports the rest position's change (rad):
+library facade, or the profile the stack's planner returned, read from a ``bench_execution.py``
+result with ``--from-execution FILE``: switches on the SYNC grid, currents on the 3 mA grid) and
+the true friction of the benchmark (Coulomb +20 %), the exact simulator's rest position
+(``ff_planner.model.simulate.rest_position``) is the reference; each term changes ONE thing and
+reports the rest position's change (rad):
 
 - ``physics_step``: the simulated arm (``ff_hwbridge.sim.arm.SimArm``, its default step and the
   model's ``advance``) fed the exact profile at the exact instants on a fake clock, run to rest;
@@ -16,7 +18,7 @@ reference; each term changes ONE thing and reports the rest position's change (r
   ``switch_timing``), and the rest change of a switch-delay pattern (``--delays-us``, one per
   current change, relative to the first) both exactly and by the linear sensitivity.
 
-    python benchmarks/bench_timing_terms.py [--sync-period 0.001] [--out FILE]
+    python benchmarks/bench_timing_terms.py [--sync-period 0.001] [--from-execution FILE] [--out FILE]
 """
 from __future__ import annotations
 
@@ -49,6 +51,16 @@ def robust_profile() -> CurrentProfile:
     if res.profile is None:
         raise RuntimeError(f"no plan: {res.message}")
     return res.profile
+
+
+def executed_profile(path: str) -> tuple[CurrentProfile, str]:
+    """The profile a ``bench_execution.py`` result ran (its ``plan``), and its task text."""
+    with open(path, encoding="utf-8") as fh:
+        data = json.load(fh)
+    p = data["plan"]
+    cur = np.asarray(p["currents_a"], float).reshape(-1, 1)
+    return (CurrentProfile(np.asarray(p["step_times_s"], float), cur, float(p["tf_s"]), float(p["coast_s"])),
+            str(data.get("task", p.get("objective", ""))) + f" (as the stack's planner returned it, {path})")
 
 
 def arm_rest(params: Any, prof: CurrentProfile, step: float | None = None, settle: float = 3.0) -> float:
@@ -91,14 +103,19 @@ def main(argv: Any = None) -> int:
     ap.add_argument("--sync-period", type=float, default=0.001, help="s")
     ap.add_argument("--phases", type=int, default=50)
     ap.add_argument("--delays-us", default="", help="comma-separated switch delays (µs), one per change")
+    ap.add_argument("--from-execution", default=None, metavar="FILE",
+                    help="the profile of a bench_execution.py result (its 'plan') instead of planning here")
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
     t0 = time.monotonic()
     nominal = default_params("arm1dof")
     true = nominal.replace(pc=nominal.pc * PC_SCALE)
-    prof = robust_profile()
+    if a.from_execution:
+        prof, task = executed_profile(a.from_execution)
+    else:
+        prof, task = robust_profile(), "arm1dof 0 -> 1 rad in 1 s, robust-derivative"
     ref = float(rest_position(true, prof, [0.0])[0])
-    out: dict[str, Any] = {"benchmark": "timing_terms", "task": "arm1dof 0 -> 1 rad in 1 s, robust-derivative",
+    out: dict[str, Any] = {"benchmark": "timing_terms", "task": task,
                            "true_params": {"pc": true.pc}, "steps": int(prof.n_steps),
                            "step_times_s": prof.step_times.tolist(), "currents_A": prof.currents[:, 0].tolist(),
                            "exact_rest_true_rad": ref,
