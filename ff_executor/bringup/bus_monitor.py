@@ -155,8 +155,9 @@ class BusMonitor:
         self.close()
 
     def sample_instants(self, stamps: Sequence[float] | np.ndarray, tol: float = 2e-6) -> np.ndarray:
-        """The SYNC instant (s) each joint-state ``stamp`` (a TPDO1 bus time, s) was sampled at;
-        NaN where no TPDO1 within ``tol`` s of the stamp was paired with a SYNC."""
+        """The SYNC instant (s) each joint-state ``stamp`` was sampled at: the stamp is a TPDO1's
+        bus time (paired here with the SYNC it answered) or already that SYNC's instant (a bridge
+        that stamps samples at their SYNC); NaN where it is neither, within ``tol`` s."""
         with self._lock:
             pairs = np.array(self._pairs, float).reshape(-1, 2)
         st = np.asarray(stamps, float)
@@ -169,6 +170,12 @@ class BusMonitor:
         for cand in (k - 1, k) if tp.size > 1 else (k,):
             hit = np.abs(tp[cand] - st) <= tol
             out = np.where(hit & np.isnan(out), sy[cand], out)
+        syncs = np.unique(sy)
+        if syncs.size:
+            j = np.clip(np.searchsorted(syncs, st), 0, syncs.size - 1)
+            for cand in (np.clip(j - 1, 0, syncs.size - 1), j):
+                hit = np.abs(syncs[cand] - st) <= tol
+                out = np.where(hit & np.isnan(out), syncs[cand], out)
         return out
 
     def current_changes(self, t_from: float, t_to: float,

@@ -74,6 +74,8 @@ def test_monitor_on_a_hub_sees_syncs_answers_and_current_changes():
         assert mon.syncs == 5 and mon.unpaired == 0
         np.testing.assert_allclose(mon.sample_instants(answers), syncs, atol=1e-9)
         assert np.isnan(mon.sample_instants([answers[0] + 1.0])[0])          # no such TPDO
+        # a bridge that stamps its samples with their SYNC already: taken as they are
+        np.testing.assert_allclose(mon.sample_instants(syncs), syncs, atol=1e-9)
         # on receipt: at the frames; latched: at the next SYNC; repeats are no change
         on_receipt = mon.current_changes(rpdo[0] - 0.5, rpdo[-1] + 0.5, latched=False)
         assert [a for _, a in on_receipt] == pytest.approx([0.0, 1.5, -0.75, 0.0])
