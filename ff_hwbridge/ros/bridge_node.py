@@ -38,6 +38,9 @@ Interfaces (relative to the node: /ff_hwbridge/...):
   when active).
 - srv ``~/estop``       std_srvs/Trigger: emergency stop: latch the safe state (zero current, quick
   stop) with the reason "e-stop: service ~/estop" until ``~/fault_reset``.
+- sub ``~/emergency_stop`` std_msgs/Bool: the same from a topic (an e-stop button's node, a safety
+  PLC bridge): ``true`` latches with the reason "e-stop: topic ~/emergency_stop"; ``false`` does
+  nothing (clearing is ``~/fault_reset`` only).
 
 After configure the flat parameters show the configuration in use (also when it came from
 ``config_file``); while configured they cannot be changed (refused with the reason: cleanup,
@@ -68,6 +71,7 @@ from rclpy.qos import qos_profile_sensor_data
 from rclpy.signals import SignalHandlerOptions
 from rclpy.utilities import remove_ros_args
 from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
 from ff_hwbridge.drive.config import (OPTION_RANGES, BridgeConfig, ConfigError, config_from_mapping, load_config,
@@ -503,6 +507,9 @@ class BridgeNode(LifecycleNode):
         self._wake = self.create_guard_condition(lambda: None)   # resumes awaited work (ff_msgs_py.threads)
         srv = self.create_service(Trigger, "~/fault_reset", self._on_fault_reset,
                                   callback_group=MutuallyExclusiveCallbackGroup())
+        estop_sub = self.create_subscription(Bool, "~/emergency_stop", self._on_estop_topic, 10,
+                                             callback_group=MutuallyExclusiveCallbackGroup())
+        self._entities.append(("sub", estop_sub))
         estop = self.create_service(Trigger, "~/estop", self._on_estop,
                                     callback_group=MutuallyExclusiveCallbackGroup())
         self._entities += [("pub", self._pub_js), ("pub", self._pub_cur), ("pub", self._pub_applied),
@@ -614,6 +621,17 @@ class BridgeNode(LifecycleNode):
         self.get_logger().error(f"e-stop: {response.message}")
         self._diag_now.set()
         return response
+
+    def _on_estop_topic(self, msg: Any) -> None:
+        """Topic ~/emergency_stop: ``true`` latches the safe state now, as the service does."""
+        master = self.master
+        if not bool(msg.data) or master is None:
+            return
+        if master.latched:
+            return                         # already stopped; the first reason stays
+        reason = master.estop("topic ~/emergency_stop")
+        self.get_logger().error(f"e-stop: safe state: {reason}")
+        self._diag_now.set()
 
     async def _on_fault_reset(self, request: Any, response: Any) -> Any:
         """Service ~/fault_reset: waits for the drive on its own thread (ff_msgs_py.threads)."""

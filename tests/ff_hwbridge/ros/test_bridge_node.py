@@ -128,6 +128,21 @@ def test_lifecycle_setpoints_faults_and_reset(bridge):
     assert fut.result().success, (fut.result().message, node.master.events)
     assert not node.master.latched
 
+    # e-stop from a topic: true latches the safe state with its reason, a fault reset clears it
+    from std_msgs.msg import Bool
+    estop = client.create_publisher(Bool, "/ff_hwbridge/emergency_stop", 10)
+    assert _wait(lambda: estop.get_subscription_count() > 0)
+    estop.publish(Bool(data=False))
+    time.sleep(0.2)
+    assert not node.master.latched
+    estop.publish(Bool(data=True))
+    assert _wait(lambda: node.master.latched)
+    assert node.master.fault_reason == "e-stop: topic ~/emergency_stop"
+    assert _wait(lambda: drive.setpoint_raw == 0)
+    fut = cli.call_async(Trigger.Request())
+    assert _wait(fut.done, 5.0) and fut.result().success, fut.result().message
+    assert not node.master.latched
+
     node.trigger_deactivate()
     assert not node.active and _wait(lambda: drive.transitions[-1] == 5)
     node.trigger_cleanup()
