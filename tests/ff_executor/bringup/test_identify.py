@@ -60,10 +60,13 @@ def test_identify_then_box_robust_lands_within_its_certificate(loop_stack):
     assert idf.meta["timing"] == "bus" and fit.motion_seconds <= 60.0
     err = {k: fit.estimates[k] / TRUE[k] - 1.0 for k in TRUE}
     assert abs(err["pc"]) <= 0.03 and abs(err["pt"]) <= 0.03 and abs(err["pv"]) <= 0.10, err
-    # honest: the intervals hold the truth, or the fit says Eq. 9 does not describe the runs
+    # honest: the truth lies within the 99.9 % interval (the 95 % one widened by 3.29 / 1.96), or the
+    # fit says Eq. 9 does not describe the runs. A single trial's 95 % interval misses the truth 1 time
+    # in 20 per parameter by design; its coverage (>= 18 of 20) is what bench_identify.py measures.
     for k, v in TRUE.items():
         lo, hi = fit.interval95[k]
-        assert (lo <= v <= hi) or not fit.adequate, (k, v, fit.interval95, fit.message)
+        mid, half = 0.5 * (lo + hi), 0.5 * (hi - lo) * 3.29 / 1.96
+        assert abs(v - mid) <= half or not fit.adequate, (k, v, fit.interval95, fit.message)
     for k in range(2):
         landing, resp, _ = execute_plan(client, f"identified {k}", plan_request(
             "robust-box", params_of(fit), box_of(idf), seed=k + 1), bus=bus, probe=probe)
