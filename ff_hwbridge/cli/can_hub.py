@@ -5,8 +5,10 @@ Prints ``CAN hub on ws://127.0.0.1:PORT/`` once serving and ``CAN hub stopped`` 
 With ``--sync-period`` (s, e.g. 0.001) the hub produces SYNC (COB-ID 0x80) from a timer thread
 (SCHED_FIFO ``--sync-rt-priority`` when permitted; the hub's forwarding threads one below it,
 so that none of them is preempted while holding the GIL the timer needs) and prints its jitter as one JSON line
-``{"sync": {...}}`` (count, skipped, jitter_p50_us / p99 / max, period_us, realtime) every
-``--sync-report`` s (0 = never), on SIGUSR1, and at exit.
+``{"sync": {...}}`` (count, skipped, jitter_p50_us / p99 / max, period_us, realtime, the timing
+model and the measured send lateness) every ``--sync-report`` s (0 = never), on SIGUSR1, and at
+exit. ``--sync-stamp deadline`` (default): the SYNC's bus instant is the timer's deadline plus a
+modelled jitter up to ``--sync-jitter-model-us``; ``send``: the instant the thread sent it.
 """
 from __future__ import annotations
 
@@ -20,6 +22,7 @@ from typing import Optional, Sequence
 
 from ff_hwbridge.drive.bus import LOOPBACK, CanConfigError
 from ff_hwbridge.sim.can_hub import CanHub, start_hub
+from ff_hwbridge.sim.sync import STAMPS
 
 __all__ = ["main"]
 
@@ -56,12 +59,23 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--sync-rt-priority", type=int, default=50,
                     help="SCHED_FIFO priority of the SYNC timer thread (0 = normal; falls back "
                          "with a warning when not permitted)")
+    ap.add_argument("--sync-stamp", choices=STAMPS, default="deadline",
+                    help="SYNC timing model: 'deadline' = bus instant at the timer's deadline "
+                         "(+ modelled jitter; a kernel/hardware timer), 'send' = when the thread "
+                         "sent it (default deadline)")
+    ap.add_argument("--sync-jitter-model-us", type=float, default=0.0,
+                    help="µs, modelled SYNC jitter of the deadline model: uniform in [0, this] "
+                         "(default 0)")
     ap.add_argument("--sync-report", type=float, default=0.0,
                     help="s, print the SYNC jitter as a JSON line this often (0 = at exit and "
                          "on SIGUSR1 only)")
     args = ap.parse_args(argv)
     if args.sync_period and not 0.0001 <= args.sync_period <= 1.0:
         print(f"ff-can-hub: --sync-period must be 0.0001..1 s, got {args.sync_period}", file=sys.stderr)
+        return 2
+    if not (0.0 <= args.sync_jitter_model_us <= 100_000.0 * (args.sync_period or 1.0)):
+        print(f"ff-can-hub: --sync-jitter-model-us must be 0..10 % of the period, got "
+              f"{args.sync_jitter_model_us}", file=sys.stderr)
         return 2
     if not 0 <= args.sync_rt_priority <= 99:
         print(f"ff-can-hub: --sync-rt-priority must be 0..99, got {args.sync_rt_priority}",
@@ -73,7 +87,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             _realtime_process(args.sync_rt_priority - 1)
     try:
         hub = start_hub(args.port, args.host, sync_period=args.sync_period,
-                        sync_rt_priority=args.sync_rt_priority)
+                        sync_rt_priority=args.sync_rt_priority, sync_stamp=args.sync_stamp,
+                        sync_jitter_model=args.sync_jitter_model_us * 1e-6)
     except CanConfigError as exc:
         print(f"ff-can-hub: {exc}", file=sys.stderr)
         return 2

