@@ -134,6 +134,8 @@ class StackOptions:
     setpoint_timing: str = "sync"              # "sync": the drives latch setpoints at SYNC, produced by
                                                # the hub's timer (separate hub) every SYNC_PERIOD;
                                                # "on_receipt": applied when they arrive, at their stamps
+    sync_jitter_model_us: float = 0.0          # µs: the hub's SYNC bus instant is its timer deadline
+                                               # plus a jitter drawn uniformly in [0, this] (0: ideal)
     rt_priority: int = 0                       # 1..99: SCHED_FIFO for the sim driver process and the
                                                # bridge's scheduler thread (root/CAP_SYS_NICE); 0 = off
     timing_nice: Optional[int] = -10           # nice value for the sim driver and the bridge (the
@@ -401,7 +403,8 @@ class Stack:
             if o.separate_hub:
                 hub_args = ["--port", str(self.hub_port)]
                 if self.hub_syncs:
-                    hub_args += ["--sync-period", str(SYNC_PERIOD)]
+                    hub_args += ["--sync-period", str(SYNC_PERIOD),
+                                 "--sync-jitter-model-us", str(float(o.sync_jitter_model_us))]
                 p = self._start("ff_can_hub", "ff_hwbridge.cli.can_hub", hub_args, timing=True)
                 self._wait(p, lambda: "CAN hub on" in p.output(), "serving on 127.0.0.1")
             sim = self.sim_parameters()
