@@ -95,6 +95,7 @@ from ff_hwbridge.protocol.cia402 import Command, State
 from ff_hwbridge.protocol.epos_od import (CURRENT_MODE, FACTORY_QUICK_STOP_OPTION, MAXON_VENDOR_ID,  # noqa: F401
                                           PDO_VALID_BIT, MotorData)
 from ff_hwbridge.protocol.units import FAMILIES, DriveUnits
+from ff_hwbridge.sim.sync import wall_minus_mono
 
 _NUMBER_TYPES = od.NUMBER_TYPES
 VALID_MODES = {"epos4": {0, 1, 3, 6, 8, 9, 10}, "epos2": {0, -3, -2, -1, 1, 3, 6, 7}}
@@ -873,7 +874,7 @@ class SimEpos:
             self._begin_ramp("fault", self._fr_c, t_ns)
         self.state = new
         self.transitions.append(transition)
-        self.state_log.append(StateChange(t_ns, t_ns + (time.time_ns() - time.monotonic_ns()),
+        self.state_log.append(StateChange(t_ns, t_ns + wall_minus_mono(),
                                           new, transition))
         if new not in _POWERED:
             self._apply(t_ns)
@@ -1032,7 +1033,7 @@ class SimEpos:
             return
         # the SYNC's bus instant, on the plant's clock (monotonic): when the drive latches
         bus = link.rx_bus_ns
-        t_ns = bus - (time.time_ns() - time.monotonic_ns())
+        t_ns = bus - wall_minus_mono()
         wall = bus
         pending = self._pending_sync_rpdo
         self._pending_sync_rpdo = [p for p in pending if p[2] > bus]   # on the bus after it

@@ -44,7 +44,7 @@ from ff_hwbridge.drive.scheduler import use_fifo
 
 log = logging.getLogger(__name__)
 
-__all__ = ["STAMPS", "SyncSource", "SyncSourceStats"]
+__all__ = ["STAMPS", "SyncSource", "SyncSourceStats", "wall_minus_mono"]
 
 SYNC_COB_ID = 0x80
 _PR_SET_TIMERSLACK = 29
@@ -92,6 +92,22 @@ def _timer_slack_1us() -> None:
         libc.prctl(_PR_SET_TIMERSLACK, 1000, 0, 0, 0)
     except (OSError, AttributeError):
         pass
+
+
+def wall_minus_mono(tries: int = 5, tight_ns: int = 5_000) -> int:
+    """ns: ``time.time_ns()`` − ``time.monotonic_ns()`` now, from the tightest of a few bracketed
+    reads (a thread preempted between two clock reads would otherwise be off by the preemption)."""
+    best: Optional[tuple[int, int]] = None
+    for _ in range(tries):
+        a = time.monotonic_ns()
+        w = time.time_ns()
+        b = time.monotonic_ns()
+        if best is None or b - a < best[0]:
+            best = (b - a, w - (a + b) // 2)
+        if b - a <= tight_ns:
+            break
+    assert best is not None
+    return best[1]
 
 
 class SyncSource:
@@ -189,7 +205,7 @@ class SyncSource:
             msg = can.Message(arbitration_id=SYNC_COB_ID, data=b"", is_extended_id=False)
             sent = mono()
             if deadline:                 # the wall clock of the modelled instant
-                msg.timestamp = (bus_mono + time.time_ns() - mono()) / 1e9
+                msg.timestamp = (bus_mono + wall_minus_mono()) / 1e9
             try:
                 self.bus.send(msg)
             except can.CanError:

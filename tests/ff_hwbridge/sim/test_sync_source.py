@@ -15,8 +15,8 @@ PERIOD = 0.002
 
 
 class LateBus:
-    """A virtual bus whose every 10th send stalls 2.5 periods first: a timer thread that lost
-    the CPU (the frame gets out late, and the next slots are due before it returns)."""
+    """A virtual bus whose every 10th send stalls 3.5 periods: a timer thread that lost the CPU
+    (the next slots are due before it returns)."""
 
     def __init__(self, channel: str) -> None:
         self.bus = can.Bus(interface="virtual", channel=channel, preserve_timestamps=True)
@@ -26,7 +26,7 @@ class LateBus:
     def send(self, msg: can.Message, timeout: float | None = None) -> None:
         self.sends += 1
         if self.sends % 10 == 5:
-            time.sleep(2.5 * PERIOD)
+            time.sleep(3.5 * PERIOD)
         self.bus.send(msg, timeout)
 
 
@@ -77,7 +77,7 @@ def test_deadline_model_puts_every_sync_on_its_grid_instant_however_late_the_thr
         st = src.stats()
         frames = _drain(rx)
         assert st.stamp == "deadline" and len(frames) == st.count >= 20
-        # the thread was really late (2.5 periods at every 10th SYNC) ...
+        # the thread was really late (the SYNC after each stall by 2.5 periods) ...
         assert st.send_late_max_us >= 2.0 * PERIOD * 1e6 and st.late_slots >= 2
         # ... yet no slot is lost and every bus instant sits on the grid (µs: clock conversion)
         steps = np.diff([m.timestamp for m in frames]) / PERIOD
