@@ -22,7 +22,9 @@ import json
 import os
 import sys
 import time
+from typing import Any
 
+from _common import report
 from bench_box_robust import judge_box, worst_rest
 
 from ff_planner.model.profile import PlanRequest
@@ -30,7 +32,7 @@ from ff_planner.optimize.planner import plan
 
 GOALS = (0.25, 0.5, 0.75, 1.0, 1.25, 1.5, 1.75, 2.0)     # rad, tf = 1 s
 TFS = (0.6, 0.7, 0.8, 0.9, 1.0, 1.2, 1.5)                 # s, goal 1 rad
-MODES = {"steps0": dict(steps=0, starts=0), "default": {}}
+MODES: dict[str, dict[str, Any]] = {"steps0": dict(steps=0, starts=0), "default": {}}
 
 
 def one(qf: float, tf: float, mode: str, scales, budget: float) -> dict:
@@ -75,11 +77,7 @@ def main() -> None:
            "judge": "rest position: 8 corners + centre + 256 uniform (seed 0)",
            "rows": rows, "load_1min_before": load0, "load_1min_after": os.getloadavg()[0],
            "cores": os.cpu_count()}
-    text = json.dumps(out, indent=2)
-    print(text)
-    if a.out:
-        with open(a.out, "w", encoding="utf-8") as fh:
-            fh.write(text + "\n")
+    report(out, a.out, final_newline=True)
 
 
 if __name__ == "__main__":

@@ -33,6 +33,7 @@ from importlib import resources
 from pathlib import Path
 
 import numpy as np
+from _common import enable_drive
 
 from ff_hwbridge.drive.epos import EposMaster
 from ff_hwbridge.protocol.cia402 import State
@@ -44,7 +45,8 @@ from ff_hwbridge.sim.rig_process import RigProcess, rig_master_config
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
-def _stats(values: list[float]) -> dict:
+def _stats(values: list[float | None]) -> dict:
+    """Median and max (ms) of the known ``values`` (s); None where none is known."""
     arr = np.asarray([v for v in values if v is not None], dtype=float) * 1000.0
     if not arr.size:
         return {"p50": None, "max": None}
@@ -153,10 +155,7 @@ def main() -> int:
                                 heartbeat_timeout=a.heartbeat_timeout, setpoint_timeout=10.0,
                                 sdo_timeout=2.0)
         master = EposMaster(cfg)
-        master.connect()
-        master.configure()
-        master.enable()
-        if not master.wait_for_state(State.OPERATION_ENABLED, 3.0):
+        if not enable_drive(master):
             print(json.dumps({"error": f"not enabled: {master.states()} {master.fault_reason}"}))
             return 1
         out: dict = {"benchmark": "bridge_faults", "load_avg_1min_at_start": os.getloadavg()[0],

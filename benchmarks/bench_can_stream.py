@@ -36,18 +36,11 @@ import tempfile
 import time
 
 import numpy as np
+from _common import enable_drive, feed_stream, match_stream, percentiles, release_rig, stop_drive
 
 from ff_hwbridge.drive.epos import EposMaster
 from ff_hwbridge.drive.player import PlayerConfig, SetpointPlayer
-from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.sim.rig_process import RigProcess, free_port, rig_master_config
-
-
-def pct(a: np.ndarray) -> dict[str, float]:
-    if a.size == 0:
-        return {}
-    return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)),
-            "max": float(a.max()), "min": float(a.min()), "mean": float(a.mean())}
 
 
 def main() -> int:
@@ -86,6 +79,7 @@ def main() -> int:
     if a.hub == "process":
         hub = subprocess.Popen([sys.executable, "-u", "-m", "ff_hwbridge.cli.can_hub", "--port", str(port)],
                                stdout=subprocess.PIPE, text=True)
+        assert hub.stdout is not None
         hub.stdout.readline()
     load_before = os.getloadavg()
     rt = ["chrt", "-f", str(a.sim_rt_priority)] if a.sim_rt_priority > 0 else []
@@ -103,12 +97,10 @@ def main() -> int:
             settings["spin_margin"] = a.spin_margin
         cfg = rig_master_config(url, a.family, 10.0, **settings)
         master = EposMaster(cfg)
-        master.connect()
-        master.configure()
-        master.enable()
-        if not master.wait_for_state(State.OPERATION_ENABLED, 3.0):
+        if not enable_drive(master):
             raise SystemExit(f"drive not enabled: {master.fault_reason}")
         tpdo_count = {"n": 0}
+        assert master.network is not None      # connected
         master.network.subscribe(0x181, lambda i, d, t: tpdo_count.__setitem__("n", tpdo_count["n"] + 1))
 
         # small alternating currents (±0.3 A pattern): unique-enough raw values, arm barely moves
@@ -122,29 +114,15 @@ def main() -> int:
         period = int(1e9 / a.rate)
         stamps = [t0 + k * period for k in range(n)]
         sync0, tw0 = tpdo_count["n"], time.monotonic()
-        submitted = 0
-        while submitted < n:                       # feed ~100 ms ahead, like the bridge node
-            horizon = time.time_ns() + 100_000_000
-            while submitted < n and stamps[submitted] < horizon:
-                player.submit(stamps[submitted], [pattern[submitted]], seq=submitted,
-                              profile_id="bench")     # a motion: feeds the setpoint watchdog
-                submitted += 1
-            time.sleep(0.02)
-        while player.pending:
-            time.sleep(0.01)
+        feed_stream(player, stamps, pattern)      # a motion: feeds the setpoint watchdog
         time.sleep(0.2)
         tpdos, window = tpdo_count["n"] - sync0, time.monotonic() - tw0
         sent_stats = player.stats().as_dict()
         sent_at = {stamp: sent for stamp, sent in player.records()}
         rt_active = bool(player.diagnostics()["scheduler_realtime"])
-        player.close()
-        latched = master.fault_reason
-        master.disable()
-        time.sleep(0.05)
+        latched = stop_drive(player, master)
     finally:
-        if master is not None:
-            master.disconnect()
-        sim.stop(20)
+        release_rig(master, sim)
         if hub is not None:
             hub.terminate()
             hub.wait(10)
@@ -158,20 +136,8 @@ def main() -> int:
     # as "extra".
     units = master.units[0]
     want = [units.amps_to_setpoint(x, limit=10.0) for x in pattern]
-    raws = [r[2] for r in arrivals]
-    start = next((i for i in range(len(raws) - 20 + 1) if raws[i:i + 20] == want[:20]), None)
-    matched: list[tuple[int, list]] = []           # (stream index k, arrival record)
-    unexpected = 0
-    if start is not None:
-        j = start
-        for k in range(n):
-            look = j
-            while look < len(raws) and look < j + 50 and raws[look] != want[k]:
-                look += 1
-            if look < len(raws) and raws[look] == want[k]:
-                unexpected += look - j
-                matched.append((k, arrivals[look]))
-                j = look + 1
+    start, found, unexpected = match_stream([r[2] for r in arrivals], want, n)
+    matched = [(k, arrivals[i]) for k, i in found]     # (stream index k, arrival record)
     result: dict = {"benchmark": "bench_can_stream", "host": platform.node(),
                     "cpus": os.cpu_count(), "duration_s": a.duration, "rate_hz": a.rate,
                     "family": a.family, "transport": "python-can-remote hub on 127.0.0.1",
@@ -191,10 +157,10 @@ def main() -> int:
         result.update({
             "setpoints_received": len(matched), "lost": lost,
             "extra_rpdos_inside_stream": unexpected,
-            "switch_error_us": pct(err_us),
-            "jitter_us": pct(err_us - np.median(err_us)) if err_us.size else {},
+            "switch_error_us": percentiles(err_us),
+            "jitter_us": percentiles(err_us - np.median(err_us)) if err_us.size else {},
             "sent_error_us": sent_stats,
-            "transport_us": pct(transport_us),
+            "transport_us": percentiles(transport_us),
             "feedback": {"window_s": window, "syncs_expected": int(window / a.sync_period),
                          "tpdo1_received": tpdos},
             "sim_link_stats": rec["link_stats"]["1"],

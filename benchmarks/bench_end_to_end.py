@@ -15,17 +15,17 @@ friction value, no repeats.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 
 import numpy as np
+from _common import arm1dof_params, log, report
 
 from ff_executor.bringup.demo import run_motions
 from ff_executor.bringup.stack import Stack, StackOptions
 from ff_executor.ros.client import StackClient
 from ff_msgs_py.convert import msg_to_profile
-from ff_planner.model.params import default_params, friction_scaled
+from ff_planner.model.params import friction_scaled
 from ff_planner.model.simulate import rest_position
 
 MOTIONS = (("robust", "robust-derivative"), ("robust-box", "robust-box"),
@@ -40,10 +40,7 @@ def main(argv=None) -> int:
                     help="keep the run's bag: record its topics into this rosbag2 folder (MCAP)")
     a = ap.parse_args(argv)
     scales = [float(s) for s in a.scales.split(",")]
-    model = default_params("arm1dof")
-    def log(s: str) -> None:
-        print(s, file=sys.stderr, flush=True)
-
+    model = arm1dof_params()
     rows = []
     t0 = time.monotonic()
     with Stack(StackOptions(rt_priority=10, record=a.record), log=log) as stack:   # SCHED_FIFO where permitted
@@ -68,7 +65,7 @@ def main(argv=None) -> int:
                                  "feedback_gap_max_s": m["feedback_gap_max_s"],
                                  "feedback_rate_hz": m["feedback_rate_hz"],
                                  "plan_time_s": m["plan_time_s"]})
-    table = {}
+    table: dict[str, dict[str, float]] = {}
     for r in rows:
         table.setdefault(r["motion"], {})[f"{r['true_pc_scale'] - 1:+.0%}"] = r["error_rad"]
     out = {"benchmark": "end_to_end_final_errors", "task": "arm1dof 0 -> 1 rad in 1 s",
@@ -80,11 +77,7 @@ def main(argv=None) -> int:
     rbox = [abs(r["error_rad"]) for r in rows if r["motion"] == "robust-box"]
     out["robust_box_max_abs_error_rad"] = float(np.max(rbox)) if rbox else None
     out["energy_optimal_min_abs_error_off_nominal_rad"] = float(np.min(base)) if base else None
-    text = json.dumps(out, indent=2, default=float)
-    print(text)
-    if a.out:
-        with open(a.out, "w", encoding="utf-8") as fh:
-            fh.write(text)
+    report(out, a.out, default=float)
     return 0
 
 

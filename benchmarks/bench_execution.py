@@ -34,15 +34,14 @@ the load averages (1, 5, 15 min) at the start, per run and at the end.
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import subprocess
 import sys
 import threading
 import time
 from typing import Any, Optional
 
 import numpy as np
+from _common import arm1dof_params, busy_processes, log, report, stop_processes
 from diagnostic_msgs.msg import DiagnosticArray
 from std_srvs.srv import Trigger
 
@@ -52,7 +51,6 @@ from ff_executor.bringup.stack import NOMINAL_CURRENT, SYNC_PERIOD, Stack, Stack
 from ff_executor.ros.client import StackClient
 from ff_hwbridge.protocol.units import DriveUnits
 from ff_msgs_py.convert import msg_to_profile
-from ff_planner.model.params import default_params
 from ff_planner.model.profile import CurrentProfile
 from ff_planner.model.simulate import rest_position
 
@@ -91,12 +89,6 @@ class SimLateSwitches:
                 return lt[1], lt[2]
             time.sleep(0.02)
         return None
-
-
-def busy_processes(n: int) -> list[subprocess.Popen]:
-    """``n`` child processes spinning a CPU each (stopped by the caller)."""
-    return [subprocess.Popen([sys.executable, "-c", "while True: pass"], stdin=subprocess.DEVNULL)
-            for _ in range(n)]
 
 
 def stats(values: list[float]) -> dict[str, float]:
@@ -196,10 +188,7 @@ def main(argv: Any = None) -> int:
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
 
-    def log(s: str) -> None:
-        print(s, file=sys.stderr, flush=True)
-
-    nominal = default_params("arm1dof")
+    nominal = arm1dof_params()
     true = nominal.replace(pc=nominal.pc * PC_SCALE)
     t0 = time.monotonic()
     loadavg_start = list(os.getloadavg())
@@ -243,9 +232,7 @@ def main(argv: Any = None) -> int:
                         f"p99 {row['switch_error_s']['p99'] * 1e6:.0f} us, missed {row['missed_cycles']}, "
                         f"late {row['late_switches']}, load {row['loadavg'][0]:.1f}")
     finally:
-        for p in load:
-            p.kill()
-            p.wait()
+        stop_processes(load)
     spreads = [r["switch_spread_s"] for r in rows]
     out = {
         "benchmark": "execution_determinism", "task": f"arm1dof 0 -> 1 rad in 1 s, {a.objective}",
@@ -285,11 +272,7 @@ def main(argv: Any = None) -> int:
         },
         "rows": rows, "wall_s": time.monotonic() - t0,
     }
-    text = json.dumps(out, indent=2, default=float)
-    print(text)
-    if a.out:
-        with open(a.out, "w", encoding="utf-8") as fh:
-            fh.write(text)
+    report(out, a.out, default=float)
     return 0
 
 

@@ -13,9 +13,7 @@ part moves a whole profile (harmless), the spread between frames moves switches 
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import socket
 import struct
 import subprocess
 import sys
@@ -23,12 +21,9 @@ import time
 from typing import Any
 
 import numpy as np
+from _common import busy_processes, percentiles, report, stop_processes
 
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
+from ff_hwbridge.sim.rig_process import free_port
 
 
 def sender(url: str, frames: int, period: float) -> None:
@@ -54,11 +49,6 @@ def sender(url: str, frames: int, period: float) -> None:
     bus.shutdown()
 
 
-def pct(a: np.ndarray) -> dict[str, float]:
-    return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)),
-            "max": float(a.max()), "min": float(a.min())}
-
-
 def main(argv: Any = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=3000)
@@ -75,18 +65,20 @@ def main(argv: Any = None) -> int:
 
     port = free_port()
     url = f"ws://127.0.0.1:{port}/"
-    procs = [subprocess.Popen([sys.executable, "-m", "ff_hwbridge.cli.can_hub", "--port", str(port)],
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)]
+    procs: list[subprocess.Popen[Any]] = [
+        subprocess.Popen([sys.executable, "-m", "ff_hwbridge.cli.can_hub", "--port", str(port)],
+                         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)]
     try:
         line = procs[0].stdout.readline() if procs[0].stdout else ""
         if "CAN hub on" not in line:
             raise RuntimeError(f"hub did not start: {line!r}")
-        procs += [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(a.load)]
+        procs += busy_processes(a.load)
         bus = can.Bus(interface="remote", channel=url, bitrate=1_000_000)
         tx = subprocess.Popen([sys.executable, __file__, "--role", "send", "--url", url,
                                "--frames", str(a.frames), "--period", str(a.period)])
         procs.append(tx)
-        late, hop = [], []
+        late: list[int] = []         # arrival − due, µs
+        hop: list[int] = []          # arrival − sent, µs
         end = time.monotonic() + a.frames * a.period + 20.0
         while len(late) < a.frames and time.monotonic() < end:
             m = bus.recv(0.5)
@@ -101,19 +93,13 @@ def main(argv: Any = None) -> int:
             hop.append(arrival - send_lag_us)
         bus.shutdown()
     finally:
-        for p in procs:
-            p.kill()
-            p.wait()
+        stop_processes(procs)
     arr, hops = np.asarray(late, float), np.asarray(hop, float)
     out = {"benchmark": "hub_one_way_latency", "frames_sent": a.frames, "frames_received": int(arr.size),
            "period_s": a.period, "load_processes": a.load, "loadavg_end": list(os.getloadavg()),
-           "arrival_minus_due_us": pct(arr) if arr.size else None,
-           "arrival_minus_sent_us": pct(hops) if hops.size else None}
-    text = json.dumps(out, indent=2)
-    print(text)
-    if a.out:
-        with open(a.out, "w", encoding="utf-8") as fh:
-            fh.write(text)
+           "arrival_minus_due_us": percentiles(arr, mean=False) or None,
+           "arrival_minus_sent_us": percentiles(hops, mean=False) or None}
+    report(out, a.out)
     return 0
 
 

@@ -25,15 +25,14 @@ through the planner SERVICE, run at the same three friction values (``stack_run.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 import time
 
 import numpy as np
+from _common import arm1dof_params, log, report
 from scipy.optimize import least_squares
 
-from ff_planner.model.params import default_params
 from ff_planner.model.profile import CurrentProfile
 from ff_planner.model.simulate import rest_position, simulate
 
@@ -63,7 +62,7 @@ def feasible_range(params, coarse: int = 81) -> tuple[float, float]:
     """The interval of first currents (A) whose end constraints can be met (edges bisected)."""
     grid = np.linspace(-params.i_max, params.i_max, coarse)
     ok = [solve_rest(float(x), params) is not None for x in grid]
-    idx = np.nonzero(ok)[0]
+    idx = np.flatnonzero(np.asarray(ok))
     if idx.size == 0:
         raise RuntimeError("no first current meets the end constraints")
 
@@ -127,6 +126,13 @@ def box_robust(client, params, log) -> dict:
             "_msg": resp.profile}
 
 
+def rest_error(mv) -> float:
+    """Rest position − goal (rad) of one stack run; nan when the run failed or has no truth."""
+    if not mv.succeeded or mv.rest_truth is None:
+        return math.nan
+    return float(mv.rest_truth[0] - QF)
+
+
 def run_on_stack(ctrls: list[dict], log, with_box: bool = True, record: str | None = None) -> dict:
     from ff_executor.bringup.stack import Stack, StackOptions
     from ff_executor.ros.client import StackClient
@@ -138,7 +144,7 @@ def run_on_stack(ctrls: list[dict], log, with_box: bool = True, record: str | No
     with Stack(StackOptions(planner=with_box, rt_priority=RT_PRIORITY, record=record), log=log) as stack:
         with StackClient(stack.env, "ff_bench_section5") as client:
             if with_box:
-                box = box_robust(client, default_params("arm1dof"), log)
+                box = box_robust(client, arm1dof_params(), log)
             for pc in PCS:
                 stack.set_true_params({"pc": pc})
                 log(f"true pc = {pc} Nm")
@@ -148,19 +154,18 @@ def run_on_stack(ctrls: list[dict], log, with_box: bool = True, record: str | No
                     client.reset_arm([0.0])
                     mv = client.execute(msg)
                     c.setdefault("switch_spread_s", []).append(mv.switch_spread)
-                    ok = mv.succeeded and mv.rest_truth is not None
-                    failures += 0 if ok else 1
-                    c.setdefault("stack_errors_rad", []).append(
-                        float(mv.rest_truth[0] - QF) if ok else math.nan)
+                    err = rest_error(mv)
+                    failures += int(math.isnan(err))
+                    c.setdefault("stack_errors_rad", []).append(err)
                     c.setdefault("executor_errors_rad", []).append(
-                        float(mv.result.position_error[0]) if ok and len(mv.result.position_error)
-                        else math.nan)
+                        float(mv.result.position_error[0])
+                        if not math.isnan(err) and len(mv.result.position_error) else math.nan)
                 if box:                    # the planner's plan, once per friction value too
                     client.reset_arm([0.0])
                     mv = client.execute(box["_msg"])
-                    ok = mv.succeeded and mv.rest_truth is not None
-                    failures += 0 if ok else 1
-                    box.setdefault("stack_errors_rad", []).append(float(mv.rest_truth[0] - QF) if ok else math.nan)
+                    err = rest_error(mv)
+                    failures += int(math.isnan(err))
+                    box.setdefault("stack_errors_rad", []).append(err)
                     box.setdefault("switch_spread_s", []).append(mv.switch_spread)
     for c in ctrls:
         errs = np.array(c["stack_errors_rad"])
@@ -210,11 +215,8 @@ def main(argv=None) -> int:
     ap.add_argument("--record", default=None, metavar="DIR",
                     help="keep the run's bag: record its topics into this rosbag2 folder (MCAP)")
     a = ap.parse_args(argv)
-    params = default_params("arm1dof")
+    params = arm1dof_params()
     n = 8 if a.quick else 32
-    def log(s: str) -> None:
-        print(s, file=sys.stderr, flush=True)
-
     ctrls = controllers(n, params)
     out = {"benchmark": "section5_grid", "paper": PAPER, "true_pc_Nm": list(PCS),
            "model": "table2 (pc = 0.19 Nm nominal)", "tf_s": TF, "qf_rad": QF,
@@ -223,11 +225,7 @@ def main(argv=None) -> int:
     if not a.offline:
         out["stack_run"] = run_on_stack(ctrls, log, with_box=not a.no_box, record=a.record)
     out["summary"] = summarise(ctrls, stack=not a.offline)
-    text = json.dumps(out, indent=2)
-    print(text)
-    if a.out:
-        with open(a.out, "w", encoding="utf-8") as fh:
-            fh.write(text)
+    report(out, a.out)
     return 0
 
 

@@ -36,19 +36,13 @@ import tempfile
 import time
 
 import numpy as np
+from _common import (busy_processes, enable_drive, feed_stream, match_stream, percentiles, release_rig, stop_drive,
+                     stop_processes)
 
 from ff_hwbridge.drive.epos import EposMaster
-from ff_hwbridge.drive.player import PlayerConfig, SetpointPlayer, SetpointRejected
+from ff_hwbridge.drive.player import PlayerConfig, SetpointPlayer
 from ff_hwbridge.drive.player_process import ProcessPlayer
-from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.sim.rig_process import RigProcess, free_port, rig_master_config
-
-
-def pct(a: np.ndarray) -> dict[str, float]:
-    if a.size == 0:
-        return {}
-    return {"p50": float(np.percentile(a, 50)), "p99": float(np.percentile(a, 99)),
-            "max": float(a.max()), "min": float(a.min()), "mean": float(a.mean())}
 
 
 def main() -> int:
@@ -71,7 +65,7 @@ def main() -> int:
                     help="the player in its own process (player_process: true)")
     a = ap.parse_args()
 
-    load = [subprocess.Popen(["sh", "-c", "while :; do :; done"]) for _ in range(a.load)]
+    load = busy_processes(a.load)
     port = free_port()
     url = f"ws://127.0.0.1:{port}/"
     record = os.path.join(tempfile.mkdtemp(prefix="ff-bench-sync-"), "sim.json")
@@ -97,10 +91,7 @@ def main() -> int:
         if a.process_rt > 0:       # after the children started (they keep normal priority)
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(a.process_rt))
         master = EposMaster(cfg)
-        master.connect()
-        master.configure()
-        master.enable()
-        if not master.wait_for_state(State.OPERATION_ENABLED, 3.0):
+        if not enable_drive(master):
             raise SystemExit(f"drive not enabled: {master.fault_reason}")
         kind = ProcessPlayer if a.player_process else SetpointPlayer
         player = kind(master, PlayerConfig(rt_priority=a.rt_priority)).start()
@@ -115,57 +106,29 @@ def main() -> int:
         t0 = nominal + (int(0.5e9) // period) * period                  # on the SYNC grid
         stamps = [t0 + k * period for k in range(n)]
         player.reset_stats()
-        while submitted < n:                       # feed ~100 ms ahead, like the bridge node
-            horizon = time.time_ns() + 100_000_000
-            try:
-                while submitted < n and stamps[submitted] < horizon:
-                    player.submit(stamps[submitted], [pattern[submitted]], seq=submitted,
-                                  profile_id="bench", last=submitted == n - 1)
-                    submitted += 1
-            except SetpointRejected:          # safe state: report what ran until then
-                break
-            time.sleep(0.02)
-        while player.pending:
-            time.sleep(0.01)
+        # safe state: feeding stops, and the figures cover what ran until then
+        submitted = feed_stream(player, stamps, pattern, mark_last=True)
         time.sleep(2.0)        # the simulated drive's process may lag the stream on a busy machine
         diag = player.diagnostics()
         applied = {r.stamp_ns: r for r in player.take_applied()}
-        player.close()
-        latched = master.fault_reason
-        master.disable()
-        time.sleep(0.05)
+        latched = stop_drive(player, master)
     finally:
-        if master is not None:
-            master.disconnect()
-        sim.stop(20)
+        release_rig(master, sim)
         hub.send_signal(signal.SIGTERM)
         out, _ = hub.communicate(timeout=10)
         for line in out.splitlines():
             if line.startswith("{"):
                 hub_sync = json.loads(line).get("sync", {})
-        for p in load:
-            p.kill()
-            p.wait()
+        stop_processes(load)
 
     with open(record) as fh:
         rec = json.load(fh)
     latched_log = rec["setpoints"]["1"]             # [mono_ns, wall_ns (SYNC instant), raw, A]
     units = master.units[0]
     want = [units.amps_to_setpoint(x, limit=10.0) for x in pattern]
-    raws = [r[2] for r in latched_log]
-    start = next((i for i in range(len(raws) - 20 + 1) if raws[i:i + 20] == want[:20]), None)
-    matched: list[tuple[int, list]] = []
-    if start is not None:
-        j = start
-        for k in range(submitted):
-            look = j
-            while look < len(raws) and look < j + 50 and raws[look] != want[k]:
-                look += 1
-            if look < len(raws) and raws[look] == want[k]:
-                matched.append((k, latched_log[look]))
-                j = look + 1
+    _, found, _ = match_stream([r[2] for r in latched_log], want, submitted)
     # only setpoints the player reported applied (after a safe state the rest were dropped)
-    matched = [(k, r) for k, r in matched if stamps[k] in applied]
+    matched = [(k, latched_log[i]) for k, i in found if stamps[k] in applied]
     err_us = np.array([(r[1] - stamps[k]) / 1000.0 for k, r in matched])
     late_at_drive = int(np.sum(err_us > 0.5 * a.sync_period * 1e6)) if err_us.size else 0
     lead = np.array([(applied[s].sent_ns - applied[s].rpdo_sent_ns) / 1000.0 for s in stamps
@@ -183,14 +146,14 @@ def main() -> int:
               "missed_cycles": diag.get("missed_setpoints"),
               "missed_cycles_max": diag.get("missed_cycles_max"),
               "late_at_drive": late_at_drive,
-              "switch_error_us": pct(err_us),
+              "switch_error_us": percentiles(err_us),
               "sync_jitter_us": {k: hub_sync.get(k) for k in ("jitter_p50_us", "jitter_p99_us",
                                                                "jitter_max_us", "count", "skipped",
                                                                "realtime")},
               "sync_interval_jitter_us": {"p99": diag.get("sync_jitter_p99_us"),
                                           "max": diag.get("sync_jitter_max_us"),
                                           "missing": diag.get("sync_missing")},
-              "rpdo_before_its_sync_us": pct(lead),
+              "rpdo_before_its_sync_us": percentiles(lead),
               "safe_state": latched}
     p99 = result["switch_error_us"].get("p99", float("inf"))   # type: ignore[union-attr]
     result["goal_p99_us"] = 50.0 if a.load else 20.0

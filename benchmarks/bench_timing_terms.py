@@ -30,10 +30,10 @@ import time
 from typing import Any
 
 import numpy as np
+from _common import arm1dof_params, report
 
 from ff_hwbridge.protocol.units import DriveUnits
 from ff_hwbridge.sim.arm import SimArm
-from ff_planner.model.params import default_params
 from ff_planner.model.profile import CurrentProfile, PlanRequest
 from ff_planner.model.simulate import rest_position
 from ff_planner.optimize.certificate import switch_timing_1dof
@@ -66,7 +66,8 @@ def executed_profile(path: str) -> tuple[CurrentProfile, str]:
 def arm_rest(params: Any, prof: CurrentProfile, step: float | None = None, settle: float = 3.0) -> float:
     """Rest position (rad) of the simulated arm fed ``prof`` at exact instants (fake clock)."""
     t = [0]
-    arm = SimArm(params, 0.0, clock=lambda: t[0], **({} if step is None else {"step": step}))
+    arm = (SimArm(params, 0.0, clock=lambda: t[0]) if step is None
+           else SimArm(params, 0.0, clock=lambda: t[0], step=step))
     for k in range(prof.n_steps):
         arm.set_current(0, float(prof.currents[k, 0]), int(round(prof.step_times[k] * NS)))
     arm.set_current(0, 0.0, int(round(prof.step_times[-1] * NS)))
@@ -108,7 +109,7 @@ def main(argv: Any = None) -> int:
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
     t0 = time.monotonic()
-    nominal = default_params("arm1dof")
+    nominal = arm1dof_params()
     true = nominal.replace(pc=nominal.pc * PC_SCALE)
     if a.from_execution:
         prof, task = executed_profile(a.from_execution)
@@ -153,11 +154,7 @@ def main(argv: Any = None) -> int:
                                   "rest_change_linear_rad": lin}
     out["terms"] = terms
     out["wall_s"] = time.monotonic() - t0
-    text = json.dumps(out, indent=2, default=float)
-    print(text)
-    if a.out:
-        with open(a.out, "w", encoding="utf-8") as fh:
-            fh.write(text)
+    report(out, a.out, default=float)
     return 0
 
 
