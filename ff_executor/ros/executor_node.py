@@ -67,6 +67,7 @@ from ff_executor.engine import (NS, EngineConfig, Motion, ProfileRejected, Setpo
 from ff_msgs.action import ExecuteProfile
 from ff_msgs.msg import CurrentSetpoint
 from ff_msgs_py.convert import msg_to_profile, predicted_rest_of, setpoint_msg, time_to_ns
+from ff_msgs_py.shutdown import shut_down
 from ff_msgs_py.threads import in_thread
 
 READY_LINE = "ff_executor ready"
@@ -564,14 +565,7 @@ def main(argv: Optional[list[str]] = None) -> None:
         print(f"ff_executor: {' '.join(str(exc).split())}", flush=True)
         raise SystemExit(2) from None
     finally:
-        if node is not None:
-            try:
-                node.emergency_zero()
-            except Exception:  # noqa: BLE001 - best effort on the way out
-                pass
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
+        shut_down(node, ExecutorNode.emergency_zero)
 
 
 if __name__ == "__main__":

@@ -29,31 +29,22 @@ Records are (stamp ns, applied SYNC instant ns); the switch error is applied −
 from __future__ import annotations
 
 import heapq
-import itertools
 import logging
 import math
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Callable, Optional
 
 import numpy as np
 
-from ff_hwbridge.drive.scheduler import SwitchStats, use_fifo
+from ff_hwbridge.drive.scheduler import StampedItem, StampedQueue, SwitchStats
 from ff_hwbridge.drive.sync_watch import SyncEvent, SyncWatch
 
 log = logging.getLogger(__name__)
 
 __all__ = ["CycleScheduler", "CycleStats", "Resolved"]
-
-
-@dataclass(order=True)
-class _Item:
-    stamp_ns: int
-    order: int
-    payload: Any = field(compare=False)
-    stop: bool = field(default=False, compare=False)
 
 
 @dataclass
@@ -93,8 +84,10 @@ class CycleStats:
     send_after_sync_max_us: float
 
 
-class CycleScheduler:
+class CycleScheduler(StampedQueue):
     """A thread that puts stamped payloads on the SYNC grid (see the module docstring)."""
+
+    _rt_who = "cycle scheduler"
 
     def __init__(self, watch: SyncWatch,
                  send: Callable[[int, Any], tuple[Optional[tuple[int, ...]], Any]],
@@ -105,6 +98,7 @@ class CycleScheduler:
                  tolerance: float = 0.1, missed_tolerance: int = 1, rt_priority: int = 0,
                  max_records: int = 200_000, name: str = "ff-cycle-scheduler",
                  clock_ns: Callable[[], int] = time.time_ns) -> None:
+        super().__init__(name, rt_priority, threading.Condition(threading.RLock()))
         self.watch = watch
         self._send, self._report, self._prepare = send, report, prepare
         self._echo_time = echo_time
@@ -113,15 +107,7 @@ class CycleScheduler:
         self.period_ns = watch.period_ns
         self._tol_ns = int(tolerance * self.period_ns)
         self.missed_tolerance = int(missed_tolerance)
-        self.rt_priority = int(rt_priority)
-        self.rt_active = False
-        self._name = name
-        self._heap: list[_Item] = []
         self._inflight: deque[_InFlight] = deque()
-        self._counter = itertools.count()
-        self._cond = threading.Condition(threading.RLock())
-        self._stop = False
-        self._thread: Optional[threading.Thread] = None
         self._last_stamp: Optional[int] = None
         self.records: deque[tuple[int, int]] = deque(maxlen=max_records)
         self._leads: deque[int] = deque(maxlen=max_records)
@@ -131,47 +117,21 @@ class CycleScheduler:
         watch.add_listener(self._on_sync)
 
     # --- control ------------------------------------------------------------------------------
-    def start(self) -> "CycleScheduler":
-        if self._thread is None or not self._thread.is_alive():
-            self._stop = False
-            self._thread = threading.Thread(target=self._run, name=self._name, daemon=True)
-            self._thread.start()
-        return self
-
-    def stop(self, timeout: float = 2.0) -> None:
-        with self._cond:
-            self._stop = True
-            self._heap.clear()
-            self._inflight.clear()
-            self._cond.notify_all()
-        if self._thread is not None:
-            self._thread.join(timeout)
-            self._thread = None
-
+    # start / stop / submit (for the SYNC at or after the stamp) / clear: StampedQueue's; clear
+    # and stop also forget the setpoints on the bus waiting for their SYNC (a safe state's zero
+    # current follows them)
     def close(self) -> None:
         self.stop()
         self.watch.remove_listener(self._on_sync)
 
-    def submit(self, stamp_ns: int, payload: Any, stop: bool = False) -> None:
-        """Queue ``payload`` for the SYNC at or after ``stamp_ns``; ``stop``: a stop (zero
-        current), never dropped as stale."""
-        with self._cond:
-            heapq.heappush(self._heap, _Item(int(stamp_ns), next(self._counter), payload, bool(stop)))
-            self._cond.notify_all()
-
-    def clear(self) -> int:
-        """Drop pending setpoints and forget those on the bus waiting for their SYNC (a safe
-        state's zero current follows them); returns how many were not yet sent."""
-        with self._cond:
-            n = len(self._heap)
-            self._heap.clear()
-            self._inflight.clear()
-            self._cond.notify_all()
-            return n
-
     @property
     def pending(self) -> int:
+        """Setpoints queued or sent and waiting for their SYNC."""
         return len(self._heap) + len(self._inflight)
+
+    def _drop_queued(self) -> None:
+        self._heap.clear()
+        self._inflight.clear()
 
     def reset_stats(self) -> None:
         self.records.clear()
@@ -206,10 +166,6 @@ class CycleScheduler:
         with self._cond:
             self._cond.notify_all()
 
-    def _set_rt_priority(self) -> None:
-        if self.rt_priority > 0:
-            self.rt_active = use_fifo(self.rt_priority, "cycle scheduler")
-
     def _cycles_ahead(self, stamp_ns: int, nominal_ns: int) -> int:
         """k: the stamp's SYNC is the k-th after the one at ``nominal_ns`` (<= 0: passed)."""
         return math.ceil((stamp_ns - self._tol_ns - nominal_ns) / self.period_ns)
@@ -224,7 +180,7 @@ class CycleScheduler:
                 self._failed("a pass of the setpoint cycle", None, exc)
                 time.sleep(0.001)
 
-    def _failed(self, what: str, item: Optional[_Item], exc: BaseException) -> None:
+    def _failed(self, what: str, item: Optional[StampedItem], exc: BaseException) -> None:
         """Logged, counted and ``on_fault(reason)``: what failed cannot be trusted on the bus."""
         self.errors += 1
         log.exception("%s failed", what)
@@ -242,7 +198,7 @@ class CycleScheduler:
         done: list[Resolved] = []
         g: Optional[tuple[SyncEvent, int]] = None
         with self._cond:
-            item: Optional[_Item] = None
+            item: Optional[StampedItem] = None
             while not self._stop:
                 done += self._resolve()
                 if done:
@@ -268,7 +224,7 @@ class CycleScheduler:
                 self._unplaceable(item)
         return False
 
-    def _unplaceable(self, item: _Item) -> None:
+    def _unplaceable(self, item: StampedItem) -> None:
         """A setpoint due while no SYNC has been seen: no drive latches it; a stop is sent
         all the same, and the safe state is called for with the reason."""
         if item.stop:
@@ -282,7 +238,7 @@ class CycleScheduler:
                     f"is due but no SYNC has been seen: it cannot be placed on the SYNC grid "
                     f"({self.period_ns / 1e6:g} ms)")
 
-    def _send_item(self, item: _Item, ev: SyncEvent, nominal_ns: int) -> None:
+    def _send_item(self, item: StampedItem, ev: SyncEvent, nominal_ns: int) -> None:
         if self._last_stamp is not None and item.stamp_ns < self._last_stamp:
             if not item.stop:
                 self.stale += 1

@@ -41,7 +41,7 @@ import sys
 import time
 from collections import deque
 from dataclasses import dataclass
-from typing import Any, Callable, Optional, Sequence
+from typing import Any, Callable, Optional, Self, Sequence
 
 from ff_hwbridge.drive.config import BridgeConfig
 from ff_hwbridge.drive.cycle import CycleScheduler, Resolved
@@ -117,7 +117,86 @@ class _Prepared:
     command: PreparedCommand
 
 
-class SetpointPlayer:
+class PlayerBase:
+    """What :class:`SetpointPlayer` and the process player share: joining and leaving the
+    master (its pending check, its safe-state listener), the context manager, handing over the
+    applied setpoints and the switch part of the diagnostics."""
+
+    master: EposMaster
+    _reports: deque[AppliedSetpoint]
+    _n_joints: int
+
+    def start(self) -> Self:
+        raise NotImplementedError
+
+    def stop(self) -> None:
+        raise NotImplementedError
+
+    def stats(self) -> SwitchStats:
+        raise NotImplementedError
+
+    @property
+    def pending(self) -> int:
+        raise NotImplementedError
+
+    def _on_fault(self, reason: str) -> None:
+        raise NotImplementedError
+
+    def _accept(self, currents: Sequence[float], profile_id: str, last: bool,
+                refusal: Optional[str] = None) -> tuple[float, ...]:
+        """A submitted setpoint's currents (A) as floats, once checked, and the setpoint watchdog
+        fed. SetpointRejected while the safe state is latched, with ``refusal`` (why this player
+        takes none now), or for a wrong number of currents."""
+        if self.master.latched:
+            raise SetpointRejected(f"safe state ({self.master.fault_reason})")
+        if refusal is not None:
+            raise SetpointRejected(refusal)
+        amps = tuple(float(c) for c in currents)
+        if len(amps) != self._n_joints:
+            raise SetpointRejected(f"{len(amps)} current(s) for {self._n_joints} joint(s) "
+                                   f"{list(self.master.joint_names)}")
+        # a motion runs (the watchdog watches) after a profile's setpoint that is not its last,
+        # or after a manual setpoint with a non-zero current; a manual zero ends it
+        running = not last and (bool(profile_id) or any(c != 0.0 for c in amps))
+        self.master.note_setpoint(motion_running=running)
+        return amps
+
+    def _attach(self) -> None:
+        """The master's pending check asks this player; its safe state reaches ``_on_fault``."""
+        self.master.pending_fn = lambda: self.pending > 0
+        self.master.add_fault_listener(self._on_fault)
+
+    def _release(self) -> None:
+        """What ``close()`` frees between stopping and detaching (nothing here)."""
+
+    def close(self) -> None:
+        """``stop()`` and detach from the master (its safe state no longer reaches the player)."""
+        self.stop()
+        self._release()
+        self.master.remove_fault_listener(self._on_fault)
+        self.master.pending_fn = lambda: False
+
+    def __enter__(self) -> Self:
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def take_applied(self) -> list[AppliedSetpoint]:
+        """The setpoints applied since the last call, oldest first."""
+        out = []
+        while self._reports:
+            out.append(self._reports.popleft())
+        return out
+
+    def _switch_diagnostics(self) -> dict[str, float]:
+        """Switch count, late count, p50 / p99 / max of the switch error (µs), pending setpoints."""
+        s = self.stats()
+        return {"switch_count": s.count, "switch_late": s.late, "switch_p50_us": s.p50_us,
+                "switch_p99_us": s.p99_us, "switch_max_us": s.max_us, "pending_setpoints": self.pending}
+
+
+class SetpointPlayer(PlayerBase):
     """Applies stamped current setpoints of one drive group at their stamps (see the module
     docstring). ``config`` None: the timing of ``master.config``."""
 
@@ -147,11 +226,10 @@ class SetpointPlayer:
                                          on_error=master.trip)
         # synchronous: one shift onto the SYNC grid per profile run, the order of stamps kept
         self._placement = GridPlacement(self._cycle.grid) if self._cycle is not None else None
-        master.pending_fn = lambda: self._scheduler.pending > 0
-        master.add_fault_listener(self._on_fault)
+        self._attach()
 
     # --- control ----------------------------------------------------------------------------
-    def start(self) -> "SetpointPlayer":
+    def start(self) -> Self:
         """Start the scheduler thread (idempotent). Synchronous: the process's thread switch
         interval at most ``SWITCH_INTERVAL`` (the bus receiver and this thread get the GIL back
         from busy threads that fast) and the bus receiver under the thread's SCHED_FIFO."""
@@ -168,16 +246,7 @@ class SetpointPlayer:
         """Queue motor currents (A, one per joint) to be applied at ``stamp_ns`` (ns on
         ``clock_ns``); feeds the setpoint watchdog. SetpointRejected while the safe state is
         latched or for a wrong number of currents."""
-        if self.master.latched:
-            raise SetpointRejected(f"safe state ({self.master.fault_reason})")
-        amps = tuple(float(c) for c in currents)
-        if len(amps) != self._n_joints:
-            raise SetpointRejected(f"{len(amps)} current(s) for {self._n_joints} joint(s) "
-                                   f"{list(self.master.joint_names)}")
-        # a motion runs (the watchdog watches) after a profile's setpoint that is not its last,
-        # or after a manual setpoint with a non-zero current; a manual zero ends it
-        running = not last and (bool(profile_id) or any(c != 0.0 for c in amps))
-        self.master.note_setpoint(motion_running=running)
+        amps = self._accept(currents, profile_id, last)
         stamp = int(stamp_ns)
         stop = all(c == 0.0 for c in amps)
         if self._placement is not None:
@@ -193,19 +262,10 @@ class SetpointPlayer:
         self._scheduler.stop()
         self.master.command_zero()
 
-    def close(self) -> None:
-        """``stop()`` and detach from the master (its safe state no longer reaches the player)."""
-        self.stop()
+    def _release(self) -> None:
+        """The SYNC cycle stops listening to the SYNC watch."""
         if self._cycle is not None:
             self._cycle.close()
-        self.master.remove_fault_listener(self._on_fault)
-        self.master.pending_fn = lambda: False
-
-    def __enter__(self) -> "SetpointPlayer":
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     # --- what it reports --------------------------------------------------------------------
     @property
@@ -233,24 +293,14 @@ class SetpointPlayer:
         aligning a profile's start to the SYNC grid; None when not synchronous or before SYNC."""
         return self._cycle.grid() if self._cycle is not None else None
 
-    def take_applied(self) -> list[AppliedSetpoint]:
-        """The setpoints applied since the last call, oldest first."""
-        out = []
-        while self._reports:
-            out.append(self._reports.popleft())
-        return out
-
     def diagnostics(self) -> dict[str, float]:
         """Flat timing summary: switch count, late count, p50 / p99 / max of sent − stamp (µs;
         synchronous: SYNC instant − stamp), pending setpoints, 1 when the thread runs under
         SCHED_FIFO (else 0); synchronous also: missed setpoints and the worst miss (cycles),
         SYNC count, period, jitter p99 / max, missing SYNCs (µs / counts), send after SYNC p99."""
-        s = self.stats()
-        out: dict[str, float] = {
-            "switch_count": s.count, "switch_late": s.late, "switch_p50_us": s.p50_us,
-            "switch_p99_us": s.p99_us, "switch_max_us": s.max_us,
-            "pending_setpoints": self.pending, "scheduler_realtime": int(self._scheduler.rt_active),
-            "synchronous": int(self.synchronous)}
+        out = self._switch_diagnostics()
+        out.update({"scheduler_realtime": int(self._scheduler.rt_active),
+                    "synchronous": int(self.synchronous)})
         if self._cycle is not None:
             c = self._cycle.cycle_stats()
             w = self.master.sync_watch.stats()

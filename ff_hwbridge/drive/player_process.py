@@ -37,15 +37,15 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass
-from typing import Any, Callable, Optional, Sequence
+from typing import Any, Callable, Optional, Self, Sequence
 
 import can
 
 from ff_hwbridge.drive.cycle import CycleScheduler, Resolved
 from ff_hwbridge.drive.epos import ECHO_INTERFACES, REFRESH_PERIOD, SYNC_COB_ID, EposMaster
 from ff_hwbridge.drive.placement import GridPlacement
-from ff_hwbridge.drive.player import (MAX_REPORTS, SWITCH_INTERVAL, AppliedSetpoint, PlayerConfig,
-                                      SetpointPlayer, SetpointRejected)
+from ff_hwbridge.drive.player import (MAX_REPORTS, SWITCH_INTERVAL, AppliedSetpoint, PlayerBase, PlayerConfig,
+                                      SetpointPlayer)
 from ff_hwbridge.drive.safety import SafetyGuard
 from ff_hwbridge.drive.scheduler import SwitchStats, use_fifo
 from ff_hwbridge.protocol.epos_od import rpdo_layout, struct_format
@@ -295,7 +295,7 @@ def _child_main(spec: _Spec, conn: Any, gate: Any) -> None:
 
 
 # --- the bridge's side --------------------------------------------------------------------------
-class ProcessPlayer:
+class ProcessPlayer(PlayerBase):
     """:class:`SetpointPlayer`'s interface, played by a child process (module docstring)."""
 
     synchronous = True
@@ -308,7 +308,7 @@ class ProcessPlayer:
         self.config = config if config is not None else PlayerConfig.from_bridge(master.config)
         self._clock_ns = clock_ns
         self._start_timeout = start_timeout
-        self._n = len(master.joint_names)
+        self._n = self._n_joints = len(master.joint_names)
         ctx = mp.get_context("spawn")
         self._ctx = ctx
         self._gate = ctx.Array("i", 2 * self._n + 1, lock=False)
@@ -324,8 +324,7 @@ class ProcessPlayer:
         self._status_at = time.monotonic()
         self._ready = threading.Event()
         self.exit_reason: Optional[str] = None
-        master.pending_fn = lambda: self.pending > 0
-        master.add_fault_listener(self._on_fault)
+        self._attach()
 
     # --- control ------------------------------------------------------------------------------
     def _spec(self) -> _Spec:
@@ -337,7 +336,7 @@ class ProcessPlayer:
                      self.config.cycle_tolerance, int(cfg.missed_cycle_tolerance),
                      int(self.config.rt_priority), float(cfg.setpoint_timeout))
 
-    def start(self) -> "ProcessPlayer":
+    def start(self) -> Self:
         """Spawn the player process and wait until it has opened the bus (idempotent)."""
         if self._proc is not None and self._proc.is_alive():
             return self
@@ -387,16 +386,7 @@ class ProcessPlayer:
     def submit(self, stamp_ns: int, currents: Sequence[float], *, seq: int = 0,
                profile_id: str = "", last: bool = False) -> None:
         """As :meth:`SetpointPlayer.submit`; the setpoint goes to the player process."""
-        if self.master.latched:
-            raise SetpointRejected(f"safe state ({self.master.fault_reason})")
-        if self.exit_reason is not None:
-            raise SetpointRejected(self.exit_reason)
-        amps = tuple(float(c) for c in currents)
-        if len(amps) != self._n:
-            raise SetpointRejected(f"{len(amps)} current(s) for {self._n} joint(s) "
-                                   f"{list(self.master.joint_names)}")
-        running = not last and (bool(profile_id) or any(c != 0.0 for c in amps))
-        self.master.note_setpoint(motion_running=running)
+        amps = self._accept(currents, profile_id, last, self.exit_reason)
         self._submitted += 1
         self._tell("sp", int(stamp_ns), amps, int(seq), str(profile_id), bool(last),
                    all(c == 0.0 for c in amps))
@@ -425,18 +415,6 @@ class ProcessPlayer:
             self._conn = None
         self._proc = None
         self.master.command_zero()
-
-    def close(self) -> None:
-        """``stop()`` and detach from the master."""
-        self.stop()
-        self.master.remove_fault_listener(self._on_fault)
-        self.master.pending_fn = lambda: False
-
-    def __enter__(self) -> "ProcessPlayer":
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
     @property
     def pid(self) -> Optional[int]:
@@ -521,20 +499,11 @@ class ProcessPlayer:
         st = self._status
         return None if st is None else st[6]
 
-    def take_applied(self) -> list[AppliedSetpoint]:
-        out = []
-        while self._reports:
-            out.append(self._reports.popleft())
-        return out
-
     def diagnostics(self) -> dict[str, float]:
         """As :meth:`SetpointPlayer.diagnostics`, plus ``player_process`` 1 and its pid."""
-        s = self.stats()
-        out: dict[str, float] = {
-            "switch_count": s.count, "switch_late": s.late, "switch_p50_us": s.p50_us,
-            "switch_p99_us": s.p99_us, "switch_max_us": s.max_us, "pending_setpoints": self.pending,
-            "scheduler_realtime": 0, "synchronous": 1, "player_process": 1,
-            "player_pid": float(self.pid or 0)}
+        out = self._switch_diagnostics()
+        out.update({"scheduler_realtime": 0, "synchronous": 1, "player_process": 1,
+                    "player_pid": float(self.pid or 0)})
         st = self._status
         if st is not None:
             c, w = st[4], st[5]

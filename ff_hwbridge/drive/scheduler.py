@@ -28,7 +28,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
-from typing import Any, Callable, Optional
+from typing import Any, Callable, Optional, Self
 
 import numpy as np
 
@@ -48,11 +48,82 @@ def use_fifo(priority: int, who: str, tid: int = 0, hint: str = "") -> bool:
 
 
 @dataclass(order=True)
-class _Item:
+class StampedItem:
+    """A queued payload: ordered by stamp (ns), then by submission order."""
+
     stamp_ns: int
     order: int
     payload: Any = field(compare=False)
     stop: bool = field(default=False, compare=False)
+
+
+class StampedQueue:
+    """What both schedulers share: a heap of stamped payloads guarded by one condition, and the
+    thread (``_run``, the subclass's) that serves it, optionally under SCHED_FIFO."""
+
+    #: names the thread in the warning when SCHED_FIFO is refused
+    _rt_who = "scheduler"
+
+    def __init__(self, name: str, rt_priority: int, cond: Optional[threading.Condition] = None) -> None:
+        self._heap: list[StampedItem] = []
+        self._counter = itertools.count()
+        self._cond = cond if cond is not None else threading.Condition()
+        self._stop = False
+        self._thread: Optional[threading.Thread] = None
+        self._name = name
+        self.rt_priority = int(rt_priority)
+        self.rt_active = False
+
+    def start(self) -> Self:
+        """Start the thread (idempotent)."""
+        if self._thread is None or not self._thread.is_alive():
+            self._stop = False
+            self._thread = threading.Thread(target=self._run, name=self._name, daemon=True)
+            self._thread.start()
+        return self
+
+    def stop(self, timeout: float = 2.0) -> None:
+        """Stop the thread (waiting up to ``timeout`` s); pending setpoints are dropped."""
+        with self._cond:
+            self._stop = True
+            self._drop_queued()
+            self._cond.notify_all()
+        if self._thread is not None:
+            self._thread.join(timeout)
+            self._thread = None
+
+    def submit(self, stamp_ns: int, payload: Any, stop: bool = False) -> None:
+        """Queue ``payload`` for ``stamp_ns``; ``stop``: a stop (zero current), never dropped as
+        stale."""
+        with self._cond:
+            heapq.heappush(self._heap, StampedItem(int(stamp_ns), next(self._counter), payload, bool(stop)))
+            self._cond.notify_all()
+
+    def clear(self) -> int:
+        """Drop every pending setpoint (safe state); returns how many were not yet sent."""
+        with self._cond:
+            n = len(self._heap)
+            self._drop_queued()
+            self._cond.notify_all()
+            return n
+
+    @property
+    def pending(self) -> int:
+        """Setpoints queued and not yet sent."""
+        return len(self._heap)
+
+    def _drop_queued(self) -> None:
+        """Forget the queued setpoints (called with the condition held)."""
+        self._heap.clear()
+
+    def _set_rt_priority(self) -> None:
+        """Linux: SCHED_FIFO for the calling thread (needs CAP_SYS_NICE / an rtprio limit); else
+        a warning."""
+        if self.rt_priority > 0:
+            self.rt_active = use_fifo(self.rt_priority, self._rt_who)
+
+    def _run(self) -> None:
+        raise NotImplementedError
 
 
 @dataclass(frozen=True)
@@ -72,7 +143,7 @@ class SwitchStats:
                                               "max_us", "min_us")}
 
 
-class StampScheduler:
+class StampScheduler(StampedQueue):
     """A thread that applies payloads at their stamps (ns)."""
 
     def __init__(self, apply: Callable[[int, Any], None], clock_ns: Callable[[], int] = time.time_ns,
@@ -82,20 +153,13 @@ class StampScheduler:
                  on_error: Callable[[str], object] = lambda reason: None) -> None:
         if not 0.0 <= spin_margin < 0.05:
             raise ValueError(f"spin_margin must be in [0, 0.05) s, got {spin_margin!r}")
+        super().__init__(name, rt_priority)
         self._apply = apply
         self._prepare = prepare
         self._on_error = on_error
         self._clock_ns = clock_ns
         self._margin_ns = int(spin_margin * 1e9)
         self._late_ns = int(late_threshold * 1e9)
-        self._heap: list[_Item] = []
-        self._counter = itertools.count()
-        self._cond = threading.Condition()
-        self._stop = False
-        self._thread: Optional[threading.Thread] = None
-        self._name = name
-        self.rt_priority = int(rt_priority)
-        self.rt_active = False
         self._last_applied: Optional[int] = None
         self.records: deque[tuple[int, int]] = deque(maxlen=max_records)
         self.late = 0
@@ -104,43 +168,6 @@ class StampScheduler:
         self.errors = 0
 
     # --- control ------------------------------------------------------------------------------
-    def start(self) -> "StampScheduler":
-        """Start the thread (idempotent)."""
-        if self._thread is None or not self._thread.is_alive():
-            self._stop = False
-            self._thread = threading.Thread(target=self._run, name=self._name, daemon=True)
-            self._thread.start()
-        return self
-
-    def stop(self, timeout: float = 2.0) -> None:
-        """Stop the thread; pending setpoints are dropped."""
-        with self._cond:
-            self._stop = True
-            self._heap.clear()
-            self._cond.notify_all()
-        if self._thread is not None:
-            self._thread.join(timeout)
-            self._thread = None
-
-    def submit(self, stamp_ns: int, payload: Any, stop: bool = False) -> None:
-        """Queue ``payload`` to be applied at ``stamp_ns``; ``stop``: a stop (zero current),
-        never dropped as stale."""
-        with self._cond:
-            heapq.heappush(self._heap, _Item(int(stamp_ns), next(self._counter), payload, bool(stop)))
-            self._cond.notify_all()
-
-    def clear(self) -> int:
-        """Drop every pending setpoint (safe state); returns how many were dropped."""
-        with self._cond:
-            n = len(self._heap)
-            self._heap.clear()
-            self._cond.notify_all()
-            return n
-
-    @property
-    def pending(self) -> int:
-        return len(self._heap)
-
     def next_stamp(self) -> Optional[int]:
         with self._cond:
             return self._heap[0].stamp_ns if self._heap else None
@@ -160,11 +187,6 @@ class StampScheduler:
                            float(np.percentile(err, 99)), float(err.max()), float(err.min()))
 
     # --- the thread ---------------------------------------------------------------------------
-    def _set_rt_priority(self) -> None:
-        """Linux: SCHED_FIFO for this thread (needs CAP_SYS_NICE / an rtprio limit); else a warning."""
-        if self.rt_priority > 0:
-            self.rt_active = use_fifo(self.rt_priority, "scheduler")
-
     def _run(self) -> None:
         self._set_rt_priority()
         while True:
@@ -212,7 +234,7 @@ class StampScheduler:
             self._last_applied = max(item.stamp_ns, self._last_applied or item.stamp_ns)
             self.records.append((item.stamp_ns, sent))
 
-    def _failed(self, what: str, item: _Item, exc: BaseException) -> None:
+    def _failed(self, what: str, item: StampedItem, exc: BaseException) -> None:
         """A payload could not be prepared / applied: logged, counted, ``on_error(reason)``."""
         self.errors += 1
         log.exception("%s a setpoint failed", what)

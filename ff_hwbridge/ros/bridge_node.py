@@ -81,6 +81,7 @@ from ff_hwbridge.drive.player import SWITCH_INTERVAL, AppliedSetpoint, SetpointP
 from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.protocol.units import DriveUnits
 from ff_msgs.msg import CurrentSetpoint
+from ff_msgs_py.shutdown import shut_down
 from ff_msgs_py.threads import in_thread
 
 READY_LINE = "ff_hwbridge ready"
@@ -766,14 +767,7 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        if node is not None:
-            try:
-                node.teardown()
-            except Exception:  # noqa: BLE001
-                pass
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
+        shut_down(node, BridgeNode.teardown)
 
 
 if __name__ == "__main__":

@@ -84,7 +84,8 @@ def test_layout_names_match_the_suites_joints_bridge_status_and_diagnostic_keys(
         if c.startswith(("/ff_hwbridge/joint_states/", "/ff_hwbridge/motor_currents/", "/ff_sim_driver/ground_truth/")):
             assert c.split("/")[-2] in joints, c
     assert 'NODE_NAME = "ff_hwbridge"' in bridge and 'status.name = f"{NODE_NAME}: drive group"' in bridge
-    keys = _method(player, "diagnostics") + _method(player_process, "diagnostics")
+    keys = "".join(_method(text, name) for text in (player, player_process)
+                   for name in ("diagnostics", "_switch_diagnostics"))
     sim = _method(sim, "_publish_diagnostics")
     assert 'f"ff_sim_driver: drive {d.node_id}"' in sim and 'f"{d.family} node {d.node_id} (simulated)"' in sim
     for c in curves:
