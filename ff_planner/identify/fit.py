@@ -58,8 +58,32 @@ class _Run:
     q_res: float
 
 
+class IntervalBox:
+    """Reading an estimate's 95 % intervals: half-widths and the relative box they span
+    (``estimates`` and ``interval95`` are the subclass's fields, SI)."""
+
+    estimates: dict[str, float]
+    interval95: dict[str, tuple[float, float]]
+
+    def half_width(self, key: str) -> float:
+        """Half the 95 % interval of ``key`` (its unit)."""
+        lo, hi = self.interval95[key]
+        return 0.5 * (hi - lo)
+
+    def relative_box(self, floor: float = 0.0) -> dict[str, float]:
+        """Per friction parameter the fraction b with estimate·(1 ± b) ⊇ the 95 % interval
+        (at least ``floor``; inf for a zero estimate)."""
+        out = {}
+        for k in FRICTION:
+            est = self.estimates[k]
+            lo, hi = self.interval95[k]
+            reach = max(abs(hi - est), abs(est - lo))
+            out[k] = max(floor, reach / abs(est)) if est != 0.0 else math.inf
+        return out
+
+
 @dataclass
-class FitResult:
+class FitResult(IntervalBox):
     """Estimates, 95 % intervals (SI), adequacy tests and residuals of a friction fit."""
 
     keys: tuple[str, ...]
@@ -82,20 +106,6 @@ class FitResult:
     fitted: list[np.ndarray] = field(default_factory=list)
     covariance: Optional[np.ndarray] = None
     initial: dict[str, float] = field(default_factory=dict)
-
-    def half_width(self, key: str) -> float:
-        lo, hi = self.interval95[key]
-        return 0.5 * (hi - lo)
-
-    def relative_box(self, floor: float = 0.0) -> dict[str, float]:
-        """Per friction parameter the fraction b with estimate·(1 ± b) ⊇ the 95 % interval."""
-        out = {}
-        for k in FRICTION:
-            est = self.estimates[k]
-            lo, hi = self.interval95[k]
-            reach = max(abs(hi - est), abs(est - lo))
-            out[k] = max(floor, reach / abs(est)) if est != 0.0 else math.inf
-        return out
 
 
 def _prepare(rec: RunRecord, tail: float = 0.02) -> _Run:

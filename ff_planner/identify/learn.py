@@ -59,7 +59,7 @@ from scipy import stats
 from scipy.optimize import least_squares
 
 from ff_planner.core.errors import ParameterError
-from ff_planner.identify.fit import FRICTION, FitResult
+from ff_planner.identify.fit import FRICTION, FitResult, IntervalBox
 from ff_planner.model.arm1dof import derivatives, final_state
 from ff_planner.model.params import Arm1DofParams, load_params
 from ff_planner.model.profile import CurrentProfile
@@ -166,7 +166,7 @@ class ExecutionInfo:
 
 
 @dataclass
-class UpdateResult:
+class UpdateResult(IntervalBox):
     """The updated estimate: values, 95 % intervals, std and covariance (SI), the prior, what
     each execution contributed, the consistency test and the solver's figures."""
 
@@ -187,20 +187,6 @@ class UpdateResult:
     message: str = ""
     keys: tuple[str, ...] = FRICTION
     method: str = "MAP update, Gauss-Newton on the exact rest position (linearised covariance)"
-
-    def half_width(self, key: str) -> float:
-        lo, hi = self.interval95[key]
-        return 0.5 * (hi - lo)
-
-    def relative_box(self, floor: float = 0.0) -> dict[str, float]:
-        """Per friction parameter the fraction b with estimate·(1 ± b) ⊇ the 95 % interval."""
-        out = {}
-        for k in FRICTION:
-            est = self.estimates[k]
-            lo, hi = self.interval95[k]
-            reach = max(abs(hi - est), abs(est - lo))
-            out[k] = max(floor, reach / abs(est)) if est != 0.0 else math.inf
-        return out
 
 
 # --- the prior -------------------------------------------------------------------------------

@@ -299,6 +299,33 @@ def _select_mode(y, T1, T2, zero1, zero2, st1, st2, s1, s2, P):
 
 
 @njit(cache=True)
+def _set_mode(y, T1, T2, z1, z2, st, sd, P):
+    """The consistent stuck / sliding mode under torques T1, T2 (``_select_mode``; z1, z2: joint
+    at zero velocity) into st / sd in place; a stuck joint's velocity (rad/s) set to 0 in y."""
+    a, b, c1, c2 = _select_mode(y, T1, T2, z1, z2, st[0], st[1], sd[0], sd[1], P)
+    st[0] = a
+    st[1] = b
+    sd[0] = c1
+    sd[1] = c2
+    if st[0]:
+        y[2] = 0.0 * y[2]
+    if st[1]:
+        y[3] = 0.0 * y[3]
+
+
+@njit(cache=True)
+def _record(t, y, code, rec_t, rec_y, rec_i, nrec, counters):
+    """Append (t s, y, ``code``) to the record while it has room (counters[1] = entries so far)."""
+    if counters[1] < nrec:
+        k = counters[1]
+        rec_t[k] = t.real
+        for m in range(4):
+            rec_y[k, m] = y[m].real
+        rec_i[k] = code
+        counters[1] += 1
+
+
+@njit(cache=True)
 def _segment(y, t, t_end, T1, T2, st, sd, P, h, rec, rec_t, rec_y, rec_i, nrec, counters,
              stop_at_rest):
     """Integrate from t to t_end (real) under constant torques T1, T2. st/sd: stuck flags and
@@ -308,15 +335,7 @@ def _segment(y, t, t_end, T1, T2, st, sd, P, h, rec, rec_t, rec_y, rec_i, nrec, 
     z1 = st[0] or y[2].real == 0.0
     z2 = st[1] or y[3].real == 0.0
     if z1 or z2:
-        a, b, c1, c2 = _select_mode(y, T1, T2, z1, z2, st[0], st[1], sd[0], sd[1], P)
-        st[0] = a
-        st[1] = b
-        sd[0] = c1
-        sd[1] = c2
-        if st[0]:
-            y[2] = 0.0 * y[2]
-        if st[1]:
-            y[3] = 0.0 * y[3]
+        _set_mode(y, T1, T2, z1, z2, st, sd, P)
     span = t_end - t.real
     if span <= 0.0:
         return y, t
@@ -377,13 +396,7 @@ def _segment(y, t, t_end, T1, T2, st, sd, P, h, rec, rec_t, rec_y, rec_i, nrec, 
                 y = y1
                 t = t + dt
                 if rec:
-                    if counters[1] < nrec:
-                        k = counters[1]
-                        rec_t[k] = t.real
-                        for m in range(4):
-                            rec_y[k, m] = y[m].real
-                        rec_i[k] = 0
-                        counters[1] += 1
+                    _record(t, y, 0, rec_t, rec_y, rec_i, nrec, counters)
                 break
             counters[0] += 1
             if counters[0] > _MAX_EVENTS:
@@ -396,30 +409,11 @@ def _segment(y, t, t_end, T1, T2, st, sd, P, h, rec, rec_t, rec_y, rec_i, nrec, 
             else:   # breakaway: the joint slides off in the direction of its holding torque
                 st[bj] = False
                 sd[bj] = bsgn
-            z1 = st[0]
-            z2 = st[1]
-            a, b, c1, c2 = _select_mode(y, T1, T2, z1, z2, st[0], st[1], sd[0], sd[1], P)
-            st[0] = a
-            st[1] = b
-            sd[0] = c1
-            sd[1] = c2
-            if st[0]:
-                y[2] = 0.0 * y[2]
-            if st[1]:
-                y[3] = 0.0 * y[3]
+            _set_mode(y, T1, T2, st[0], st[1], st, sd, P)
             if rec:
-                if counters[1] < nrec:
-                    k = counters[1]
-                    rec_t[k] = t.real
-                    for m in range(4):
-                        rec_y[k, m] = y[m].real
-                    if bkind == 1:
-                        rec_i[k] = 30 + bj
-                    elif st[bj]:
-                        rec_i[k] = 10 + bj
-                    else:
-                        rec_i[k] = 20 + bj
-                    counters[1] += 1
+                # 30 + j: breakaway of joint j, 10 + j: it stuck, 20 + j: it slid on
+                code = 30 + bj if bkind == 1 else (10 + bj if st[bj] else 20 + bj)
+                _record(t, y, code, rec_t, rec_y, rec_i, nrec, counters)
     return y, t
 
 
@@ -444,10 +438,7 @@ def _simulate(P, step_times, currents, tf, y0, h, rec, nrec, settle, settle_max)
     K1 = P[9]
     K2 = P[10]
     if rec:
-        rec_t[0] = 0.0
-        for m in range(4):
-            rec_y[0, m] = y[m].real
-        counters[1] = 1
+        _record(t, y, 0, rec_t, rec_y, rec_i, nrec, counters)
     N = currents.shape[0]
     for k in range(N):
         y, t = _segment(y, t, step_times[k + 1], K1 * currents[k, 0], K2 * currents[k, 1],

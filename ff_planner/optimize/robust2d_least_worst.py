@@ -168,6 +168,38 @@ def plan_least_worst(request: PlanRequest, p: Scara2Params, progress: Optional[C
                              "max_sensitivity": smax}, **common)
 
 
+#: pv1 pc1 pt1 pv2 pc2 pt2 in scara2's packed parameter vector
+_FRICTION_SLOTS = (0, 2, 4, 1, 3, 5)
+
+
+def _robust_residual(base: np.ndarray, prof: CurrentProfile, cur: np.ndarray, y0: np.ndarray,
+                     qf: np.ndarray, step: float) -> np.ndarray:
+    """[10·(q(tf) − qf) (rad), q̇(tf) (rad/s), ∂q_j(tf)/∂p_i · p_i (rad, 12)] of ``prof`` with
+    the currents ``cur`` (complex, A) from ``y0``, simulated at substep ``step`` (s); the
+    sensitivities by complex steps of each friction parameter of the packed vector ``base``."""
+    y = scara2._run(base, prof, y0, step, currents=cur)[0]
+    r = [10 * (y[0].real - qf[0]), 10 * (y[1].real - qf[1]), y[2].real, y[3].real]
+    for i in _FRICTION_SLOTS:
+        Pc = base.copy()
+        d = 1e-30 * abs(Pc[i].real)
+        Pc[i] += 1j * d
+        yc = scara2._run(Pc, prof, y0, step, currents=cur)[0]
+        r += [yc[0].imag / d * Pc[i].real, yc[1].imag / d * Pc[i].real]
+    return np.array(r)
+
+
+def _forward_jacobian(fun: Callable[[np.ndarray], np.ndarray], x: np.ndarray,
+                      eps: float = 1e-6) -> np.ndarray:
+    """∂fun/∂x by forward differences of step ``eps`` (x's unit)."""
+    f0 = fun(x)
+    J = np.zeros((f0.size, x.size))
+    for k in range(x.size):
+        xp = x.copy()
+        xp[k] += eps
+        J[:, k] = (fun(xp) - f0) / eps
+    return J
+
+
 def derivative_search(p: Scara2Params, q0, qf, tf: float, n_steps: int, seconds: float,
                       seed: int = 0, coast: float = 0.05) -> dict:
     """Evidence search for a derivative-robust plan of a task that moves link 2: multistart least
@@ -180,28 +212,13 @@ def derivative_search(p: Scara2Params, q0, qf, tf: float, n_steps: int, seconds:
     prof = CurrentProfile(times, np.zeros((n_steps, 2)), tf, coast)
     base = scara2._pack(p)
     y0 = np.r_[q0, 0.0, 0.0].astype(np.complex128)
-    order = (0, 2, 4, 1, 3, 5)       # pv1 pc1 pt1 pv2 pc2 pt2 in the packed vector
 
-    def res(x):
+    def res(x: np.ndarray) -> np.ndarray:
         cur = x.reshape(n_steps, 2).astype(np.complex128)
-        y = scara2._run(base, prof, y0, scara2.DEFAULT_H, currents=cur)[0]
-        r = [10 * (y[0].real - qf[0]), 10 * (y[1].real - qf[1]), y[2].real, y[3].real]
-        for i in order:
-            Pc = base.copy()
-            h = 1e-30 * abs(Pc[i].real)
-            Pc[i] += 1j * h
-            yc = scara2._run(Pc, prof, y0, scara2.DEFAULT_H, currents=cur)[0]
-            r += [yc[0].imag / h * Pc[i].real, yc[1].imag / h * Pc[i].real]
-        return np.array(r)
+        return _robust_residual(base, prof, cur, y0, qf, scara2.DEFAULT_H)
 
-    def jac(x):
-        f0 = res(x)
-        J = np.zeros((f0.size, x.size))
-        for k in range(x.size):
-            xp = x.copy()
-            xp[k] += 1e-6
-            J[:, k] = (res(xp) - f0) / 1e-6
-        return J
+    def jac(x: np.ndarray) -> np.ndarray:
+        return _forward_jacobian(res, x)
 
     rng = np.random.default_rng(seed)
     lim = np.tile([p.i_max1, p.i_max2], n_steps)
@@ -243,7 +260,6 @@ def robust_search(p: Scara2Params, q0, qf, tf: float, n_steps: int, seconds: flo
     span = float(tf - coast)
     base = scara2._pack(p)
     y0 = np.r_[q0, 0.0, 0.0].astype(np.complex128)
-    order = (0, 2, 4, 1, 3, 5)       # pv1 pc1 pt1 pv2 pc2 pt2 in the packed vector
     nc = 2 * n_steps
 
     def profile_of(x: np.ndarray) -> CurrentProfile:
@@ -257,25 +273,10 @@ def robust_search(p: Scara2Params, q0, qf, tf: float, n_steps: int, seconds: flo
 
     def res(x: np.ndarray, step: float = h) -> np.ndarray:
         prof = profile_of(x)
-        cur = prof.currents.astype(np.complex128)
-        y = scara2._run(base, prof, y0, step, currents=cur)[0]
-        r = [10 * (y[0].real - qf[0]), 10 * (y[1].real - qf[1]), y[2].real, y[3].real]
-        for i in order:
-            Pc = base.copy()
-            d = 1e-30 * abs(Pc[i].real)
-            Pc[i] += 1j * d
-            yc = scara2._run(Pc, prof, y0, step, currents=cur)[0]
-            r += [yc[0].imag / d * Pc[i].real, yc[1].imag / d * Pc[i].real]
-        return np.array(r)
+        return _robust_residual(base, prof, prof.currents.astype(np.complex128), y0, qf, step)
 
     def jac(x: np.ndarray) -> np.ndarray:
-        f0 = res(x)
-        J = np.zeros((f0.size, x.size))
-        for k in range(x.size):
-            xp = x.copy()
-            xp[k] += 1e-6
-            J[:, k] = (res(xp) - f0) / 1e-6
-        return J
+        return _forward_jacobian(res, x)
 
     rng = np.random.default_rng(seed)
     lim = np.tile([p.i_max1, p.i_max2], n_steps)
@@ -316,7 +317,7 @@ def robust_search(p: Scara2Params, q0, qf, tf: float, n_steps: int, seconds: flo
                    goal_error_rad=float(np.max(np.abs(sim.q_f - qf))),
                    final_speed_rad_s=[float(v) for v in sim.qd_f],
                    max_abs_sensitivity=float(np.max(np.abs(r[4:].reshape(6, 2) / np.array(
-                       [[float(base[i].real)] for i in order])))),
+                       [[float(base[i].real)] for i in _FRICTION_SLOTS])))),
                    at_rest_tf=bool(all(sim.stuck_tf)),
                    step_times_s=[float(t) for t in prof.step_times], best_x=best_x.tolist(),
                    currents_A=prof.currents.tolist())
