@@ -14,6 +14,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.support.stacks import running_stack
+
 REPO = Path(__file__).resolve().parents[1]
 MARK = re.compile(r'<!-- tour(?::\s*prints(?P<prints>(?:\s+"[^"]*")+))?\s*-->\s*\n'
                   r'```(?P<lang>\w+)\n(?P<code>.*?)\n```', re.S)
@@ -53,14 +55,7 @@ def test_the_tour_is_marked_and_says_what_each_console_script_is_for():
 
 @pytest.fixture(scope="module")
 def stack(tmp_path_factory):
-    from ff_executor.bringup.stack import Stack, StackOptions
-
-    s = Stack(StackOptions(run_dir=str(tmp_path_factory.mktemp("tour-stack"))), log=lambda _m: None)
-    s.start()
-    try:
-        yield s
-    finally:
-        s.stop()
+    yield from running_stack(tmp_path_factory.mktemp("tour-stack"))
 
 
 @pytest.mark.integration

@@ -15,12 +15,10 @@ import time
 
 import numpy as np
 import pytest
-import rclpy
 from action_msgs.msg import GoalStatus
 from lifecycle_msgs.msg import State
 from lifecycle_msgs.srv import GetState
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
@@ -34,6 +32,7 @@ from ff_planner.model.arm1dof import advance
 from ff_planner.model.params import default_params
 from ff_planner.model.profile import CurrentProfile
 from ff_planner.model.simulate import rest_position
+from tests.support.ros_harness import ros_context, spinning
 
 pytestmark = pytest.mark.integration
 
@@ -164,25 +163,18 @@ def stack(ros_env, tmp_path_factory):
 """)
     proc = start_module("ff_executor_test", "ff_executor.ros.executor_node",
                         ["--ros-args", "--params-file", str(cfg)], ros_env)
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
-    bridge = FakeBridge(ctx)
-    client_node = Node("exec_test_client", context=ctx)
-    ex = MultiThreadedExecutor(num_threads=3, context=ctx)
-    ex.add_node(bridge)
-    ex.add_node(client_node)
-    spin = threading.Thread(target=ex.spin, daemon=True)
-    spin.start()
-    try:
-        assert wait_for_line(proc, "ff_executor ready", 30), proc.output()
-        client = SafeActionClient(client_node, ExecuteProfile, "/ff_executor/execute")
-        assert client.wait_for_server(timeout_sec=15), "action server not discovered"
-        yield bridge, client, proc
-    finally:
-        bridge.running = False
-        proc.stop()
-        ex.shutdown()
-        rclpy.shutdown(context=ctx)
+    with ros_context() as ctx:
+        bridge = FakeBridge(ctx)
+        client_node = Node("exec_test_client", context=ctx)
+        with spinning(ctx, bridge, client_node, destroy=False):
+            try:
+                assert wait_for_line(proc, "ff_executor ready", 30), proc.output()
+                client = SafeActionClient(client_node, ExecuteProfile, "/ff_executor/execute")
+                assert client.wait_for_server(timeout_sec=15), "action server not discovered"
+                yield bridge, client, proc
+            finally:
+                bridge.running = False
+                proc.stop()
 
 
 def wait(future, timeout=15.0):
@@ -197,6 +189,16 @@ def goal_for(currents=CUR, names=("joint1",), q0=0.0, qf=1.0, predicted_rest=Non
     prof = CurrentProfile.uniform(currents, 1.0)
     msg = profile_to_msg(prof, "arm1dof", [q0], [qf], list(names), predicted_rest=predicted_rest)
     return ExecuteProfile.Goal(profile=msg), prof
+
+
+def send_from_rest(stack, settle=0.1):
+    """The fake arm reset to rest at 0 rad, ``settle`` s later one goal sent; (bridge, client,
+    goal, its goal handle)."""
+    bridge, client, _ = stack
+    bridge.reset(0.0)
+    time.sleep(settle)
+    goal, _ = goal_for()
+    return bridge, client, goal, wait(client.send_goal_async(goal))
 
 
 def run_goal(client, goal, feedback=None, timeout=15.0):
@@ -284,11 +286,7 @@ def test_refuses_with_a_reason_and_sends_nothing(stack, kind, text):
 
 @pytest.mark.parametrize("how", ["latched", "dropped"])
 def test_a_move_the_bridge_did_not_drive_is_aborted_not_succeeded(stack, how):
-    bridge, client, _ = stack
-    bridge.reset(0.0)
-    time.sleep(0.3)
-    goal, _ = goal_for()
-    handle = wait(client.send_goal_async(goal))
+    bridge, _, _, handle = send_from_rest(stack, 0.3)
     assert handle.accepted
     try:
         if how == "latched":
@@ -306,11 +304,7 @@ def test_a_move_the_bridge_did_not_drive_is_aborted_not_succeeded(stack, how):
 
 
 def test_second_goal_is_refused_while_one_runs(stack):
-    bridge, client, _ = stack
-    bridge.reset(0.0)
-    time.sleep(0.1)
-    goal, _ = goal_for()
-    first = wait(client.send_goal_async(goal))
+    bridge, client, goal, first = send_from_rest(stack)
     time.sleep(0.2)
     status, result = run_goal(client, goal)
     assert status == GoalStatus.STATUS_ABORTED and "another goal is running" in result.message
@@ -321,11 +315,7 @@ def test_second_goal_is_refused_while_one_runs(stack):
 
 
 def test_cancel_sends_zero_current_at_once(stack):
-    bridge, client, _ = stack
-    bridge.reset(0.0)
-    time.sleep(0.1)
-    goal, _ = goal_for()
-    handle = wait(client.send_goal_async(goal))
+    bridge, _, _, handle = send_from_rest(stack)
     time.sleep(0.9)                                    # start margin 0.6 s + ~0.3 s of motion
     t_cancel = bridge.now()
     wait(handle.cancel_goal_async())

@@ -12,10 +12,10 @@ from collections import Counter
 import pytest
 from mcap.reader import make_reader
 
-from ff_executor.bringup.stack import Stack, StackOptions
 from ff_executor.ros import ctl
 from tests.ff_executor.ros.test_plotjuggler_layout import layout_plots, plotjuggler_series
 from tests.ff_msgs_py.test_definitions import decoder
+from tests.support.stacks import running_stack
 
 pytestmark = pytest.mark.integration
 
@@ -24,12 +24,7 @@ NODES = ("/ff_sim_driver", "/ff_hwbridge", "/ff_planner", "/ff_executor")
 
 @pytest.fixture(scope="module")
 def stack(tmp_path_factory):
-    s = Stack(StackOptions(run_dir=str(tmp_path_factory.mktemp("toolbox"))), log=lambda _m: None)
-    s.start()
-    try:
-        yield s
-    finally:
-        s.stop()
+    yield from running_stack(tmp_path_factory.mktemp("toolbox"))
 
 
 def run_ctl(stack, capsys, *argv: str) -> tuple[int, str]:

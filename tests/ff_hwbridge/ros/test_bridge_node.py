@@ -3,21 +3,19 @@ configure / activate / stamped setpoints / joint states / applied reports / EMCY
 fault reset / deactivate / cleanup."""
 from __future__ import annotations
 
-import threading
 import time
 
 import pytest
 
 from ff_hwbridge.protocol.units import DriveUnits
 from tests.support.canopen_helpers import unique_channel, waiter
+from tests.support.ros_harness import ros_context, spinning
 
 pytestmark = pytest.mark.integration
 
 
 @pytest.fixture
 def bridge(ros_env):
-    import rclpy
-    from rclpy.executors import MultiThreadedExecutor
     from rclpy.node import Node
     from rclpy.parameter import Parameter
 
@@ -26,8 +24,6 @@ def bridge(ros_env):
 
     channel = unique_channel("ff-bridge")
     drive = MiniEpos(channel, 1, DriveUnits(nominal_current=3.0))
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
     # heartbeat_timeout 2 s: the stand-in drive shares this process (and its GIL) with the node and
     # the test's executors, and was seen silent for 1148 ms on a loaded machine; heartbeat-loss
     # timing is tested across processes in test_bridge_sim_multiprocess.py
@@ -35,21 +31,16 @@ def bridge(ros_env):
               Parameter("sync_period", value=0.005), Parameter("heartbeat_timeout", value=2.0),
               Parameter("setpoint_timeout", value=0.3), Parameter("joint_state_rate", value=50.0),
               Parameter("sync_timeout", value=2.0)]   # the SYNC producer shares the GIL with the test too
-    node = BridgeNode(context=ctx, parameter_overrides=params)
-    client = Node("ff_bridge_test_client", context=ctx)
-    ex = MultiThreadedExecutor(num_threads=3, context=ctx)
-    ex.add_node(node)
-    ex.add_node(client)
-    th = threading.Thread(target=ex.spin, daemon=True)
-    th.start()
     try:
-        yield node, client, drive
+        with ros_context() as ctx:
+            node = BridgeNode(context=ctx, parameter_overrides=params)
+            client = Node("ff_bridge_test_client", context=ctx)
+            with spinning(ctx, node, client):
+                try:
+                    yield node, client, drive
+                finally:
+                    node.teardown()
     finally:
-        node.teardown()
-        ex.shutdown()
-        node.destroy_node()
-        client.destroy_node()
-        rclpy.shutdown(context=ctx)
         drive.close()
 
 
@@ -150,14 +141,11 @@ def test_lifecycle_setpoints_faults_and_reset(bridge):
 
 
 def test_configure_error_goes_to_error_processing(ros_env):
-    import rclpy
     from rclpy.parameter import Parameter
 
     from ff_hwbridge.ros.bridge_node import BridgeNode
 
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
-    try:
+    with ros_context() as ctx:
         node = BridgeNode(context=ctx, parameter_overrides=[
             Parameter("bus_interface", value="virtual"),
             Parameter("bus_channel", value=unique_channel("ff-empty")),
@@ -165,12 +153,9 @@ def test_configure_error_goes_to_error_processing(ros_env):
         node.trigger_configure()
         assert node.master is None
         node.destroy_node()
-    finally:
-        rclpy.shutdown(context=ctx)
 
 
 def test_config_file_parameter_is_used(ros_env, tmp_path):
-    import rclpy
     from rclpy.parameter import Parameter
 
     from ff_hwbridge.ros.bridge_node import BridgeNode
@@ -181,16 +166,12 @@ def test_config_file_parameter_is_used(ros_env, tmp_path):
                    "joints:\n"
                    "  - {name: a, node_id: 5, family: epos2, current_limit: 2.0}\n"
                    "  - {name: b, node_id: 6, family: epos4, current_limit: 3.0}\n")
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
-    try:
+    with ros_context() as ctx:
         node = BridgeNode(context=ctx, parameter_overrides=[Parameter("config_file", value=str(cfg))])
         node.trigger_configure()                     # no drives on that bus: no boot-up -> error
         assert node.master is None
         assert node.config.joint_names == ("a", "b") and node.config.current_limits == (2.0, 3.0)
         node.destroy_node()
-    finally:
-        rclpy.shutdown(context=ctx)
 
 
 def test_parameters_show_the_config_in_use_and_estop(bridge):
@@ -222,14 +203,11 @@ def test_parameters_show_the_config_in_use_and_estop(bridge):
 
 
 def test_every_parameter_has_a_descriptor_with_its_range_and_out_of_range_values_are_refused(ros_env):
-    import rclpy
     from rclpy.parameter import Parameter
 
     from ff_hwbridge.ros.bridge_node import PARAMS, RANGES, BridgeNode
 
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
-    try:
+    with ros_context() as ctx:
         node = BridgeNode(context=ctx)
         for name, (default, text) in PARAMS.items():
             d = node.describe_parameter(name)
@@ -249,5 +227,3 @@ def test_every_parameter_has_a_descriptor_with_its_range_and_out_of_range_values
         res = node.set_parameters([Parameter("setpoint_timeout", value=0.2)])[0]   # unconfigured: taken
         assert res.successful and node.get_parameter("setpoint_timeout").value == 0.2
         node.destroy_node()
-    finally:
-        rclpy.shutdown(context=ctx)

@@ -16,6 +16,7 @@ import pytest
 
 from ff_hwbridge.protocol.units import DriveUnits
 from tests.support.canopen_helpers import waiter
+from tests.support.ros_harness import ros_context, spinning
 
 LIMIT = 2.0              # A, the bridge's current limit in the rig tests
 SETPOINT_TIMEOUT = 1.0   # s (a loaded machine can hold the commanding thread off for 100s of ms)
@@ -55,7 +56,9 @@ def test_commands_the_bridge_cannot_apply_are_refused_with_the_reason(kw, words)
 def _rig_state(rig) -> tuple[float, float, float]:
     """(q rad, qd rad/s, applied motor current A) of the rig's joint 1."""
     reply = rig.cmd("state")
-    q, qd, i = (float(re.search(rf"{k}=\[([^\],]*)", reply).group(1)) for k in ("q", "qd", "i"))
+    found = [re.search(rf"{k}=\[([^\],]*)", reply) for k in ("q", "qd", "i")]
+    assert all(m is not None for m in found), reply
+    q, qd, i = (float(m.group(1)) for m in found if m is not None)
     return q, qd, i
 
 
@@ -72,8 +75,6 @@ def rig(ros_env):
 
 @pytest.fixture
 def bridge(rig, ros_env):
-    import rclpy
-    from rclpy.executors import MultiThreadedExecutor
     from rclpy.node import Node
     from rclpy.parameter import Parameter
 
@@ -83,8 +84,6 @@ def bridge(rig, ros_env):
     rig.cmd("resetnode 1")            # a drive a previous test left in a fault (power cycle)
     rig.cmd("reset 0")
     d = RigConfig().drive_configs()[0]
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
     params = [Parameter("bus_interface", value="remote"), Parameter("bus_channel", value=rig.url),
               Parameter("current_limits", value=[LIMIT]),
               Parameter("nominal_currents", value=[float(d.nominal_current)]),
@@ -98,25 +97,18 @@ def bridge(rig, ros_env):
               Parameter("master_heartbeat_timeout_ms", value=3000), Parameter("rpdo_timeout_ms", value=0),
               Parameter("setpoint_timeout", value=SETPOINT_TIMEOUT),
               Parameter("scheduler_rt_priority", value=0), Parameter("joint_state_rate", value=50.0)]
-    node = BridgeNode(context=ctx, parameter_overrides=params)
-    client = Node("ff_topic_interface_test", context=ctx)
-    ex = MultiThreadedExecutor(num_threads=3, context=ctx)
-    ex.add_node(node)
-    ex.add_node(client)
-    th = threading.Thread(target=ex.spin, daemon=True)
-    th.start()
-    try:
-        node.trigger_configure()
-        assert node.master is not None, "configure failed"
-        node.trigger_activate()
-        assert node.active, node.master.fault_reason
-        yield node, client, d.gear_ratio * d.torque_constant
-    finally:
-        node.teardown()
-        ex.shutdown()
-        node.destroy_node()
-        client.destroy_node()
-        rclpy.shutdown(context=ctx)
+    with ros_context() as ctx:
+        node = BridgeNode(context=ctx, parameter_overrides=params)
+        client = Node("ff_topic_interface_test", context=ctx)
+        with spinning(ctx, node, client):
+            try:
+                node.trigger_configure()
+                assert node.master is not None, "configure failed"
+                node.trigger_activate()
+                assert node.active, node.master.fault_reason
+                yield node, client, d.gear_ratio * d.torque_constant
+            finally:
+                node.teardown()
 
 
 class _Commander:

@@ -48,14 +48,18 @@ def test_bad_input_one_line_exit_2(argv, needle, capsys):
     assert "Traceback" not in err
 
 
-def test_bad_params_yaml(tmp_path, capsys):
-    f = tmp_path / "p.yaml"
-    f.write_text("model: arm1dof\nparams: {pc: [1, 2}\n")
-    assert main(["--params", str(f)]) == 2
-    assert "cannot read" in capsys.readouterr().err
-    f.write_text("model: arm1dof\nparams: {pz: 1}\n")
-    assert main(["--params", str(f)]) == 2
-    assert "pz" in capsys.readouterr().err
+@pytest.mark.parametrize("option, text, needle", [
+    ("--params", "model: arm1dof\nparams: {pc: [1, 2}\n", "cannot read"),
+    ("--params", "model: arm1dof\nparams: {pz: 1}\n", "pz"),
+    ("--config", "task: {qf: [1.0], speed: 3}\n", "speed"),
+    ("--config", "plan: {steps: -2}\n", "--steps must be >= 1"),
+    ("--config", "task: {tf: .nan}\n", "finite"),
+], ids=["params-yaml", "params-key", "config-key", "config-steps", "config-nan"])
+def test_bad_params_or_config_file_exit_2(option, text, needle, tmp_path, capsys):
+    f = tmp_path / "bad.yaml"
+    f.write_text(text)
+    assert main([option, str(f)]) == 2
+    assert needle in capsys.readouterr().err
 
 
 def test_time_optimal_writes_motion_and_plot(tmp_path, capsys):
@@ -99,7 +103,7 @@ def test_unreachable_via_subprocess_no_traceback():
     assert r.stderr.count("\n") == 1 and "UNREACHABLE" in r.stderr
 
 
-def test_config_files_load_and_flags_override(tmp_path, capsys):
+def test_config_files_load_and_flags_override():
     from pathlib import Path
 
     from ff_planner.cli.plan import build_parser, make_request
@@ -114,16 +118,6 @@ def test_config_files_load_and_flags_override(tmp_path, capsys):
         ["--config", str(cfgdir / "plan_arm1dof_k3.yaml"), "--qf", "0.5", "--steps", "7"]))
     assert req.qf == (0.5,) and req.steps == 7 and req.starts == 100
     assert req.uncertain == ("pv", "pc", "pt") and req.params.pc == 0.19
-    bad = tmp_path / "bad.yaml"
-    bad.write_text("task: {qf: [1.0], speed: 3}\n")
-    assert main(["--config", str(bad)]) == 2
-    assert "speed" in capsys.readouterr().err
-    bad.write_text("plan: {steps: -2}\n")
-    assert main(["--config", str(bad)]) == 2
-    assert "--steps must be >= 1" in capsys.readouterr().err
-    bad.write_text("task: {tf: .nan}\n")
-    assert main(["--config", str(bad)]) == 2
-    assert "finite" in capsys.readouterr().err
 
 
 def test_progress_printer_is_quiet_at_first_then_throttled():
