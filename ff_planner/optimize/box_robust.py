@@ -4,39 +4,58 @@ Among plans with exact zero derivatives ∂q(tf)/∂p_i = 0 (the paper's conditi
 q(tf) = qf and the arm at rest at tf (nominal parameters), minimise the worst |rest − qf| over
 the box p_i·(1 ± f_i) (``request.box``, default ±20 % per uncertain parameter):
 
-    min t   s.t.  −t ≤ q_rest(I; p_s) − qf ≤ t  for every sample s,
-                  q(tf) − qf = 0,  ∂q(tf)/∂p_i·|p_i| = 0,  |q̇(tf − coast)| ≤ v_stop(coast),
-                  |I_j| ≤ i_max
+    min t   s.t.  −t ≤ q_rest(I, t_1..t_N; p_s) − qf ≤ t  for every sample s,
+                  q(tf) − qf = 0,  ∂q(tf)/∂p_i·|p_i| = 0,  |q̇(t_N)| ≤ v_stop(tf − t_N),
+                  |I_j| ≤ i_max,  t_j − t_{j−1} ≥ MIN_STEP
 
-(epigraph form; SLSQP with the exact Jacobians ∂q_rest/∂I of ``hd_sim``). The samples are the
-box's corners, centre and face centres; after each solve the plan is checked on a 3^k grid and
-64 seeded uniform points, and the worst of those are added (exchange) until the check set adds
-no more than 2 %; the LM's minimum-norm steps then put the plan back onto the robust set
-exactly (SLSQP meets the equalities only to its own tolerance). Decisions: the N step currents
-— the coast-entry speed is free below the stopping bound —, the N − 1 interior switch times
-(free step durations, each step at least MIN_STEP; ``box_kernels``: exact columns in the
-currents, central differences in the switch times) and the coast length, chosen among
-COAST_LEVELS values in [coast, coast_max] (an outer discrete choice: SLSQP with a
-finite-difference coast column was measured to be misled by the model's kinks).
+Local solver. Epigraph form, SLSQP. Decisions: the N step currents (A), the N − 1 interior
+switch times and the coast-entry time t_N = tf − coast (s, coast in [coast, coast_max]);
+``box_kernels`` gives the Jacobians: exact in the currents (``hd_sim`` forward mode), central
+differences of the exact simulator in the times. The samples start as the 2^k box corners
+(``CORNERS_ONLY``: the centre has zero error on the robust set, faces rarely bind); after each
+solve the plan is checked on a 3^k grid and 64 seeded uniform points, and the worst three are
+added (exchange) until the check set exceeds the samples' worst by no more than 2 %. SLSQP
+wanders on this non-smooth problem (measured, N = 12: an iterate at 10 mrad, the last one at
+44 mrad; the kinks where a velocity zero crossing meets a switch spoil its quasi-Newton
+matrix), so each free-time solve returns its iterate of least merit (``_FreeBox.merit``, rad:
+worst |rest − qf| + |q(tf) − qf| + EQ_WEIGHT·Σ|∂q/∂p_i·p_i| + the coast-entry speed above the
+stopping bound × the coast; ``BEST_ITERATE``), not its last one. The LM's minimum-norm steps
+then put the plan back onto the robust set exactly.
 
-Search: derivative-robust equal-step plans of the compiled LM multistart (``robust1d``,
-CANDIDATES_WANT per coast); up to SCREEN_MAX of them per coast get a short equal-step minimax
-(SCREEN_ITER iterations); the BOX_CANDIDATES best over all coasts are refined to convergence
-with equal steps, then with free switch times from there (and, for N ≤ FREE_DIRECT_MAX_STEPS,
-also from the LM plan itself). The best verified plan among the LM plan, the equal-step and the
-free-time refinements is returned. With a ``grid`` the free switch times are rounded to it and
-the currents solved again. The free-time refinement also moves the coast continuously within
-[coast, coast_max] (``FREE_COAST``; t_N = tf − coast a decision, ``box_kernels.end_column``),
-since the best plans have their coast-entry speed on the stopping bound. When no plan is
+Global search: the basin decides, not the local solver. Derivative-robust equal-step plans of
+the compiled LM multistart (``robust1d``) per coast level (COAST_LEVELS evenly in [coast,
+coast_max]; the scan stops at the first longer coast with no robust plan, and for
+N ≥ STRUCT_MIN_STEPS after STRUCT_SCAN_LEVELS levels with candidates: the winners come from
+the shortest two). For N ≥ STRUCT_MIN_STEPS the LM first runs STRUCT_FACTOR × starts
+*structured* starts on the STRUCT_LEVELS shortest coasts (``_structured_starts``): the last but
+one step brakes near −i_max and the last one pushes gently (0 … STRUCT_LAST·i_max). That is
+the shape of the plans that land best: the rest error is set by the spread of the coast-entry
+speed over the box (the coast distance grows as J·v²/(2·pc)), and most of that spread is the
+torque-dependent friction pt acting during high-current steps; a low-current last step lets
+the arm settle where pt acts little (N = 12, seeds 0-7: median 8.8 → 4.1 mrad from these
+starts alone). Then STARTS_FACTOR × starts of the tuned random cycle. Up to SCREEN_MAX plans
+per coast, least worst first, get a short equal-step minimax (SCREEN_ITER iterations); the
+BOX_CANDIDATES best over all coasts are refined to convergence with equal steps, then with free
+switch times and a free coast from there (for N ≤ FREE_DIRECT_MAX_STEPS also from the LM plan
+itself), and the next ones up to BOX_EXTRA_CANDIDATES only while the best is above
+BOX_EXTRA_TARGET (5 mrad) and within BOX_EXTRA_REACH (25 mrad): the median N = 12 request pays
+nothing for them. The best verified plan among the LM plan, the equal-step and the free-time
+refinements is returned.
+
+With a ``grid`` the free times are rounded to it and the currents solved again. When no plan is
 derivative-robust, the LM end point of the shortest coast nearest the robust set (least |r|²)
-is the labelled best effort. ``continue_steps`` continues a plan in N (one step cut into
-two equal halves, refined again, up to SPLIT_MAX_STEPS); measured not to reach 5 mrad on the
-paper task, it is not on the default path. Units: rad, A, s.
+is the labelled best effort; when the time budget runs out before any refinement, the first
+verified LM plan is the answer (its message says so). ``continue_steps`` continues a plan in N
+(one step cut into two equal halves, refined again, up to SPLIT_MAX_STEPS); not on the default
+path. A plan runs with scipy's OpenBLAS on one thread (``_OneBlasThread``: SLSQP's small
+subproblems were 10-20x slower with two threads on the loaded 2-core machine). Units: rad, A, s.
 """
 from __future__ import annotations
 
 import copy
+import ctypes
 import math
+import threading
 import time
 from dataclasses import replace as dc_replace
 from typing import Callable, Optional
@@ -61,23 +80,42 @@ from ff_planner.optimize.robust1d import (
     chunk_spread,
     verify,
 )
-from ff_planner.optimize.sample_box import box_check_samples, box_fractions, box_samples
+from ff_planner.optimize.sample_box import (
+    box_check_samples,
+    box_fractions,
+    box_minimax_samples,
+    box_samples,
+)
 
 Progress = Optional[Callable[[dict], None]]
 
 COAST_LEVELS = 5        # coast lengths tried, evenly in [coast, coast_max]
-SCREEN_MAX = 8          # derivative-robust LM plans screened per coast (short minimax) ...
+SCREEN_MAX = 4          # derivative-robust LM plans screened per coast (short minimax) ...
 SCREEN_ITER = 15        # ... of this many SLSQP iterations on the minimax samples
 BOX_CANDIDATES = 2      # screened plans (over all coasts) refined to convergence with exchange
-FREE_DIRECT_MAX_STEPS = 6   # up to this N the free-time minimax also starts from the LM plan
+BOX_EXTRA_CANDIDATES = 3   # ... up to this many while the best is above BOX_EXTRA_TARGET
+BOX_EXTRA_TARGET = 5e-3     # rad
+BOX_EXTRA_REACH = 25e-3     # rad: ... and not above this (N = 5 plans at ~130 mrad get no extras)
+FREE_DIRECT_MAX_STEPS = 4   # up to this N the free-time minimax also starts from the LM plan
+#                             (measured: at N = 5 it never won once the solves kept their best iterate)
 MIN_STEP = 0.01         # s, shortest current step of a free-time plan
+CORNERS_ONLY = True     # the minimax starts from the box corners (``_base_samples``)
 TIME_H = 1e-6           # s, central-difference step of the switch-time columns
 T_UNIT = 1.0            # s, unit of the switch times inside SLSQP (measured: 0.01 and 0.1 s found worse plans)
-SOLVE_ITER = 100        # SLSQP iterations of a full refinement
+SOLVE_ITER = 100        # SLSQP iterations of a full equal-step refinement
+FREE_ITER = 100         # ... and of a free-time refinement
 SOLVE_FTOL = 1e-5       # SLSQP tolerance on the worst error in mrad (10 nrad)
 CANDIDATES_WANT = 24    # LM plans collected per coast (the screening takes the SCREEN_MAX best)
 BARREN_STARTS = 128     # a coast whose first this many LM starts found nothing is given up
-STARTS_FACTOR = 10      # LM starts per coast = STARTS_FACTOR × request.starts (~0.1 ms a start)
+STARTS_FACTOR = 2      # LM starts per coast = STARTS_FACTOR × request.starts (~0.1 ms a start)
+COAST_STOP_BARREN = True    # the coast scan stops at the first longer coast with no robust plan
+STRUCT_FACTOR = 10      # structured LM starts per coast = this × request.starts (``_structured_starts``)
+STRUCT_LEVELS = 2       # ... on this many of the shortest coast levels
+STRUCT_SCAN_LEVELS = 2  # ... and the coast scan ends after this many levels once it has candidates
+STRUCT_MIN_STEPS = 6    # ... for N of at least this
+STRUCT_SPREAD = 0.8     # inner currents of a structured start in ±this·i_max
+STRUCT_BRAKE = 0.6      # the last but one current brakes with this..1 × i_max
+STRUCT_LAST = 0.4       # the last current pushes with 0..this × i_max
 EXCHANGE_ROUNDS = 3     # check-set exchanges per refinement
 FREE_COAST = True       # the free-time refinement also moves the coast within [coast, coast_max]
 EXCHANGE_ADD = 3        # worst check samples added per exchange
@@ -85,7 +123,65 @@ SPLIT_ITER = 10         # SLSQP iterations of the brief minimax that ranks the s
 SPLIT_ROUNDS = 1        # ... with this many check-set exchanges
 SPLIT_MAX_STEPS = 12    # continuation in N (``continue_steps``): largest N
 SPLIT_TARGET = 5e-3     # rad: the continuation stops once the box worst is within this
+BEST_ITERATE = True     # SLSQP returns the iterate of least merit (worst + equality residuals)
+EQ_WEIGHT = 0.2         # merit weight of the scaled derivative residuals (rad per unit = box fraction)
 ERR_SCALE = 1e3         # the epigraph variable in mrad (SLSQP's tolerances suit O(1) values)
+
+
+class _OneBlasThread:
+    """Context: scipy's OpenBLAS on one thread while a plan runs (restored after the last
+    concurrent plan leaves). SLSQP's small dense subproblems (~20 × 60) go through BLAS, and
+    OpenBLAS's thread hand-off costs more than the work: measured on the 2-core machine under
+    load, 5.5 ms CPU (95 ms wall) against 0.3-0.5 ms per SLSQP iteration of a 21-variable,
+    60-constraint epigraph problem. A no-op where the library or its symbols are not found."""
+
+    _lock = threading.Lock()
+    _depth = 0
+    _saved: list = []
+    _handles: Optional[list] = None
+
+    @classmethod
+    def _libs(cls) -> list:
+        if cls._handles is None:
+            found = []
+            try:
+                with open("/proc/self/maps", encoding="utf-8") as fh:
+                    paths = {ln.split()[-1] for ln in fh if "openblas" in ln.rsplit("/", 1)[-1]}
+            except OSError:
+                paths = set()
+            for path in sorted(paths):
+                try:
+                    lib = ctypes.CDLL(path)
+                except OSError:
+                    continue
+                for name in ("scipy_openblas_set_num_threads64_", "scipy_openblas_set_num_threads",
+                             "openblas_set_num_threads64_", "openblas_set_num_threads"):
+                    setter = getattr(lib, name, None)
+                    getter = getattr(lib, name.replace("_set_", "_get_"), None)
+                    if setter is not None and getter is not None:
+                        setter.argtypes = [ctypes.c_int]
+                        getter.restype = ctypes.c_int
+                        found.append((setter, getter))
+                        break
+            cls._handles = found
+        return cls._handles
+
+    def __enter__(self) -> "_OneBlasThread":
+        with self._lock:
+            if type(self)._depth == 0:
+                libs = self._libs()
+                type(self)._saved = [int(get()) for _, get in libs]
+                for setter, _ in libs:
+                    setter(1)
+            type(self)._depth += 1
+        return self
+
+    def __exit__(self, *exc) -> None:
+        with self._lock:
+            type(self)._depth -= 1
+            if type(self)._depth == 0:
+                for (setter, _), n in zip(self._libs(), type(self)._saved):
+                    setter(max(int(n), 1))
 
 
 class _Box:
@@ -140,7 +236,8 @@ class _Box:
         e = self.values(I)[0]
         return float(np.max(np.abs(e))) if np.all(np.isfinite(e)) else math.inf
 
-    def solve(self, I0: np.ndarray, deadline: float, maxiter: int = SOLVE_ITER) -> np.ndarray:
+    def solve(self, I0: np.ndarray, deadline: float, maxiter: Optional[int] = None) -> np.ndarray:
+        maxiter = SOLVE_ITER if maxiter is None else maxiter
         pr = self.prob
         n = pr.n
         vb = pr.vb
@@ -208,8 +305,18 @@ class _FreeBox:
         # each interior switch at least MIN_STEP from its neighbours and the ends
         self.lo = np.array([j * MIN_STEP for j in range(1, n)])
         self.hi = np.array([self.end_hi - (n - j) * MIN_STEP for j in range(1, n)])
+        self._tlast: tuple = (b"", None)
+        self._blast: tuple = (math.nan, (prob.vb, 0.0))
 
     def times(self, x: np.ndarray) -> np.ndarray:
+        """Step times (N + 1,) s of the decision vector x (clipped into the gaps; the last
+        result is kept: SLSQP asks for the same x many times)."""
+        key = x.tobytes()
+        if self._tlast[0] != key:
+            self._tlast = (key, self._times(x))
+        return self._tlast[1]
+
+    def _times(self, x: np.ndarray) -> np.ndarray:
         n = self.prob.n
         t = np.empty(n + 1)
         t[0] = 0.0
@@ -223,12 +330,14 @@ class _FreeBox:
         pr = self.prob
         if not self.free_end:
             return pr.vb, 0.0
-        te = self.times(x)[pr.n]
-        h = 1e-6
-        vb = stop_speed_bound(pr.params, pr.tf - te)
-        d = (stop_speed_bound(pr.params, pr.tf - te - h)
-             - stop_speed_bound(pr.params, pr.tf - te + h)) / (2.0 * h)
-        return vb, d
+        te = float(self.times(x)[pr.n])
+        if self._blast[0] != te:
+            h = 1e-6
+            vb = stop_speed_bound(pr.params, pr.tf - te)
+            d = (stop_speed_bound(pr.params, pr.tf - te - h)
+                 - stop_speed_bound(pr.params, pr.tf - te + h)) / (2.0 * h)
+            self._blast = (te, (vb, d))
+        return self._blast[1]
 
     def terms(self, x: np.ndarray):
         """(e, ∂e/∂x, g, ∂g/∂x) at x (``box_kernels.free_terms``), memoised."""
@@ -268,14 +377,29 @@ class _FreeBox:
     def worst(self, x: np.ndarray) -> float:
         return _worst(self.prob, self.times(x), x[:self.prob.n], self.scales)
 
+    def merit(self, x: np.ndarray) -> float:
+        """Worst |rest − qf| over the samples + |q(tf) − qf| + EQ_WEIGHT·Σ|∂q/∂p_i·p_i| + the
+        coast-entry speed above the stopping bound × the coast (rad): what an iterate that
+        misses the equalities is worth once put back on the robust set (inf if a sample never
+        stops)."""
+        pr = self.prob
+        e, _, g, _ = self.values(x)
+        if not np.all(np.isfinite(e)):
+            return math.inf
+        rows = [1 + i for i in range(NP) if pr.umask[i]]
+        coast = pr.tf - self.times(x)[pr.n]
+        return float(np.max(np.abs(e)) + abs(g[0]) + EQ_WEIGHT * np.sum(np.abs(g[rows]))
+                     + max(0.0, abs(g[4]) - self.stop_bound(x)[0]) * coast)
+
     def start(self, I: np.ndarray, times: np.ndarray) -> np.ndarray:
         """The decision vector of currents ``I`` (A) at step ``times`` (s)."""
         n = self.prob.n
         return np.concatenate([I, times[1:n]] + ([times[n:n + 1]] if self.free_end else []))
 
-    def solve(self, x0: np.ndarray, deadline: float, maxiter: int = SOLVE_ITER) -> np.ndarray:
+    def solve(self, x0: np.ndarray, deadline: float, maxiter: Optional[int] = None) -> np.ndarray:
         """SLSQP on the epigraph form from ``x0``; the switch times enter in units of T_UNIT
         (currents and times then have Jacobian columns of like size)."""
+        maxiter = FREE_ITER if maxiter is None else maxiter
         pr = self.prob
         n = pr.n
         nv = self.nv
@@ -324,7 +448,16 @@ class _FreeBox:
             Gg = terms(y)[3][rows] * unit
             return np.hstack([Gg, np.zeros((len(rows), 1))])
 
+        best: list = [math.inf, None]    # [merit (rad), y] of the best iterate seen
+
+        def keep(y) -> None:
+            m = self.merit(y[:nv] * unit)
+            if m < best[0]:
+                best[:] = [m, np.array(y, dtype=float)]
+
         def stop_at_deadline(yk):
+            if BEST_ITERATE:
+                keep(yk)
             if time.perf_counter() > deadline:
                 raise StopIteration     # SLSQP returns its current iterate
 
@@ -332,6 +465,8 @@ class _FreeBox:
         if not math.isfinite(w0):
             raise ArithmeticError("start does not come to rest in the box")
         y0 = np.concatenate([x0[:nv] / unit, [w0]])
+        if BEST_ITERATE:
+            keep(y0)
         grad_t = np.zeros(nv + 1)
         grad_t[nv] = 1.0
         bounds = ([(-pr.i_max, pr.i_max)] * n + list(zip(self.lo / T_UNIT, self.hi / T_UNIT))
@@ -342,11 +477,21 @@ class _FreeBox:
                                     {"type": "ineq", "fun": ineq, "jac": ineq_jac}],
                        options={"maxiter": int(maxiter), "ftol": SOLVE_FTOL},
                        callback=stop_at_deadline)
-        x = np.asarray(res.x[:nv], float) * unit
+        y = np.asarray(res.x, float)
+        if BEST_ITERATE:
+            keep(y)
+            y = best[1]
+        x = y[:nv] * unit
         x[:n] = np.clip(x[:n], -pr.i_max, pr.i_max)
         t = self.times(x)
         x[n:nv] = t[1:nv - n + 1]
         return x
+
+
+def _base_samples(fr: dict) -> np.ndarray:
+    """The minimax's starting samples (scale factors): the box corners (``CORNERS_ONLY``), else
+    the corners, the centre and the face centres."""
+    return (box_minimax_samples(fr, FRICTION) if CORNERS_ONLY else box_samples(fr, FRICTION))
 
 
 def _worst(prob: _Problem, times: np.ndarray, cur: np.ndarray, scales: np.ndarray) -> float:
@@ -419,6 +564,23 @@ def _candidates(prob: _Problem, starts: int, seed: int, deadline: float,
     return found, tried, iters
 
 
+def _structured_starts(prob: _Problem, m: int, seed: int, level: int) -> np.ndarray:
+    """``m`` seeded LM starts (m, N) A shaped like the plans that land best: the first current
+    anywhere in ±i_max, the inner ones in ±STRUCT_SPREAD·i_max, the last but one braking
+    (−STRUCT_BRAKE·i_max … −i_max against the move) and the last one small and along the move
+    (0 … STRUCT_LAST·i_max): braking at high current, then settling at low torque, where the
+    torque-dependent friction pt (the largest source of spread in the coast-entry speed) acts
+    little. ``level``: the coast level (its own random stream)."""
+    n = prob.n
+    d = 1.0 if prob.goal >= prob.q0 else -1.0
+    rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, int(level), n, 0x5742])
+    out = rng.uniform(-STRUCT_SPREAD, STRUCT_SPREAD, (m, n))
+    out[:, 0] = rng.uniform(-1.0, 1.0, m)
+    out[:, n - 2] = -d * rng.uniform(STRUCT_BRAKE, 1.0, m)
+    out[:, n - 1] = d * rng.uniform(0.0, STRUCT_LAST, m)
+    return np.ascontiguousarray(out * prob.i_max)
+
+
 def _refine_equal(prob: _Problem, I: np.ndarray, base: np.ndarray, check: np.ndarray,
                   deadline: float) -> np.ndarray:
     """Equal-step minimax from ``I`` on the base samples, with exchange from the check set."""
@@ -437,14 +599,14 @@ def _refine_equal(prob: _Problem, I: np.ndarray, base: np.ndarray, check: np.nda
 
 def _refine(prob: _Problem, I: np.ndarray, base: np.ndarray, check: np.ndarray,
             deadline: float, coast_range: Optional[tuple[float, float]] = None,
-            maxiter: int = SOLVE_ITER, rounds: int = EXCHANGE_ROUNDS
+            maxiter: Optional[int] = None, rounds: Optional[int] = None
             ) -> tuple[np.ndarray, np.ndarray]:
     """Free-time minimax from currents ``I`` at ``prob.times`` on the base samples, with exchange
     from the check set; the coast a decision too within ``coast_range`` (s). Returns (currents
     (N,) A, step times (N + 1,) s)."""
     box = _FreeBox(prob, base, coast_range)
     x = box.start(I, prob.times)
-    for _ in range(rounds):
+    for _ in range(EXCHANGE_ROUNDS if rounds is None else rounds):
         x = box.solve(x, deadline, maxiter)
         e = box_kernels.rest_errors(
             prob.params.J, prob.params.n * prob.params.kt, prob.pvals, check, box.times(x),
@@ -455,7 +617,7 @@ def _refine(prob: _Problem, I: np.ndarray, base: np.ndarray, check: np.ndarray,
         box = _FreeBox(prob, np.vstack([box.scales, add]), coast_range)
         if time.perf_counter() > deadline:
             break
-    return x[:prob.n].copy(), box.times(x)
+    return x[:prob.n].copy(), box.times(x).copy()
 
 
 def _split(request: PlanRequest, params: Arm1DofParams, prob: _Problem, I: np.ndarray,
@@ -532,6 +694,15 @@ def _continue_steps(request: PlanRequest, params: Arm1DofParams, start: tuple, b
 def plan_box_robust_1dof(request: PlanRequest, progress: Progress = None,
                          initial_currents: Optional[np.ndarray] = None,
                          grid: Optional[float] = None) -> PlanResult:
+    """Plan the robust-box objective for the 1-DOF arm (see the module docstring and
+    ``_plan_box``); BLAS on one thread meanwhile (``_OneBlasThread``)."""
+    with _OneBlasThread():
+        return _plan_box(request, progress, initial_currents, grid)
+
+
+def _plan_box(request: PlanRequest, progress: Progress = None,
+              initial_currents: Optional[np.ndarray] = None,
+              grid: Optional[float] = None) -> PlanResult:
     """Plan the robust-box objective for the 1-DOF arm (see the module docstring).
 
     initial_currents (N,) / (M, N) A: extra LM starts, tried first (e.g. a library neighbour).
@@ -549,7 +720,7 @@ def plan_box_robust_1dof(request: PlanRequest, progress: Progress = None,
         grid = getattr(request, "grid", None)
     unc = [u for u in FRICTION if u in request.uncertain]
     fr = box_fractions(unc, request.box)
-    base_scales = np.ascontiguousarray(box_samples(fr, FRICTION))
+    base_scales = np.ascontiguousarray(_base_samples(fr))
     check_scales = np.ascontiguousarray(box_check_samples(fr, FRICTION))
     lo = max(float(request.coast), 2.0 * STOP_MARGIN)
     hi = max(lo, request.box_coast_max())
@@ -561,9 +732,12 @@ def plan_box_robust_1dof(request: PlanRequest, progress: Progress = None,
     fallback = None
     closest: list = []       # [|r|², I]: the first coast's LM end point nearest the robust set
     pool: list = []          # (worst after the short minimax, its I, prob, the LM plan I0)
+    spare: list = []         # [I, prob]: the first derivative-robust LM plan (out of time: its answer)
     for coast in coasts:
         if per_coast and time.perf_counter() > deadline:
             break
+        if n >= STRUCT_MIN_STEPS and len(per_coast) >= STRUCT_SCAN_LEVELS and pool:
+            break       # structured search: its levels have candidates, longer coasts are not needed
         req_c = dc_replace(request, coast=float(coast))
         prob = _Problem(req_c, params, n, grid)
         # the shortest coast (the most feasible) gets every start: a hard task's robust plans
@@ -572,6 +746,13 @@ def plan_box_robust_1dof(request: PlanRequest, progress: Progress = None,
                                     int(request.seed), deadline, CANDIDATES_WANT,
                                     None if not per_coast else BARREN_STARTS,
                                     closest if not per_coast else None)
+        m_struct = STRUCT_FACTOR * int(request.starts)
+        if m_struct > 0 and n >= STRUCT_MIN_STEPS and len(per_coast) < STRUCT_LEVELS:
+            block = _structured_starts(prob, m_struct, int(request.seed), len(per_coast))
+            done, st, it, _, _ = prob.run(block, False)
+            cands = [block[s].copy() for s in range(done) if st[s] == _lm1d.OK] + cands
+            t_ += done
+            i_ += int(it[:done].sum())
         if initial_currents is not None:
             init = np.array(initial_currents, dtype=float, ndmin=2).reshape(-1, n)
             out = np.ascontiguousarray(np.clip(init, -prob.i_max, prob.i_max))
@@ -584,7 +765,11 @@ def plan_box_robust_1dof(request: PlanRequest, progress: Progress = None,
             fallback = prob
         row: dict = {"coast": float(coast), "robust_candidates": len(cands)}
         per_coast.append(row)
+        if cands and not spare:
+            spare[:] = [cands[0], prob]
         if not cands:
+            if COAST_STOP_BARREN and len(per_coast) > 1:
+                break       # longer coasts leave less powered time: harder still
             continue
         cands.sort(key=lambda c: _worst(prob, prob.times, c, base_scales))
         box = _Box(prob, base_scales)
@@ -614,9 +799,12 @@ def plan_box_robust_1dof(request: PlanRequest, progress: Progress = None,
         if verify(params, prob_t.profile(I), prob_t.q0, prob_t.goal, unc, request.tol)["robust"]:
             best = (w, I.copy(), prob_t)
 
-    for _w1, I1, prob, I0 in pool[:BOX_CANDIDATES]:
+    for _w1, I1, prob, I0 in pool[:max(BOX_CANDIDATES, BOX_EXTRA_CANDIDATES)]:
         if time.perf_counter() > deadline:
             break
+        if refined >= BOX_CANDIDATES and (best is None or not
+                                          BOX_EXTRA_TARGET < best[0] <= BOX_EXTRA_REACH):
+            break       # extra candidates only for a best above the target but within reach
         refined += 1
         I = _refine_equal(prob, I1, base_scales, check_scales, deadline)
         consider(_polish(prob, I), prob)
@@ -637,6 +825,11 @@ def plan_box_robust_1dof(request: PlanRequest, progress: Progress = None,
         if progress is not None:
             progress({"stage": f"robust-box refine {refined}", "starts_done": tried,
                       "best": float(best[0]) if best else math.inf})
+    if best is None:        # the budget ran out before any refinement: the LM plans, verified
+        for _w1, _I1, prob, I0 in pool[:BOX_CANDIDATES]:
+            consider(I0, prob)
+        if best is None and spare:
+            consider(spare[0], spare[1])
     stats = {"n_steps": n, "box": fr, "coasts_tried": per_coast, "box_samples": int(
         base_scales.shape[0]), "box_check_samples": int(check_scales.shape[0]),
         "refined": refined, "search_time_s": time.perf_counter() - t0}
@@ -657,6 +850,8 @@ def plan_box_robust_1dof(request: PlanRequest, progress: Progress = None,
            f"coast {prob.coast:.3g} s, "
            f"{'equal' if np.allclose(np.diff(prob.times), prob.times[1]) else 'free'} step "
            f"durations")
+    if not refined:
+        msg += " (the time budget ran out before the minimax: the LM plan, not refined)"
     return _result(req_c, prob, I, True, msg, tried, iters, initial_currents is not None, t0,
                    stats)
 
@@ -669,6 +864,12 @@ def continue_steps(request: PlanRequest, result: PlanResult, n_max: int = SPLIT_
     verified plan (``result`` itself if none is better); ``extra["continuation"]`` lists the
     worst (rad) per N. Measured not to reach 5 mrad on the paper task (docs/box-robust.md), so
     not on the default path."""
+    with _OneBlasThread():
+        return _continue(request, result, n_max, target)
+
+
+def _continue(request: PlanRequest, result: PlanResult, n_max: int, target: float) -> PlanResult:
+    """``continue_steps`` (BLAS on one thread)."""
     t0 = time.perf_counter()
     deadline = t0 + float(request.time_budget)
     params = result.params
@@ -677,7 +878,7 @@ def continue_steps(request: PlanRequest, result: PlanResult, n_max: int = SPLIT_
         raise PlanningError("continuation needs a truly robust 1-DOF plan")
     unc = [u for u in FRICTION if u in request.uncertain]
     fr = box_fractions(unc, request.box)
-    base = np.ascontiguousarray(box_samples(fr, FRICTION))
+    base = np.ascontiguousarray(_base_samples(fr))
     check = np.ascontiguousarray(box_check_samples(fr, FRICTION))
     prof = result.profile
     n = prof.n_steps

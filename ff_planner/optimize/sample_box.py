@@ -79,21 +79,21 @@ def box_corners(fractions: Mapping[str, float], keys: Sequence[str]) -> np.ndarr
     """The 2^k corners of the box, then its centre: scale factors (2^k + 1, len(keys))."""
     k = len(fractions)
     rows = np.array(list(itertools.product(SIGNS, repeat=k)) + [(0.0,) * k], dtype=float)
-    return _scaled(rows.reshape(-1, k), fractions, keys)
+    return _scaled(rows.reshape(2 ** k + 1, k), fractions, keys)
 
 
 def box_faces(fractions: Mapping[str, float], keys: Sequence[str]) -> np.ndarray:
     """The 2k face centres of the box (each parameter alone at ±its fraction)."""
     k = len(fractions)
     rows = np.vstack([s * np.eye(k)[i] for i in range(k) for s in SIGNS]) if k else np.zeros((0, 0))
-    return _scaled(rows.reshape(-1, k), fractions, keys)
+    return _scaled(rows.reshape(2 * k, k), fractions, keys)
 
 
 def box_grid(fractions: Mapping[str, float], keys: Sequence[str], levels: int = 3) -> np.ndarray:
     """A full grid of ``levels`` values per parameter over the box (levels^k rows)."""
     axis = np.linspace(-1.0, 1.0, levels)
     rows = np.array(list(itertools.product(axis, repeat=len(fractions))), dtype=float)
-    return _scaled(rows.reshape(-1, len(fractions)), fractions, keys)
+    return _scaled(rows.reshape(levels ** len(fractions), len(fractions)), fractions, keys)
 
 
 def box_uniform(fractions: Mapping[str, float], keys: Sequence[str], count: int,
@@ -108,6 +108,13 @@ def box_samples(fractions: Mapping[str, float], keys: Sequence[str]) -> np.ndarr
     """The robust-box objective's minimax samples: the 2^k corners, the centre and the 2k face
     centres."""
     return np.vstack([box_corners(fractions, keys), box_faces(fractions, keys)])
+
+
+def box_minimax_samples(fractions: Mapping[str, float], keys: Sequence[str]) -> np.ndarray:
+    """The robust-box minimax's starting samples: the 2^k corners only. The centre's rest error
+    is zero on the robust set (q(tf) = qf, the arm at rest), and the face centres, the edges
+    and the interior come in through the exchange from ``box_check_samples`` where they bind."""
+    return box_corners(fractions, keys)[:-1]
 
 
 def box_check_samples(fractions: Mapping[str, float], keys: Sequence[str],
