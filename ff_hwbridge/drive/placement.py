@@ -4,7 +4,10 @@
 to a SYNC:
 
 - a profile's run is shifted onto the grid as a whole: its first setpoint (seq 0, or the first
-  seen of that profile id) goes to the first SYNC at or after its stamp (shift 0 … one period)
+  seen of that profile id) goes to the first SYNC at or after its stamp (shift 0 … one period;
+  a stamp less than ``GRID_TOLERANCE`` of a period after a SYNC goes to that SYNC, so that a
+  run planned on the grid is not put one whole period late by a grid estimate that moved by
+  nanoseconds)
   and every later one of the same profile id gets the same shift, those after its ``last`` too
   (a cancel's zeros), until the profile's next seq 0;
 - whatever shift each setpoint got, a shifted stamp is never before the shifted stamp of a
@@ -17,10 +20,12 @@ from __future__ import annotations
 from collections import deque
 from typing import Callable, Optional
 
-__all__ = ["GridPlacement", "MAX_ORDER", "MAX_PHASES"]
+__all__ = ["GRID_TOLERANCE", "GridPlacement", "MAX_ORDER", "MAX_PHASES"]
 
 MAX_PHASES = 1_000        # profiles whose shift onto the SYNC grid is remembered
 MAX_ORDER = 256           # recent (stamp, shifted stamp) pairs that keep the order of stamps
+GRID_TOLERANCE = 100      # a stamp up to period / this after a SYNC goes to that SYNC (SYNC timer
+                          # and bus timestamps may run on two clocks that drift apart by ppm)
 
 
 class GridPlacement:
@@ -51,7 +56,8 @@ class GridPlacement:
             if grid is None:
                 return 0
             nominal, period = grid
-            k = -(-(stamp_ns - nominal) // period)           # ceil: the first SYNC at or after
+            # ceil: the first SYNC at or after the stamp, less 1 / GRID_TOLERANCE of a period
+            k = -(-(stamp_ns - nominal - period // GRID_TOLERANCE) // period)
             shift = nominal + k * period - stamp_ns
             if len(self._phases) >= MAX_PHASES:
                 self._phases.pop(next(iter(self._phases)))   # the least recently used

@@ -559,6 +559,12 @@ class SimEpos:
         return self._fault_code
 
     @property
+    def last_sync_ns(self) -> int:
+        """Bus instant (wall ns) of the last SYNC this drive handled (0: none yet)."""
+        last = self._last_sync
+        return last[0] if last is not None else 0
+
+    @property
     def zero_current_ns(self) -> int:
         """``time.monotonic_ns()`` at which the power stage's current last dropped to 0 A (0: never)."""
         return self._zero_current_ns

@@ -27,6 +27,8 @@ from ff_hwbridge.drive.epos import EposError, EposMaster
 from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.sim.rig_process import RigProcess, free_port, rig_master_config, rig_master_data
 
+log = logging.getLogger(__name__)
+
 __all__ = ["HARDWARE_TIMING", "Outcome", "SCENARIOS", "drive_info", "run"]
 
 #: Master settings of these scenarios: the hardware example's drive-side watchdogs (master
@@ -241,14 +243,21 @@ def envelope_breach(limit: float = 0.1, amps: float = 1.0) -> Outcome:
 
 def fault_at_start() -> Outcome:
     """The drive is in Fault (0x2310) before the master connects: configure goes through, the
-    enable is refused by the drive, the master latches and shows the drive's error code."""
+    enable is refused by the drive (or by the master itself, when the drive's Fault statusword
+    reached it first and latched the safe state), the master latches and shows the drive's
+    error code."""
     b = _Bench()
     try:
         b.rig.cmd("emcy 1 0x2310")
         t0 = time.monotonic()
         b.master.connect()
         b.master.configure()
-        b.master.enable()
+        try:
+            b.master.enable()
+        except EposError as exc:
+            if not b.master.latched:
+                raise
+            log.info("enable refused by the latched master: %s", exc)
         reason = _master_latch(b.master, 5.0)
         _wait(lambda: bool(b.master.status()["joint1.error_history"]), 3.0)
         out = _outcome("fault_at_start", True, b.rig, t0, reason)

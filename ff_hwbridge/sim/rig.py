@@ -238,6 +238,7 @@ def run_command(rig: SimRig, line: str) -> str:
                     f"fault=0x{d.fault_code:04X} error_t={d.last_error_time:.6f} "
                     f"left_enabled_t={d.left_enabled_ns * 1e-9:.6f} "
                     f"zero_current_t={d.zero_current_ns * 1e-9:.6f} i={d.applied_current} "
+                    f"last_sync_ns={d.last_sync_ns} "
                     f"consumers={d.heartbeat_consumers()} hb_age={hb_age} "
                     f"faults={vars(d.faults)} link={vars(d.link_stats)} rx_by_id={rx_by_id}")
         else:

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ff_hwbridge.drive.placement import GridPlacement
+from ff_hwbridge.drive.placement import GRID_TOLERANCE, GridPlacement
 
 P = 10_000_000          # ns, the SYNC period
 
@@ -33,6 +33,15 @@ def test_a_run_keeps_its_shift_past_last_and_the_next_run_takes_a_new_one():
     assert g.place(base2, "", 0) >= run2[0]                     # no profile id: no shift, in order
 
 
+def test_a_stamp_on_the_grid_stays_on_its_sync_when_the_estimate_drifted_by_ns():
+    grid = Grid()
+    g = GridPlacement(grid)
+    stamp = grid.nominal + 20 * P
+    grid.nominal += 7 * P - 64                                  # 7 SYNCs later, 64 ns of drift
+    assert g.place(stamp, "on-grid", 0) == grid.nominal + 13 * P   # its SYNC, not the one after
+    assert g.place(stamp + P // 5, "other", 0) == grid.nominal + 14 * P   # 0.2 P after: the next
+
+
 def test_shifted_stamps_keep_the_order_of_the_stamps_whatever_the_shifts():
     rng = np.random.default_rng(7)
     grid = Grid()
@@ -45,7 +54,7 @@ def test_shifted_stamps_keep_the_order_of_the_stamps_whatever_the_shifts():
         pid = f"p{int(rng.integers(0, 4))}"
         seq = int(rng.integers(0, 3))                           # runs start now and then
         s = g.place(stamp, pid, seq)
-        assert s >= stamp                                       # never before its own stamp
+        assert s >= stamp - P // GRID_TOLERANCE                 # never before its own stamp (but ns)
         # never before a setpoint submitted earlier with a stamp at or before this one
         assert all(s >= ps for pt, ps in placed[-200:] if pt <= stamp)
         placed.append((stamp, s))

@@ -8,6 +8,7 @@ import json
 import os
 import re
 import tempfile
+from typing import Any, Optional, Sequence
 
 import pytest
 
@@ -25,28 +26,67 @@ PERIOD = 0.005       # s; protocol checks only: they must hold on a loaded 2-cor
 wait_for = waiter(5.0)
 
 
+class HubBench:
+    """``ff-can-hub`` sending SYNC every ``PERIOD``, the simulated rig joined to its bus (``rig_args``
+    its extra options) and, in this process, an ``EposMaster`` (``sync_producer: external``,
+    ``settings`` on top) connected to it. On exit: the ``player`` a test set closed, the master
+    disconnected, the rig stopped, then the hub; its exit code in ``code``."""
+
+    def __init__(self, ros_env: dict[str, str], rig_args: Sequence[str] = (), **settings: Any) -> None:
+        self._env, self._rig_args, self._settings = ros_env, list(rig_args), settings
+        self.rig: Optional[RigProcess] = None
+        self.master: Optional[EposMaster] = None
+        self.player: Any = None
+        self.code: Optional[int] = None
+
+    def __enter__(self) -> "HubBench":
+        port = free_port()
+        self.hub = start_module("can_hub", "ff_hwbridge.cli.can_hub",
+                                ["--port", str(port), "--sync-period", str(PERIOD)], self._env)
+        try:
+            assert wait_for_line(self.hub, "CAN hub on ws://", 20.0), self.hub.output()
+            url = f"ws://127.0.0.1:{port}/"
+            self.rig = RigProcess(self._rig_args, port=port, host_hub=False, bus_url=url, env=self._env)
+            self.master = EposMaster(rig_master_config(url, "epos4", 5.0, sync_period=PERIOD,
+                                                       sync_producer="external", heartbeat_timeout=1.0,
+                                                       feedback_timeout=1.0, sync_timeout=1.0,
+                                                       **self._settings))
+            self.master.connect()
+        except BaseException:
+            self.__exit__()
+            raise
+        return self
+
+    def drive_caught_up(self, sync_ns: int, timeout: float = 10.0) -> bool:
+        """Wait until the simulated drive has handled the SYNC at bus instant ``sync_ns`` (its
+        process may lag this one under load; its record is written when the rig stops)."""
+
+        def last() -> int:
+            m = re.search(r"last_sync_ns=(\d+)", self.rig.cmd("info 1") if self.rig else "")
+            return int(m.group(1)) if m else -1
+        return waiter(timeout)(lambda: last() >= sync_ns)
+
+    def __exit__(self, *exc: object) -> None:
+        if self.player is not None:
+            self.player.close()
+        if self.master is not None:
+            self.master.disconnect()
+        if self.rig is not None:
+            self.rig.stop(20)
+        self.code = self.hub.stop()
+
+
 @pytest.mark.parametrize("player_kind", [SetpointPlayer, ProcessPlayer],
                          ids=["thread", "process"])
 def test_setpoints_latch_at_the_hub_sync_and_the_hub_reports_its_jitter(ros_env, player_kind):
-    port = free_port()
-    hub = start_module("can_hub", "ff_hwbridge.cli.can_hub",
-                       ["--port", str(port), "--sync-period", str(PERIOD)], ros_env)
     record = os.path.join(tempfile.mkdtemp(prefix="ff-sync-hub-"), "sim.json")
-    rig = master = player = None
     syncs: list[int] = []
-    try:
-        assert wait_for_line(hub, "CAN hub on ws://", 20.0), hub.output()
-        url = f"ws://127.0.0.1:{port}/"
-        rig = RigProcess(["--record", record], port=port, host_hub=False, bus_url=url, env=ros_env)
-        master = EposMaster(rig_master_config(url, "epos4", 5.0, sync_period=PERIOD,
-                                              sync_producer="external", heartbeat_timeout=1.0,
-                                              feedback_timeout=1.0, sync_timeout=1.0,
-                                              setpoint_timeout=2.0))
-        master.connect()
+    with HubBench(ros_env, ["--record", record], setpoint_timeout=2.0) as bench:
+        master = bench.master
         master.network.subscribe(0x80, lambda cid, data, ts: syncs.append(int(round(ts * 1e9))))
         configure_and_enable(master, 5.0)
         assert not master._sync_running                 # external: the master sends no SYNC
-        player = player_kind(master).start()
+        player = bench.player = player_kind(master).start()
         assert wait_for(lambda: player.sync_grid() is not None)
         nominal, period = player.sync_grid()
         amps = [0.2, -0.3, 0.4, 0.0]
@@ -59,15 +99,9 @@ def test_setpoints_latch_at_the_hub_sync_and_the_hub_reports_its_jitter(ros_env,
         for g in got:
             assert g.sent_ns in syncs                   # applied at a SYNC's bus instant
             assert g.rpdo_sent_ns < g.sent_ns and g.sent_ns >= g.stamp_ns - 0.1 * period
-    finally:
-        if player is not None:
-            player.close()
-        if master is not None:
-            master.disconnect()
-        if rig is not None:
-            rig.stop(20)
-        code = hub.stop()
-    assert code == 0
+        assert bench.drive_caught_up(got[-1].sent_ns)
+    assert bench.code == 0
+    hub = bench.hub
     with open(record) as fh:
         log = json.load(fh)["setpoints"]["1"]            # [mono_ns, wall_ns, raw, A]
     units = master.units[0]
@@ -85,21 +119,10 @@ def test_setpoints_latch_at_the_hub_sync_and_the_hub_reports_its_jitter(ros_env,
 def test_a_dead_player_process_latches_the_safe_state_and_the_drive_stops(ros_env):
     """The player process killed mid-stream: the bridge latches the safe state with the reason
     and its own RPDOs carry the reaction (0 A, quick stop)."""
-    port = free_port()
-    hub = start_module("can_hub", "ff_hwbridge.cli.can_hub",
-                       ["--port", str(port), "--sync-period", str(PERIOD)], ros_env)
-    rig = master = player = None
-    try:
-        assert wait_for_line(hub, "CAN hub on ws://", 20.0), hub.output()
-        url = f"ws://127.0.0.1:{port}/"
-        rig = RigProcess([], port=port, host_hub=False, bus_url=url, env=ros_env)
-        master = EposMaster(rig_master_config(url, "epos4", 5.0, sync_period=PERIOD,
-                                              sync_producer="external", heartbeat_timeout=1.0,
-                                              feedback_timeout=1.0, sync_timeout=1.0,
-                                              setpoint_timeout=5.0, player_process=True))
-        master.connect()
+    with HubBench(ros_env, setpoint_timeout=5.0, player_process=True) as bench:
+        master = bench.master
         configure_and_enable(master, 5.0)
-        player = ProcessPlayer(master).start()
+        player = bench.player = ProcessPlayer(master).start()
         assert wait_for(lambda: player.sync_grid() is not None)
         nominal, period = player.sync_grid()
         player.submit(nominal + 20 * period, [0.8], seq=0, profile_id="dies")
@@ -111,11 +134,3 @@ def test_a_dead_player_process_latches_the_safe_state_and_the_drive_stops(ros_en
         assert "player process" in master.fault_reason, master.fault_reason
         assert wait_for(lambda: abs(master.feedback()[0].current) < 0.05), master.feedback()
         assert wait_for(lambda: master.states()[0] is not State.OPERATION_ENABLED), master.states()
-    finally:
-        if player is not None:
-            player.close()
-        if master is not None:
-            master.disconnect()
-        if rig is not None:
-            rig.stop(20)
-        hub.stop()
