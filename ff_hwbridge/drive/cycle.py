@@ -15,7 +15,9 @@ setpoint at each SYNC. :class:`CycleScheduler` therefore
    bus's echo of our own frames, ``echo_time(marks)``; without an echo the local send time):
    applied = that SYNC's bus instant, missed cycles = how many SYNCs after its own cycle that
    was (counted in SYNCs seen, so SYNC jitter does not count). A setpoint that misses by more
-   than ``missed_tolerance`` cycles calls ``on_fault(reason)``.
+   than ``missed_tolerance`` cycles calls ``on_fault(reason)``; a stop (zero current, e.g. a
+   cancel's zero stamped when the cancel came) is counted (``late_stops``) and logged instead:
+   it has no planned cycle, and the safe state would only send the same zero.
 
 A setpoint older than one already sent is dropped (``stale``: it would undo a newer command),
 unless it is a stop (``submit(..., stop=True)``, zero current): a stop is never dropped, it is
@@ -57,18 +59,21 @@ class _InFlight:
     sent_wall_ns: int
     lead_ns: int              # sent − bus instant of the SYNC seen before it
     token: Any
+    stop: bool = False        # a zero-current stop (no cycle of its own to keep)
 
 
 @dataclass(frozen=True)
 class Resolved:
     """A setpoint latched by the drives: stamp, SYNC instant it took effect at (bus, wall ns),
-    RPDO send time (wall ns), SYNC cycles after its own (0 = on time), the sender's token."""
+    RPDO send time (wall ns), SYNC cycles after its own (0 = on time), the sender's token, and
+    whether it was a stop."""
 
     stamp_ns: int
     applied_ns: int
     sent_ns: int
     missed_cycles: int
     token: Any
+    stop: bool = False
 
 
 @dataclass(frozen=True)
@@ -112,7 +117,7 @@ class CycleScheduler(StampedQueue):
         self.records: deque[tuple[int, int]] = deque(maxlen=max_records)
         self._leads: deque[int] = deque(maxlen=max_records)
         self.late = self.stale = self.stale_stops = self.errors = 0
-        self.missed = self.missed_max = self.superseded = 0
+        self.missed = self.missed_max = self.superseded = self.late_stops = 0
         self._last_applied_ns: Optional[int] = None
         watch.add_listener(self._on_sync)
 
@@ -137,6 +142,7 @@ class CycleScheduler(StampedQueue):
         self.records.clear()
         self._leads.clear()
         self.late = self.stale = self.stale_stops = self.missed = self.missed_max = self.superseded = 0
+        self.late_stops = 0
 
     def grid(self) -> Optional[tuple[int, int]]:
         """(nominal instant of the latest SYNC, period) in ns; None before the first SYNC."""
@@ -261,7 +267,7 @@ class CycleScheduler(StampedQueue):
         lead = sent - (seen.bus_ns if seen is not None else ev.bus_ns)
         with self._cond:
             self._inflight.append(_InFlight(item.stamp_ns, target, ev.count + k, seen_count, marks,
-                                            sent, lead, token))
+                                            sent, lead, token, bool(item.stop)))
             self._cond.notify_all()
 
     def _resolve(self) -> list[Resolved]:
@@ -286,7 +292,7 @@ class CycleScheduler(StampedQueue):
             if self._last_applied_ns == hit.bus_ns:
                 self.superseded += 1
             self._last_applied_ns = hit.bus_ns
-            out.append(Resolved(f.stamp_ns, hit.bus_ns, f.sent_wall_ns, missed, f.token))
+            out.append(Resolved(f.stamp_ns, hit.bus_ns, f.sent_wall_ns, missed, f.token, f.stop))
         return out
 
     def _deliver(self, r: Resolved) -> None:
@@ -298,7 +304,12 @@ class CycleScheduler(StampedQueue):
             self._report(r)
         except Exception:  # noqa: BLE001
             log.exception("reporting a setpoint failed")
-        if r.missed_cycles > self.missed_tolerance:
+        if r.missed_cycles > self.missed_tolerance and r.stop:
+            # a zero-current stop (a cancel's zero stamped "now"): it has no cycle to keep, and
+            # what it asks for is what the safe state would do; counted and logged, not a fault
+            self.late_stops += 1
+            log.warning("a stop took effect %d SYNC cycle(s) after its stamp's", r.missed_cycles)
+        elif r.missed_cycles > self.missed_tolerance:
             self._fault(f"setpoint missed its SYNC cycle: took effect {r.missed_cycles} "
                             f"cycle(s) of {self.period_ns / 1e6:g} ms late (missed_cycle_tolerance "
                             f"{self.missed_tolerance}); stamp {r.stamp_ns} ns, sent "

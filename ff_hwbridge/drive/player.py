@@ -305,7 +305,7 @@ class SetpointPlayer(PlayerBase):
             c = self._cycle.cycle_stats()
             w = self.master.sync_watch.stats()
             out.update({"missed_setpoints": c.missed, "missed_cycles_max": c.missed_max_cycles,
-                        "superseded_setpoints": c.superseded,
+                        "superseded_setpoints": c.superseded, "late_stops": self._cycle.late_stops,
                         "send_after_sync_p99_us": c.send_after_sync_p99_us,
                         "sync_count": w.count, "sync_period_us": w.period_us,
                         "sync_jitter_p99_us": w.jitter_p99_us, "sync_jitter_max_us": w.jitter_max_us,

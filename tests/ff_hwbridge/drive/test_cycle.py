@@ -6,6 +6,8 @@ from __future__ import annotations
 import time
 from typing import Any
 
+import pytest
+
 from ff_hwbridge.drive.cycle import CycleScheduler
 from ff_hwbridge.drive.scheduler import StampScheduler
 from ff_hwbridge.drive.sync_watch import SyncWatch
@@ -52,6 +54,24 @@ def test_a_stale_stop_is_sent_not_dropped():
         rig.sched.submit(t + P_NS // 2, "stop", stop=True)     # older too, but a stop
         assert wait_for(lambda: rig.sent == ["step", "stop"])
         assert rig.sched.stale == 1 and rig.sched.stale_stops == 1 and not rig.faults
+    finally:
+        rig.close()
+
+
+@pytest.mark.parametrize("stop", [False, True], ids=["current", "stop"])
+def test_a_setpoint_that_missed_its_cycle_is_a_fault_a_stop_that_did_is_counted(stop):
+    rig = Rig()
+    try:
+        t = rig.sync()
+        rig.sched.submit(t - 3 * P_NS, "x", stop=stop)       # its SYNC passed 3 cycles ago
+        assert wait_for(lambda: rig.sent == ["x"])
+        rig.sync()                                           # latches it, cycles late
+        if stop:
+            assert wait_for(lambda: rig.sched.late_stops == 1) and not rig.faults
+        else:
+            assert wait_for(lambda: len(rig.faults) == 1)
+            assert "missed its SYNC cycle" in rig.faults[0] and rig.sched.late_stops == 0
+        assert rig.sched.missed == 1
     finally:
         rig.close()
 
