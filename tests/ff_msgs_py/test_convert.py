@@ -9,7 +9,7 @@ from ff_msgs.srv import PlanTrajectory
 from ff_msgs_py import convert
 from ff_planner.core.errors import ERROR_NAMES
 from ff_planner.model.params import ParameterError, default_params
-from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult
+from ff_planner.model.profile import BOX_DEFAULT_STEPS, CurrentProfile, PlanRequest, PlanResult
 
 
 def test_profile_round_trip_2dof():
@@ -68,7 +68,7 @@ def test_request_defaults_and_bad_override():
     msg = PlanTrajectory.Request(model="arm1dof", q0=[0.0], qf=[1.0], move_time=1.0, uncertain=["pc"])
     req = convert.request_from_msg(msg, defaults=PlanRequest(starts=7, time_budget=4.0))
     assert req.steps is None and req.starts == 7 and req.time_budget == 4.0
-    assert req.objective == "robust-box" and req.n_steps() == 8        # the planner's defaults
+    assert req.objective == "robust-box" and req.n_steps() == BOX_DEFAULT_STEPS       # the planner's defaults
     msg.objective = "robust-derivative"
     assert convert.request_from_msg(msg).n_steps() == 3                 # 2 + k for one parameter
     msg.override_names, msg.override_values = ["nope"], [1.0]

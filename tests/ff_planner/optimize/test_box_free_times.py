@@ -142,10 +142,10 @@ def test_robust_box_chosen_steps_ladder():
     assert seen == [5, 6, 7]                     # from 2 + k up: stops within BOX_TARGET
     assert [t["steps"] for t in r.extra["auto"]["tried"]] == [5, 6, 7]
     assert r.extra["auto"]["box_target_met"] and "tried N=5" in r.message
-    # steps unset (the default): N = 8, raised only while no truly robust plan is found
+    # steps unset (the default): N = BOX_DEFAULT_STEPS, raised only while no truly robust plan is found
     seen.clear()
     r = plan_auto_1dof(PlanRequest(objective="robust-box"), Route(fake, False))
-    assert seen == [8] and not r.extra["auto"]["box_target_met"]
+    assert seen == [BOX_DEFAULT_STEPS] and not r.extra["auto"]["box_target_met"]
 
 
 def test_continuation_in_steps_keeps_a_verified_plan_and_never_worsens(n5_plan):

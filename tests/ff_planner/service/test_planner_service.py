@@ -7,6 +7,7 @@ import pytest
 
 from ff_planner.library.gridded import on_grid
 from ff_planner.library.store import MotionLibrary, record_from_result
+from ff_planner.model.profile import BOX_DEFAULT_STEPS
 from ff_planner.service.planner_service import (PlannerService, RequestFields, ServiceConfig,
                                                 ServiceConfigError, config_from_mapping)
 from tests.support.stand_in_planners import stub_plan
@@ -50,7 +51,7 @@ def test_configured_parameters_reach_the_plan(tmp_path):
     assert (p.pc, p.pv) == (0.25, -0.04)
     assert req.starts == cfg.default_starts and req.time_budget == cfg.default_time_budget
     assert list(req.uncertain) == ["pv", "pc", "pt"] and req.objective == "robust-box"
-    assert req.objective == cfg.default_objective and req.n_steps() == 8 and req.current_quantum == 0.0
+    assert req.objective == cfg.default_objective and req.n_steps() == BOX_DEFAULT_STEPS and req.current_quantum == 0.0
     # a request while no workers run is answered, not raised
     res = svc.handle(checked)
     assert not res.success and res.error_code == "INTERNAL_ERROR"
