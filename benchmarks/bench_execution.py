@@ -144,7 +144,7 @@ def one_run(client: StackClient, msg: Any, nominal, true, late: SimLateSwitches)
     pred_true = float(rest_position(true, prof, [0.0])[0])
     pred_nom = float(rest_position(nominal, prof, [0.0])[0])
     applied = applied_profile(prof, mv.switch_delays)
-    timed = len(mv.switch_delays) == prof.n_steps + 1 and applied is not prof
+    timed = applied is not prof
     pred_applied = float(rest_position(true, applied, [0.0])[0]) if timed else float("nan")
     pred_aq = float(rest_position(true, quantised(applied), [0.0])[0]) if timed else float("nan")
     pred_q = float(rest_position(true, quantised(prof), [0.0])[0])
@@ -185,6 +185,8 @@ def main(argv: Any = None) -> int:
     ap.add_argument("--rt-priority", type=int, default=0,
                     help="SCHED_FIFO priority of the simulated drive and the bridge's scheduler thread "
                          "(0 = default priorities, the benchmark's condition)")
+    ap.add_argument("--player-process", action="store_true",
+                    help="the bridge's setpoint player in its own process (player_process: true)")
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
 
@@ -195,7 +197,9 @@ def main(argv: Any = None) -> int:
     load = busy_processes(a.load)
     rows: list[dict[str, Any]] = []
     try:
-        with Stack(StackOptions(true_params={"pc": true.pc}, rt_priority=a.rt_priority), log=log) as stack:
+        bridge = {"player_process": True} if a.player_process else {}
+        with Stack(StackOptions(true_params={"pc": true.pc}, rt_priority=a.rt_priority,
+                                bridge_overrides=bridge), log=log) as stack:
             with StackClient(stack.env, "ff_bench_execution") as client:
                 late = SimLateSwitches(client)
                 resp = client.plan(plan_request(a.objective))
@@ -241,7 +245,8 @@ def main(argv: Any = None) -> int:
                   "current_quantum_a": NOMINAL_CURRENT / 1000.0},
         "true_params": {"pc": true.pc}, "pc_scale": PC_SCALE, "runs": len(rows), "repeats": 0,
         "load_processes": a.load,
-        "priorities": f"SCHED_FIFO {a.rt_priority}" if a.rt_priority else "default", "cpus": os.cpu_count(),
+        "priorities": f"SCHED_FIFO {a.rt_priority}" if a.rt_priority else "default",
+        "player_process": bool(a.player_process), "cpus": os.cpu_count(),
         "loadavg_start": loadavg_start, "loadavg_end": list(os.getloadavg()),
         "summary": {
             "abs_measured_minus_predicted_rad": stats([r["measured_minus_predicted"] for r in rows]),

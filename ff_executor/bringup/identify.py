@@ -184,12 +184,37 @@ class StackProbe:
         return str(fut.result().message)
 
 
+def switch_changes(profile: CurrentProfile) -> list[int]:
+    """Indices j of the switches that change the current: step starts j = 0 .. N − 1 whose
+    current differs from the step before (0 A before the first), and j = N, the coast start,
+    when the last step's current is not 0."""
+    cur = np.asarray(profile.currents, float).reshape(profile.n_steps, -1)
+    prev = np.zeros(cur.shape[1])
+    out = []
+    for j in range(profile.n_steps):
+        if np.any(cur[j] != prev):
+            out.append(j)
+        prev = cur[j]
+    if np.any(prev != 0.0):
+        out.append(profile.n_steps)
+    return out
+
+
 def applied_profile(profile: CurrentProfile, delays: Sequence[float]) -> CurrentProfile:
     """The profile with each switch moved by its delay (s) relative to the first one: the timing
-    the bridge applied (one delay per current change: the steps and the final zero)."""
-    if len(delays) != profile.n_steps + 1:
+    the bridge applied (one delay per current change: the steps whose current differs from the
+    one before, and the final zero; a switch between two equal currents changes nothing and
+    moves with the change before it). The profile itself when the delays do not fit."""
+    changes = switch_changes(profile)
+    if len(delays) != len(changes) or not changes:
         return profile
-    d = np.asarray(delays, float) - float(delays[0])
+    per = np.empty(profile.n_steps + 1)
+    k = -1
+    for j in range(profile.n_steps + 1):
+        if k + 1 < len(changes) and changes[k + 1] == j:
+            k += 1
+        per[j] = float(delays[max(k, 0)])
+    d = per - float(delays[0])
     st = profile.step_times + d
     if np.any(np.diff(st) <= 0.0) or st[-1] > profile.tf:
         return profile
@@ -285,8 +310,9 @@ def execute_run(client: Any, probe: StackProbe, run: Any, q_res: float, envelope
                            f"{np.round(mv.switch_delays, 4).tolist()} s): identification stopped")
     if not mv.succeeded:
         raise StackFault(f"the executor did not complete a run: {mv.result.message}")
-    if len(mv.switch_delays) != run.profile.n_steps + 1:
-        raise StackFault(f"the bridge applied {len(mv.switch_delays)} of {run.profile.n_steps + 1} current "
+    changes = len(switch_changes(run.profile))
+    if len(mv.switch_delays) != changes:
+        raise StackFault(f"the bridge applied {len(mv.switch_delays)} of {changes} current "
                          f"changes of a run (safe state? ff-ctl diag)")
     if bus is not None:
         time.sleep(0.05)                 # the monitor's last frames of the run

@@ -59,7 +59,7 @@ import math
 import sys
 import threading
 import time
-from typing import Any, Callable, Optional, Sequence
+from typing import Any, Callable, Optional, Sequence, Union
 
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
@@ -78,6 +78,7 @@ from ff_hwbridge.drive.config import (OPTION_RANGES, BridgeConfig, ConfigError, 
                                       with_bus)
 from ff_hwbridge.drive.epos import EposError, EposMaster
 from ff_hwbridge.drive.player import SWITCH_INTERVAL, AppliedSetpoint, SetpointPlayer, SetpointRejected
+from ff_hwbridge.drive.player_process import ProcessPlayer
 from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.protocol.units import DriveUnits
 from ff_msgs.msg import CurrentSetpoint
@@ -314,7 +315,7 @@ class BridgeNode(LifecycleNode):
         self._override_channel = channel
         self.config: Optional[BridgeConfig] = None
         self.master: Optional[EposMaster] = None
-        self.player: Optional[SetpointPlayer] = None
+        self.player: Optional[Union[SetpointPlayer, ProcessPlayer]] = None
         self._active = False
         self._entities: list[tuple[str, Any]] = []
         self._timers: list[Any] = []
@@ -407,7 +408,12 @@ class BridgeNode(LifecycleNode):
         except (ValueError, EposError, OSError) as exc:
             self.get_logger().error(f"configure failed: {exc}")
             return TransitionCallbackReturn.ERROR
-        self.player = SetpointPlayer(self.master).start()
+        # player_process (sync only): guard, units, RPDO and SYNC watch in a process of its own,
+        # which this node's executor (and its GIL) cannot stall; else a thread here
+        kind = ProcessPlayer if cfg.player_process and cfg.synchronous else SetpointPlayer
+        self.player = kind(self.master).start()
+        if isinstance(self.player, ProcessPlayer):
+            self.get_logger().info(f"setpoint player in its own process (pid {self.player.pid})")
         self._show_config(cfg)
         self._make_interfaces()
         self.get_logger().info(f"configured: joints {list(cfg.joint_names)} on "
