@@ -49,6 +49,8 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=60.0, help="s of streaming")
     ap.add_argument("--sync-period", type=float, default=0.001, help="s (one setpoint per SYNC)")
+    ap.add_argument("--sync-stamp", choices=("deadline", "send"), default="deadline",
+                    help="the hub's SYNC timing model (ff-can-hub --sync-stamp)")
     ap.add_argument("--load", type=int, default=0, help="busy processes to run beside it")
     ap.add_argument("--hub-rt-priority", type=int, default=50,
                     help="SCHED_FIFO priority of the hub's SYNC timer (ff-can-hub's default)")
@@ -72,7 +74,7 @@ def main() -> int:
     load_before = os.getloadavg()
     hub = subprocess.Popen([sys.executable, "-u", "-m", "ff_hwbridge.cli.can_hub", "--port", str(port),
                             "--sync-period", str(a.sync_period),
-                            "--sync-rt-priority", str(a.hub_rt_priority)],
+                            "--sync-rt-priority", str(a.hub_rt_priority), "--sync-stamp", a.sync_stamp],
                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     assert hub.stdout is not None
     hub.stdout.readline()
