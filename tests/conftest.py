@@ -6,7 +6,6 @@ import tempfile
 
 import pytest
 
-from ff_msgs_py.launch import apply_ros_environment, free_domain_id, ros_environment
 
 _USED_DOMAINS: set[int] = set()
 
@@ -19,6 +18,8 @@ def ros_env() -> dict[str, str]:
     machine uses: nodes left over by one module, or another test run in parallel, can then never
     answer, or crowd the discovery ports of, this one.
     """
+    from ff_msgs_py.launch import apply_ros_environment, free_domain_id, ros_environment
+
     log_dir = tempfile.mkdtemp(prefix="ff-test-roslog-")
     domain = free_domain_id(exclude=_USED_DOMAINS)   # not used by any process on this machine
     _USED_DOMAINS.add(domain)
@@ -49,6 +50,8 @@ def rclpy_node(ros_env):
     """An rclpy context + node for calling services/actions from the test process."""
     import rclpy
     from rclpy.node import Node
+
+    from ff_msgs_py.launch import apply_ros_environment
 
     apply_ros_environment(ros_env)
     ctx = rclpy.Context()

@@ -35,7 +35,7 @@ def unique_channel(prefix: str = "ff-test") -> str:
     return f"{prefix}-{uuid.uuid4().hex[:8]}"
 
 
-def open_network(channel: str, interface: str = "virtual", notifier_cycle: float = 0.05,
+def open_network(channel: str, interface: str = "virtual", notifier_cycle: float = 0.01,
                  bus=None) -> canopen.Network:
     """A connected canopen Network on ``channel`` (or on ``bus``) whose disconnect is quick."""
     net = canopen.Network(bus)

@@ -21,7 +21,7 @@ def test_epos_configures_enables_holds_and_disables(tmp_path, capsys):
                    "     units: {nominal_current: 3.0}}\n")
     drive = MiniEpos(channel, 1, DriveUnits(nominal_current=3.0))
     try:
-        code = epos.main(["--config", str(cfg), "--enable", "--current", "1.5", "--hold", "0.3"])
+        code = epos.main(["--config", str(cfg), "--enable", "--current", "1.5", "--hold", "0.1"])
     finally:
         drive.close()
     lines = [json.loads(x) for x in capsys.readouterr().out.splitlines() if x.startswith("{")]

@@ -213,7 +213,7 @@ def test_a_drive_powered_late_is_waited_for(caplog):
     drives = []
 
     def power_on_late() -> None:
-        time.sleep(0.7)
+        time.sleep(0.45)                                      # after two unanswered resets
         drives.append(MiniEpos(channel, 1, cfg.joints[0].units))
 
     t = threading.Thread(target=power_on_late)

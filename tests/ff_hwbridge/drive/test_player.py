@@ -96,11 +96,11 @@ def test_stop_commands_zero_current_and_drops_pending(player):
     p, drive = player
     p.submit(time.time_ns(), [1.5], seq=1)
     assert _wait(lambda: drive.setpoint_raw == 500)
-    p.submit(time.time_ns() + 200_000_000, [3.0], seq=2)
+    p.submit(time.time_ns() + 100_000_000, [3.0], seq=2)
     p.stop()
     assert p.pending == 0
     assert _wait(lambda: drive.setpoint_raw == 0)
-    time.sleep(0.25)
+    time.sleep(0.15)                                             # past the dropped one's stamp
     assert all(sp != 1000 for _, sp in drive.rx_log)            # the dropped 3 A never went out
     assert [a.seq for a in p.take_applied()] == [1]
 

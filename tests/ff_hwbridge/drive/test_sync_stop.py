@@ -15,6 +15,7 @@ from typing import Callable, Optional
 
 import pytest
 
+from ff_hwbridge.drive.epos import REFRESH_PERIOD
 from ff_hwbridge.drive.player import SetpointPlayer
 from tests.ff_hwbridge.drive.test_sync_player import PERIOD, SyncBench
 from tests.support.canopen_helpers import waiter
@@ -38,7 +39,9 @@ def _drifting_grid(bench: SyncBench, drift_ns: int) -> Callable[[], None]:
     ``drift_ns`` (the scheduler's own cycle assignment keeps the live grid)."""
     cycle = bench.player._cycle
     assert cycle is not None
-    nominal, period = cycle.grid()
+    live = cycle.grid()
+    assert live is not None                  # the bench is enabled: SYNCs have been seen
+    nominal, period = live
     state = {"nominal": nominal}
 
     def grid() -> Optional[tuple[int, int]]:
@@ -60,7 +63,9 @@ def _final_raw(bench: SyncBench) -> int:
 def _step_stamps(bench: SyncBench) -> list[int]:
     """Stamps of a profile that starts 0.2 periods past a SYNC, 30 cycles ahead (the switch
     times on the SYNC period's grid, as the planner's switch_grid gives them)."""
-    nominal, period = bench.player.sync_grid()
+    grid = bench.player.sync_grid()
+    assert grid is not None
+    nominal, period = grid
     base = nominal + 30 * period + int(0.2 * period)
     return [base + k * period for k in range(3)]
 
@@ -115,10 +120,10 @@ def test_with_an_external_player_the_master_sends_no_current_and_tells_the_gate_
         m.external_player = True
         assert m.gate() == [(0x000F, True)]
         m.command_currents([1.0])
-        time.sleep(0.2)                                                  # > REFRESH_PERIOD
+        time.sleep(3 * REFRESH_PERIOD)
         assert all(r.raw == 0 for r in b.drive.setpoint_log())          # no current from here
         tx = m.rpdo_marks()[0]
-        time.sleep(0.2)
+        time.sleep(3 * REFRESH_PERIOD)
         assert m.rpdo_marks()[0] == tx                                   # no refresh of its own
         m.trip("test reaction")
         assert seen and seen[0][0] == [(0x000F, False)] and seen[0][2]  # gate closed first

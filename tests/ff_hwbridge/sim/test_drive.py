@@ -14,7 +14,7 @@ from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.protocol.epos_od import SUPPORTED_MODES, VELOCITY_UNIT_RPM
 from ff_hwbridge.sim.arm import SimArm
 from ff_hwbridge.sim.drive import DriveConfig, SimConfigError, SimEpos, build_object_dictionary
-from ff_planner.model.params import default_params
+from ff_planner.model.params import Arm1DofParams, default_params
 from tests.support.canopen_helpers import open_network, waiter
 
 _chan = itertools.count()
@@ -513,15 +513,17 @@ def test_physics_runs_on_its_own_clock_not_in_the_can_thread():
 
 def _moving_rig(sdo_writes=None, speed: float = 1.5):
     """A drive on the 1-DOF arm (its own clock), enabled in CST, the arm at ``speed`` rad/s."""
-    arm = SimArm(default_params("arm1dof"), 0.0)
+    params = default_params("arm1dof")
+    assert isinstance(params, Arm1DofParams)
+    arm = SimArm(params, 0.0)
     arm.start_clock(0.002)
-    r = Rig(plant=arm.port(0), load_inertia=default_params("arm1dof").J)
+    r = Rig(plant=arm.port(0), load_inertia=params.J)
     r.drive.boot()
     r.configure_contract_pdos()
     for (index, sub), value in (sdo_writes or {}).items():
         (r.node.sdo[index] if sub is None else r.node.sdo[index][sub]).raw = value
     r.enable()
-    r.rpdo(0x0F, 300)                                     # 0.9 A
+    r.rpdo(0x0F, 1000)                                    # 3 A: at speed within about 0.1 s
     assert wait_for(lambda: arm.state().qd[0] > speed, 5.0)
     return r, arm
 
@@ -565,7 +567,12 @@ def test_quick_stop_option_2_ends_switch_on_disabled_and_0_cuts_the_current():
     try:
         r.rpdo(0x02, 300)
         assert wait_for(lambda: r.drive.state is State.SWITCH_ON_DISABLED)
-        assert not r.drive.braking and r.drive.applied_current == 0.0   # motor free at once
+        # the state is published a moment before the power stage's current: wait for that, then
+        # check the drive's own stamps: the current dropped to 0 A at the transition's instant
+        assert wait_for(lambda: r.drive.applied_current == 0.0)
+        last = r.drive.state_log[-1]
+        assert last.transition == 9 and r.drive.zero_current_ns == last.mono_ns   # motor free at once
+        assert not r.drive.braking
     finally:
         r.close()
         arm.stop_clock()

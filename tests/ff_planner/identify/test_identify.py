@@ -124,10 +124,13 @@ def _cogging_sim(true: Arm1DofParams, profile, q0: float, t: np.ndarray, depth: 
     c = true.torque_per_amp
     q, v, tt = q0, 0.0, 0.0
     out = np.full(t.size, q0)
-    switches = list(profile.step_times[1:])
+    switches = sorted(float(s) for s in profile.step_times[1:]) + [math.inf]
+    nxt = 0                                   # switches[nxt]: the first one after tt
     for k in np.nonzero(t > 0.0)[0]:
         while tt < t[k] - 1e-12:
-            tn = min(t[k], tt + 1e-4, *[s for s in switches if s > tt + 1e-12] or [math.inf])
+            while switches[nxt] <= tt + 1e-12:
+                nxt += 1
+            tn = min(t[k], tt + 1e-4, switches[nxt])
             pc = true.pc * (1.0 + depth * math.sin(2.0 * math.pi * q / 0.25))
             q, v = advance_core(true.J, c, true.pv, pc, true.pt, q, v, profile.current_at(tt)[0], tn - tt)
             tt = tn

@@ -52,7 +52,7 @@ def test_plan_independently_resimulated(plan):
 
 def test_link2_moving_is_labelled_best_effort():
     req = PlanRequest(objective="robust-derivative", model="scara2", q0=(0.0, 0.0), qf=(0.3, 0.3), tf=1.0,
-                      uncertain=("pc1", "pc2"), steps=4, starts=1, seed=0, time_budget=3)
+                      uncertain=("pc1", "pc2"), steps=4, starts=1, seed=0, time_budget=1.0)
     res = plan_robust_scara2(req)
     assert not res.success and res.error_code in ("NO_ROBUST_PLAN", "TIME_BUDGET_EXHAUSTED")
     if res.profile is not None:
