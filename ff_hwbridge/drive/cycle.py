@@ -9,8 +9,11 @@ setpoint at each SYNC. :class:`CycleScheduler` therefore
    corrected for its lateness: ``SyncWatch.grid``, nominal + k · period);
 2. sends it (``send(stamp, payload) -> (marks, token)``, marks: per joint the RPDO count
    including this one, None without an echo) as soon as the SYNC before that one has been seen,
-   i.e. up to one whole period early, so that the sender may be late by most of a cycle without
-   any error;
+   or, when that SYNC's frame is late here, ``SEND_MARGIN`` of a period after its predicted
+   instant (a SYNC timer keeps time, the frame's path to this process may not); i.e. up to one
+   whole period early, so that the sender may be late by most of a cycle without any error. A
+   setpoint that a SYNC before its own latched (that SYNC came later than the margin) calls
+   ``on_fault(reason)``;
 3. resolves it at the first SYNC stamped at or after the RPDO's own bus instant (from the
    bus's echo of our own frames, ``echo_time(marks)``; without an echo the local send time):
    applied = that SYNC's bus instant, missed cycles = how many SYNCs after its own cycle that
@@ -46,6 +49,10 @@ from ff_hwbridge.drive.sync_watch import SyncEvent, SyncWatch
 
 log = logging.getLogger(__name__)
 
+#: fraction of a period: a setpoint is sent at the latest this long after the predicted instant
+#: of the SYNC before its own, seen or not
+SEND_MARGIN = 0.2
+
 __all__ = ["CycleScheduler", "CycleStats", "Resolved"]
 
 
@@ -74,6 +81,7 @@ class Resolved:
     missed_cycles: int
     token: Any
     stop: bool = False
+    early_cycles: int = 0     # SYNC cycles before its own (sent by the clock, its SYNC late)
 
 
 @dataclass(frozen=True)
@@ -111,6 +119,7 @@ class CycleScheduler(StampedQueue):
         self._clock_ns = clock_ns
         self.period_ns = watch.period_ns
         self._tol_ns = int(tolerance * self.period_ns)
+        self._margin_ns = int(SEND_MARGIN * self.period_ns)
         self.missed_tolerance = int(missed_tolerance)
         self._inflight: deque[_InFlight] = deque()
         self._last_stamp: Optional[int] = None
@@ -210,15 +219,23 @@ class CycleScheduler(StampedQueue):
                 if done:
                     break
                 g = self.watch.grid()
+                wait = 0.05 if g is not None else 0.005
                 if self._heap and g is not None:
                     k = self._cycles_ahead(self._heap[0].stamp_ns, g[1])
-                    if k <= 1:
+                    # its window opens with the SYNC before its own: seen (k <= 1), or by the
+                    # grid's clock SEND_MARGIN after that SYNC's instant when its frame is late
+                    # here (a SYNC timer keeps time; the frame's way to this process may not)
+                    opens = g[1] + self.period_ns + self._margin_ns
+                    now = self._clock_ns()
+                    if k <= 1 or (k == 2 and now >= opens):
                         item = heapq.heappop(self._heap)
                         break
+                    if k == 2:
+                        wait = min(wait, max((opens - now) / 1e9, 0.0002))
                 elif self._heap and self._heap[0].stamp_ns <= self._clock_ns():
                     item = heapq.heappop(self._heap)         # due, and no SYNC to place it on
                     break
-                self._cond.wait(0.05 if g is not None else 0.005)
+                self._cond.wait(wait)
             if self._stop:
                 return True
         for r in done:
@@ -288,11 +305,12 @@ class CycleScheduler(StampedQueue):
                 break
             self._inflight.popleft()
             missed = max(0, hit.count - f.target_count)
+            early = max(0, f.target_count - hit.count)
             self._leads.append(f.lead_ns)
             if self._last_applied_ns == hit.bus_ns:
                 self.superseded += 1
             self._last_applied_ns = hit.bus_ns
-            out.append(Resolved(f.stamp_ns, hit.bus_ns, f.sent_wall_ns, missed, f.token, f.stop))
+            out.append(Resolved(f.stamp_ns, hit.bus_ns, f.sent_wall_ns, missed, f.token, f.stop, early))
         return out
 
     def _deliver(self, r: Resolved) -> None:
@@ -304,7 +322,11 @@ class CycleScheduler(StampedQueue):
             self._report(r)
         except Exception:  # noqa: BLE001
             log.exception("reporting a setpoint failed")
-        if r.missed_cycles > self.missed_tolerance and r.stop:
+        if r.early_cycles and not r.stop:
+            self._fault(f"setpoint took effect {r.early_cycles} SYNC cycle(s) early: the SYNC "
+                        f"before its own came more than {SEND_MARGIN:.0%} of a period after its "
+                        f"predicted instant; stamp {r.stamp_ns} ns")
+        elif r.missed_cycles > self.missed_tolerance and r.stop:
             # a zero-current stop (a cancel's zero stamped "now"): it has no cycle to keep, and
             # what it asks for is what the safe state would do; counted and logged, not a fault
             self.late_stops += 1

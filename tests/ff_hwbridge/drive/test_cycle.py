@@ -8,7 +8,7 @@ from typing import Any
 
 import pytest
 
-from ff_hwbridge.drive.cycle import CycleScheduler
+from ff_hwbridge.drive.cycle import SEND_MARGIN, CycleScheduler
 from ff_hwbridge.drive.scheduler import StampScheduler
 from ff_hwbridge.drive.sync_watch import SyncWatch
 from tests.support.canopen_helpers import waiter
@@ -72,6 +72,24 @@ def test_a_setpoint_that_missed_its_cycle_is_a_fault_a_stop_that_did_is_counted(
             assert wait_for(lambda: len(rig.faults) == 1)
             assert "missed its SYNC cycle" in rig.faults[0] and rig.sched.late_stops == 0
         assert rig.sched.missed == 1
+    finally:
+        rig.close()
+
+
+def test_a_late_sync_frame_does_not_shorten_the_window_and_a_late_sync_itself_is_a_fault():
+    rig = Rig()
+    try:
+        t = rig.sync()
+        rig.sched.submit(t + 2 * P_NS, "x")              # its window opens with the SYNC at t + P
+        time.sleep(0.5 * PERIOD)
+        assert rig.sent == []                             # not before that SYNC's instant
+        # that SYNC's frame never comes here: the grid's clock opens the window
+        assert wait_for(lambda: rig.sent == ["x"])
+        assert time.time_ns() >= t + P_NS + int(SEND_MARGIN * P_NS)
+        assert not rig.faults
+        rig.sync()      # ... but a SYNC now, after the send, means that SYNC was late: it latches x
+        assert wait_for(lambda: len(rig.faults) == 1)
+        assert "1 SYNC cycle(s) early" in rig.faults[0], rig.faults
     finally:
         rig.close()
 
