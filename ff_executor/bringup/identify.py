@@ -184,19 +184,20 @@ class StackProbe:
         return str(fut.result().message)
 
 
-def switch_changes(profile: CurrentProfile) -> list[int]:
-    """Indices j of the switches that change the current: step starts j = 0 .. N − 1 whose
-    current differs from the step before (0 A before the first), and j = N, the coast start,
-    when the last step's current is not 0."""
-    cur = np.asarray(profile.currents, float).reshape(profile.n_steps, -1)
+def switch_changes(currents: Any) -> list[int]:
+    """Indices j of the switches that change the current, for step currents (A; N, or N × joints):
+    step starts j = 0 .. N − 1 whose current differs from the step before (0 A before the first),
+    and j = N, the coast start, when the last step's current is not 0."""
+    cur = np.asarray(currents, float)
+    cur = cur.reshape(cur.shape[0], -1)
     prev = np.zeros(cur.shape[1])
     out = []
-    for j in range(profile.n_steps):
+    for j in range(cur.shape[0]):
         if np.any(cur[j] != prev):
             out.append(j)
         prev = cur[j]
     if np.any(prev != 0.0):
-        out.append(profile.n_steps)
+        out.append(cur.shape[0])
     return out
 
 
@@ -205,7 +206,7 @@ def applied_profile(profile: CurrentProfile, delays: Sequence[float]) -> Current
     the bridge applied (one delay per current change: the steps whose current differs from the
     one before, and the final zero; a switch between two equal currents changes nothing and
     moves with the change before it). The profile itself when the delays do not fit."""
-    changes = switch_changes(profile)
+    changes = switch_changes(profile.currents)
     if len(delays) != len(changes) or not changes:
         return profile
     per = np.empty(profile.n_steps + 1)
@@ -310,7 +311,7 @@ def execute_run(client: Any, probe: StackProbe, run: Any, q_res: float, envelope
                            f"{np.round(mv.switch_delays, 4).tolist()} s): identification stopped")
     if not mv.succeeded:
         raise StackFault(f"the executor did not complete a run: {mv.result.message}")
-    changes = len(switch_changes(run.profile))
+    changes = len(switch_changes(run.profile.currents))
     if len(mv.switch_delays) != changes:
         raise StackFault(f"the bridge applied {len(mv.switch_delays)} of {changes} current "
                          f"changes of a run (safe state? ff-ctl diag)")

@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Optional, Sequence
 
 from ff_executor.bringup.bus_monitor import BusMonitor
-from ff_executor.bringup.identify import DriveFault, StackProbe, identify_runs, stack_q_resolution
+from ff_executor.bringup.identify import DriveFault, StackProbe, identify_runs, stack_q_resolution, switch_changes
 from ff_planner.identify import Envelope, Excitation, FitResult, design_excitation, fit_friction
 from ff_planner.identify.records import RunRecord
 from ff_planner.model.params import Arm1DofParams
@@ -158,9 +158,9 @@ def timing_allowance(certificate: Any, step_times: Sequence[float], currents: Se
     the certificate's ``switch_timing`` (rad per 100 µs); and the largest |Δt_j|. (nan, nan) when
     the bus did not show one change per such switch."""
     sens = list(certificate.switch_timing)
-    cur = [float(c) for c in currents] + [0.0]
-    keep = [j for j in range(1, len(step_times)) if cur[j] != cur[j - 1]]
-    planned = [float(step_times[0])] + [float(step_times[j]) for j in keep]
+    changes = switch_changes(currents)
+    keep = changes[1:]
+    planned = [float(step_times[j]) for j in changes]
     if len(sens) != len(step_times) - 1 or len(applied) != len(planned):
         return math.nan, math.nan
     d = [(a - applied[0]) - (p - planned[0]) for p, a in zip(planned[1:], applied[1:])]

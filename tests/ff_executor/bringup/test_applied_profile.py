@@ -15,9 +15,9 @@ def _profile(currents: list[float]) -> CurrentProfile:
 
 
 def test_equal_neighbours_and_a_zero_end_make_no_switch():
-    assert switch_changes(_profile([1.0, -2.0, -2.0, 0.5])) == [0, 1, 3, 4]
-    assert switch_changes(_profile([1.0, 0.0])) == [0, 1]            # ends on 0 A: no coast switch
-    assert switch_changes(_profile([0.0, 2.0, 1.0])) == [1, 2, 3]    # 0 A first: no start switch
+    assert switch_changes(_profile([1.0, -2.0, -2.0, 0.5]).currents) == [0, 1, 3, 4]
+    assert switch_changes(_profile([1.0, 0.0]).currents) == [0, 1]            # ends on 0 A: no coast switch
+    assert switch_changes(_profile([0.0, 2.0, 1.0]).currents) == [1, 2, 3]    # 0 A first: no start switch
 
 
 def test_delays_move_the_switches_that_change_and_their_equal_followers():
