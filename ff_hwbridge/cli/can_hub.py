@@ -21,6 +21,7 @@ import threading
 from typing import Optional, Sequence
 
 from ff_hwbridge.drive.bus import LOOPBACK, CanConfigError
+from ff_hwbridge.drive.gc_pauses import freeze_heap
 from ff_hwbridge.sim.can_hub import CanHub, start_hub
 from ff_hwbridge.sim.sync import STAMPS
 
@@ -97,6 +98,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
     signal.signal(signal.SIGUSR1, lambda *_: report.set())
+    freeze_heap()       # a full collection would hold the SYNC timer thread off the GIL
     print(f"CAN hub on {hub.url}" + (f", SYNC every {args.sync_period * 1000.0:g} ms"
                                       if args.sync_period else ""), flush=True)
     waited = 0.0

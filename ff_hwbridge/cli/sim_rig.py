@@ -22,6 +22,7 @@ import sys
 import threading
 from typing import Optional, Sequence
 
+from ff_hwbridge.drive.gc_pauses import freeze_heap
 from ff_hwbridge.sim.can_hub import CanHub, start_hub
 from ff_hwbridge.sim.drive import SimConfigError
 from ff_hwbridge.sim.rig import SWITCH_INTERVAL, RigConfig, SimRig, run_command, write_record
@@ -108,6 +109,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         threading.Timer(a.boot_delay, rig.boot).start()
     else:
         rig.boot()
+    freeze_heap()       # a full collection would hold the drives' bus thread off the GIL
     print("sim rig ready", flush=True)
     if not sys.stdin.isatty():
         threading.Thread(target=read_stdin, daemon=True).start()

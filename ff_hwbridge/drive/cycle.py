@@ -9,9 +9,10 @@ setpoint at each SYNC. :class:`CycleScheduler` therefore
    corrected for its lateness: ``SyncWatch.grid``, nominal + k · period);
 2. sends it (``send(stamp, payload) -> (marks, token)``, marks: per joint the RPDO count
    including this one, None without an echo) as soon as the SYNC before that one has been seen,
-   or, when that SYNC's frame is late here, ``SEND_MARGIN`` of a period after its predicted
-   instant (a SYNC timer keeps time, the frame's path to this process may not); i.e. up to one
-   whole period early, so that the sender may be late by most of a cycle without any error. A
+   or, when that SYNC's frame is late here (or several frames before it are: a bus receiver
+   that stalled), ``SEND_MARGIN`` of a period after its predicted instant on the grid (a SYNC
+   timer keeps time, the frames' path to this process may not); i.e. up to one whole period
+   early, so that the sender may be late by most of a cycle without any error. A
    setpoint that a SYNC before its own latched (that SYNC came later than the margin) calls
    ``on_fault(reason)``;
 3. resolves it at the first SYNC stamped at or after the RPDO's own bus instant (from the
@@ -223,15 +224,15 @@ class CycleScheduler(StampedQueue):
                 if self._heap and g is not None:
                     k = self._cycles_ahead(self._heap[0].stamp_ns, g[1])
                     # its window opens with the SYNC before its own: seen (k <= 1), or by the
-                    # grid's clock SEND_MARGIN after that SYNC's instant when its frame is late
-                    # here (a SYNC timer keeps time; the frame's way to this process may not)
-                    opens = g[1] + self.period_ns + self._margin_ns
+                    # grid's clock SEND_MARGIN after that SYNC's predicted instant when its
+                    # frame (and any number before it) is late here: a SYNC timer keeps time,
+                    # the frames' way to this process may not
+                    opens = g[1] + (k - 1) * self.period_ns + self._margin_ns
                     now = self._clock_ns()
-                    if k <= 1 or (k == 2 and now >= opens):
+                    if k <= 1 or now >= opens:
                         item = heapq.heappop(self._heap)
                         break
-                    if k == 2:
-                        wait = min(wait, max((opens - now) / 1e9, 0.0002))
+                    wait = min(wait, max((opens - now) / 1e9, 0.0002))
                 elif self._heap and self._heap[0].stamp_ns <= self._clock_ns():
                     item = heapq.heappop(self._heap)         # due, and no SYNC to place it on
                     break

@@ -42,6 +42,7 @@ from typing import Any, Callable, Optional, Self, Sequence
 import can
 
 from ff_hwbridge.drive.cycle import CycleScheduler, Resolved
+from ff_hwbridge.drive.gc_pauses import freeze_heap
 from ff_hwbridge.drive.epos import ECHO_INTERFACES, REFRESH_PERIOD, SYNC_COB_ID, EposMaster
 from ff_hwbridge.drive.placement import GridPlacement
 from ff_hwbridge.drive.player import (MAX_REPORTS, SWITCH_INTERVAL, AppliedSetpoint, PlayerBase, PlayerConfig,
@@ -255,6 +256,7 @@ class _Child:
 
     def run(self) -> None:
         sys.setswitchinterval(SWITCH_INTERVAL)
+        freeze_heap()       # a full collection would hold the scheduler thread off the GIL
         threading.Thread(target=self.receive, name="ff-player-rx", daemon=True).start()
         threading.Thread(target=self.status, name="ff-player-status", daemon=True).start()
         self.sched.start()

@@ -78,6 +78,8 @@ from ff_hwbridge.drive.config import (OPTION_RANGES, BridgeConfig, ConfigError, 
                                       with_bus)
 from ff_hwbridge.drive.epos import EposError, EposMaster
 from ff_hwbridge.drive.player import SWITCH_INTERVAL, AppliedSetpoint, SetpointPlayer, SetpointRejected
+from ff_hwbridge.drive.gc_pauses import freeze_heap
+from ff_hwbridge.drive.gc_pauses import pauses as gc_pauses
 from ff_hwbridge.drive.player_process import ProcessPlayer
 from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.protocol.units import DriveUnits
@@ -434,7 +436,11 @@ class BridgeNode(LifecycleNode):
                                     f"(states {states}; {self.master.fault_reason or 'no fault'})")
             return TransitionCallbackReturn.ERROR
         self._active = True
-        self.get_logger().info("active: operation enabled, accepting setpoints")
+        # what configure and activate built lives as long as the node: out of the collector's
+        # scans, so that a full collection cannot hold the GIL for a SYNC cycle (gc_pauses)
+        frozen = freeze_heap()
+        self.get_logger().info(f"active: operation enabled, accepting setpoints "
+                               f"({frozen} objects frozen out of the collector's scans)")
         return super().on_activate(state)
 
     def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -714,6 +720,7 @@ class BridgeNode(LifecycleNode):
         st = self.master.status()
         if self.player is not None:
             st.update(self.player.diagnostics())
+        st.update(gc_pauses.as_dict())
         st["active"] = self._active
         st["commands.topic"] = self._get("command_topic")
         st["commands.accepted"] = self.commands_accepted
@@ -753,6 +760,7 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
     # the bus receiver and the setpoint player get the GIL back from the executor's threads
     # within this (python's default 5 ms would be five SYNC cycles)
     sys.setswitchinterval(SWITCH_INTERVAL)
+    gc_pauses.install()
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:

@@ -40,6 +40,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from ff_hwbridge.drive.bus import CanConfigError
+from ff_hwbridge.drive.gc_pauses import freeze_heap
 from ff_hwbridge.sim.arm import FrictionMismatch
 from ff_hwbridge.sim.can_hub import CanHub, start_hub
 from ff_hwbridge.sim.drive import SimConfigError, SimEpos
@@ -161,6 +162,7 @@ class SimDriverNode(Node):
         self.create_timer(1.0 / float(self._p("ground_truth_rate")), self._publish_truth)
         self.create_timer(1.0 / float(self._p("diagnostics_rate")), self._publish_diagnostics)
         self.rig.boot()
+        freeze_heap()       # a full collection would hold the drives' bus thread off the GIL
         self.exit_code = 0
         if self.hub is None:        # a hub elsewhere may go away: bus off, reconnect or give up
             self.rig.watch_bus(lambda line: self.get_logger().error(line), self._on_bus_gone,

@@ -94,6 +94,21 @@ def test_a_late_sync_frame_does_not_shorten_the_window_and_a_late_sync_itself_is
         rig.close()
 
 
+def test_the_grid_clock_opens_the_window_when_several_sync_frames_are_late():
+    rig = Rig()
+    try:
+        t = rig.sync()
+        rig.sched.submit(t + 4 * P_NS, "x")              # its window opens with the SYNC at t + 3P
+        time.sleep(2.5 * PERIOD)
+        assert rig.sent == []                             # not before that SYNC's instant
+        # no SYNC frame after the first comes here: the grid's clock opens the window
+        assert wait_for(lambda: rig.sent == ["x"])
+        assert time.time_ns() >= t + 3 * P_NS + int(SEND_MARGIN * P_NS)
+        assert not rig.faults
+    finally:
+        rig.close()
+
+
 def test_a_due_setpoint_without_sync_trips_with_the_reason_and_a_stop_is_still_sent():
     rig = Rig()
     try:
