@@ -12,9 +12,10 @@ setpoint at each SYNC. :class:`CycleScheduler` therefore
    or, when that SYNC's frame is late here (or several frames before it are: a bus receiver
    that stalled), ``SEND_MARGIN`` of a period after its predicted instant on the grid (a SYNC
    timer keeps time, the frames' path to this process may not); i.e. up to one whole period
-   early, so that the sender may be late by most of a cycle without any error. A
-   setpoint that a SYNC before its own latched (that SYNC came later than the margin) calls
-   ``on_fault(reason)``;
+   early, so that the sender may be late by most of a cycle without any error
+   (``clock_opens=False``: only the SYNC seen opens it, for SYNC frames whose lateness here is
+   lateness on the bus, or that are seen by a proxy that follows them). A setpoint that a SYNC
+   before its own latched (that SYNC came later than the margin) calls ``on_fault(reason)``;
 3. resolves it at the first SYNC stamped at or after the RPDO's own bus instant (from the
    bus's echo of our own frames, ``echo_time(marks)``; without an echo the local send time):
    applied = that SYNC's bus instant, missed cycles = how many SYNCs after its own cycle that
@@ -68,6 +69,8 @@ class _InFlight:
     lead_ns: int              # sent − bus instant of the SYNC seen before it
     token: Any
     stop: bool = False        # a zero-current stop (no cycle of its own to keep)
+    picked_wall_ns: int = 0   # when the thread took it from the queue
+    send_ns: int = 0          # how long preparing and sending took
 
 
 @dataclass(frozen=True)
@@ -83,6 +86,8 @@ class Resolved:
     token: Any
     stop: bool = False
     early_cycles: int = 0     # SYNC cycles before its own (sent by the clock, its SYNC late)
+    picked_ns: int = 0        # wall ns: when the thread took it from the queue to send it
+    send_took_ns: int = 0     # ns: preparing and sending it
 
 
 @dataclass(frozen=True)
@@ -111,7 +116,7 @@ class CycleScheduler(StampedQueue):
                  on_fault: Callable[[str], object] = lambda reason: None,
                  tolerance: float = 0.1, missed_tolerance: int = 1, rt_priority: int = 0,
                  max_records: int = 200_000, name: str = "ff-cycle-scheduler",
-                 clock_ns: Callable[[], int] = time.time_ns) -> None:
+                 clock_ns: Callable[[], int] = time.time_ns, clock_opens: bool = True) -> None:
         super().__init__(name, rt_priority, threading.Condition(threading.RLock()))
         self.watch = watch
         self._send, self._report, self._prepare = send, report, prepare
@@ -121,6 +126,7 @@ class CycleScheduler(StampedQueue):
         self.period_ns = watch.period_ns
         self._tol_ns = int(tolerance * self.period_ns)
         self._margin_ns = int(SEND_MARGIN * self.period_ns)
+        self.clock_opens = bool(clock_opens)
         self.missed_tolerance = int(missed_tolerance)
         self._inflight: deque[_InFlight] = deque()
         self._last_stamp: Optional[int] = None
@@ -213,6 +219,7 @@ class CycleScheduler(StampedQueue):
         """One pass: resolve what its SYNC has latched, send what is due; True when stopped."""
         done: list[Resolved] = []
         g: Optional[tuple[SyncEvent, int]] = None
+        picked = 0
         with self._cond:
             item: Optional[StampedItem] = None
             while not self._stop:
@@ -229,10 +236,12 @@ class CycleScheduler(StampedQueue):
                     # the frames' way to this process may not
                     opens = g[1] + (k - 1) * self.period_ns + self._margin_ns
                     now = self._clock_ns()
-                    if k <= 1 or now >= opens:
+                    if k <= 1 or (self.clock_opens and now >= opens):
                         item = heapq.heappop(self._heap)
+                        picked = time.time_ns()
                         break
-                    wait = min(wait, max((opens - now) / 1e9, 0.0002))
+                    if self.clock_opens:
+                        wait = min(wait, max((opens - now) / 1e9, 0.0002))
                 elif self._heap and self._heap[0].stamp_ns <= self._clock_ns():
                     item = heapq.heappop(self._heap)         # due, and no SYNC to place it on
                     break
@@ -243,7 +252,7 @@ class CycleScheduler(StampedQueue):
             self._deliver(r)
         if item is not None:
             if g is not None:
-                self._send_item(item, *g)
+                self._send_item(item, *g, picked)
             else:
                 self._unplaceable(item)
         return False
@@ -262,7 +271,7 @@ class CycleScheduler(StampedQueue):
                     f"is due but no SYNC has been seen: it cannot be placed on the SYNC grid "
                     f"({self.period_ns / 1e6:g} ms)")
 
-    def _send_item(self, item: StampedItem, ev: SyncEvent, nominal_ns: int) -> None:
+    def _send_item(self, item: StampedItem, ev: SyncEvent, nominal_ns: int, picked_ns: int = 0) -> None:
         if self._last_stamp is not None and item.stamp_ns < self._last_stamp:
             if not item.stop:
                 self.stale += 1
@@ -271,6 +280,7 @@ class CycleScheduler(StampedQueue):
         k = self._cycles_ahead(item.stamp_ns, nominal_ns)
         target = nominal_ns + k * self.period_ns
         payload = item.payload
+        t0 = time.time_ns()
         try:
             if self._prepare is not None:
                 payload = self._prepare(payload)
@@ -285,7 +295,8 @@ class CycleScheduler(StampedQueue):
         lead = sent - (seen.bus_ns if seen is not None else ev.bus_ns)
         with self._cond:
             self._inflight.append(_InFlight(item.stamp_ns, target, ev.count + k, seen_count, marks,
-                                            sent, lead, token, bool(item.stop)))
+                                            sent, lead, token, bool(item.stop),
+                                            picked_ns or t0, sent - t0))
             self._cond.notify_all()
 
     def _resolve(self) -> list[Resolved]:
@@ -311,7 +322,8 @@ class CycleScheduler(StampedQueue):
             if self._last_applied_ns == hit.bus_ns:
                 self.superseded += 1
             self._last_applied_ns = hit.bus_ns
-            out.append(Resolved(f.stamp_ns, hit.bus_ns, f.sent_wall_ns, missed, f.token, f.stop, early))
+            out.append(Resolved(f.stamp_ns, hit.bus_ns, f.sent_wall_ns, missed, f.token, f.stop, early,
+                                f.picked_wall_ns, f.send_ns))
         return out
 
     def _deliver(self, r: Resolved) -> None:
@@ -336,4 +348,6 @@ class CycleScheduler(StampedQueue):
             self._fault(f"setpoint missed its SYNC cycle: took effect {r.missed_cycles} "
                             f"cycle(s) of {self.period_ns / 1e6:g} ms late (missed_cycle_tolerance "
                             f"{self.missed_tolerance}); stamp {r.stamp_ns} ns, sent "
-                            f"{(r.sent_ns - r.stamp_ns) / 1e3:+.0f} µs from it")
+                            f"{(r.sent_ns - r.stamp_ns) / 1e3:+.0f} µs from it (taken from the "
+                            f"queue {(r.picked_ns - r.stamp_ns) / 1e3:+.0f} µs, preparing and "
+                            f"sending took {r.send_took_ns / 1e3:.0f} µs)")

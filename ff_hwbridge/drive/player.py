@@ -52,6 +52,17 @@ from ff_hwbridge.drive.scheduler import StampScheduler, SwitchStats
 __all__ = ["AppliedSetpoint", "PlayerConfig", "SetpointPlayer", "SetpointRejected"]
 
 
+def _sync_keeps_time(master: EposMaster) -> bool:
+    """Whether the SYNC grid's clock may open a setpoint's window when the SYNC frame before it
+    has not been seen here yet: when SYNC comes from a timer that keeps time while the frame's way
+    to this process may not (another producer; the kernel's broadcast manager for this master's
+    own SYNC on SocketCAN). Not for this master's own SYNC sent by a python-can thread (a late
+    frame is late on the bus too) or seen only by the first drive's answer (no echo: the answer
+    follows the SYNC): there a clock-opened window would let a setpoint out before that SYNC."""
+    cfg = master.config
+    return cfg.sync_producer != "master" or (cfg.bus.interface == "socketcan" and master.echo)
+
+
 class SetpointRejected(ValueError):
     """A setpoint the player does not queue (wrong number of currents, safe state latched)."""
 
@@ -216,7 +227,7 @@ class SetpointPlayer(PlayerBase):
                 tolerance=self.config.cycle_tolerance,
                 missed_tolerance=master.config.missed_cycle_tolerance,
                 rt_priority=self.config.rt_priority, max_records=MAX_RECORDS, name=name,
-                clock_ns=clock_ns)
+                clock_ns=clock_ns, clock_opens=_sync_keeps_time(master))
         self._scheduler: StampScheduler | CycleScheduler = self._cycle or StampScheduler(self._apply, clock_ns=clock_ns,
                                          spin_margin=self.config.spin_margin,
                                          max_records=MAX_RECORDS,
