@@ -40,6 +40,7 @@ from _common import (busy_processes, enable_drive, feed_stream, match_stream, pe
                      stop_processes)
 
 from ff_hwbridge.drive.epos import EposMaster
+from ff_hwbridge.drive.gc_pauses import freeze_heap, hold_full_collections
 from ff_hwbridge.drive.player import PlayerConfig, SetpointPlayer
 from ff_hwbridge.drive.player_process import ProcessPlayer
 from ff_hwbridge.sim.rig_process import RigProcess, free_port, rig_master_config
@@ -97,6 +98,8 @@ def main() -> int:
             raise SystemExit(f"drive not enabled: {master.fault_reason}")
         kind = ProcessPlayer if a.player_process else SetpointPlayer
         player = kind(master, PlayerConfig(rt_priority=a.rt_priority)).start()
+        freeze_heap()           # as the bridge node does at activation (gc_pauses)
+        hold_full_collections()
         while player.sync_grid() is None:
             if master.latched:
                 raise SystemExit(f"safe state before the stream: {master.fault_reason}")

@@ -221,6 +221,14 @@ def execute_plan(client: Any, label: str, request: Any, *, reset_to: Optional[fl
             landing.timing_allowance = 0.0
             landing.executed = False
             landing.message += f"; the CAN bus showed {len(changes)} current changes, not the plan's {len(planned)}"
+    if not landing.executed:        # say why: the executor's outcome and the bridge's safe state
+        landing.message += f"; executor: {getattr(r, 'message', '') or 'no message'}"
+        if probe is not None:
+            time.sleep(0.3)         # the bridge's diagnostics follow its safe state
+            try:
+                probe.check_drive()
+            except DriveFault as exc:
+                landing.message += f"; bridge: {str(exc)[:400]}"
     log(f"  executed {label}: rest error {landing.error_truth * 1e3:+.3f} mrad (bridge "
         f"{landing.error_bridge * 1e3:+.3f}), certificate {landing.certificate_worst * 1e3:.3f} mrad "
         f"+ switch timing {landing.timing_allowance * 1e3:.3f} mrad: "

@@ -6,12 +6,16 @@ other keyword arguments). Settings whose traffic would leave this machine's loop
 ``remote`` interface it installs the periodic-sender workaround (python-can-remote's own cyclic
 task breaks when its data changes; canopen changes heartbeat frames on every NMT state change;
 python-can's generic thread-based sender works) and serialises sends from several threads onto
-the one websocket.
+the one websocket. A frame sent on a ``remote`` bus carries its send instant as its bus timestamp
+(``preserve_timestamps`` on the hub's side): on a real bus the controller puts a frame on the
+wire microseconds after the send, while the hub's own scheduling (it may be descheduled for
+milliseconds on a busy machine) is no part of the bus. Receivers order frames by these stamps.
 """
 from __future__ import annotations
 
 import ipaddress
 import threading
+import time
 import types
 from typing import Any, Mapping, Optional
 from urllib.parse import urlparse
@@ -79,6 +83,7 @@ def _fix_remote_bus(bus: can.BusABC) -> None:
 
     def locked_send(msg: can.Message, timeout: Optional[float] = None) -> None:
         with lock:
+            msg.timestamp = time.time()     # the frame's bus instant: its send (see the module doc)
             send(msg, timeout)
 
     bus.send = locked_send  # type: ignore[method-assign]
@@ -87,8 +92,11 @@ def _fix_remote_bus(bus: can.BusABC) -> None:
 def open_bus(config: Mapping[str, Any]) -> can.BusABC:
     """Open a python-can bus from a config dict; remote buses get the periodic-sender fix."""
     cfg = normalise_bus_config(config)
+    kwargs = dict(cfg)
+    if cfg["interface"] == "remote":
+        kwargs.setdefault("preserve_timestamps", True)
     try:
-        bus = can.Bus(**cfg)
+        bus = can.Bus(**kwargs)
     except (can.CanError, OSError, ValueError, ImportError) as exc:
         raise CanConfigError(f"cannot open CAN bus {cfg}: {exc}") from exc
     if cfg["interface"] == "remote":

@@ -10,18 +10,26 @@ whenever the long-lived objects have grown by a quarter.
 :func:`freeze_heap` is called once a process has built what it keeps (after configure / activate,
 before motion): one collection, then ``gc.freeze()`` moves every surviving object into the
 permanent generation, which later collections do not scan (a full collection then took 0.02 ms
-in the same process). Objects made later are collected as usual. :class:`GcPauses` times every
-collection through ``gc.callbacks``, for the diagnostics: count and longest pause per generation.
+in the same process). What a long stream of setpoints leaves behind (reports, records) grows the
+unfrozen part again, so :func:`hold_full_collections` also stops the automatic full collections
+(the youngest generations, well under a millisecond, still run), and the owner collects in full
+when nothing is due (:class:`IdleCollector`: the player idle for a while, e.g. between motions).
+:class:`GcPauses` times every collection through ``gc.callbacks``, for the diagnostics: count and
+longest pause per generation.
 """
 from __future__ import annotations
 
 import gc
+import math
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any, Optional
+from typing import Any, Callable, Optional
 
-__all__ = ["GcPauses", "freeze_heap", "pauses"]
+__all__ = ["GcPauses", "IdleCollector", "freeze_heap", "hold_full_collections", "pauses"]
+
+#: generation-2 threshold that keeps the automatic full collection from ever running
+FULL_HELD = 1_000_000
 
 
 def freeze_heap() -> int:
@@ -31,6 +39,43 @@ def freeze_heap() -> int:
     gc.collect()
     gc.freeze()
     return gc.get_freeze_count()
+
+
+def hold_full_collections() -> tuple[int, int, int]:
+    """No automatic full (generation 2) collection from now on; returns the thresholds before.
+    The process must then collect in full itself when timing does not matter
+    (:class:`IdleCollector`), or cyclic garbage that reached the oldest generation stays."""
+    before = gc.get_threshold()
+    gc.set_threshold(before[0], before[1], FULL_HELD)
+    return before
+
+
+class IdleCollector:
+    """A full collection when ``idle()`` has held for ``idle_s`` s, at most every ``every_s`` s:
+    ``tick()`` from a periodic timer of the owner (e.g. its diagnostics). Returns the pause (ms)
+    when it collected, else None."""
+
+    def __init__(self, idle: Callable[[], bool], idle_s: float = 1.0, every_s: float = 10.0,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self._idle, self.idle_s, self.every_s, self._clock = idle, float(idle_s), float(every_s), clock
+        self._idle_since: Optional[float] = None
+        self._last = -math.inf
+        self.collections = 0
+
+    def tick(self) -> Optional[float]:
+        now = self._clock()
+        if not self._idle():
+            self._idle_since = None
+            return None
+        if self._idle_since is None:
+            self._idle_since = now
+        if now - self._idle_since < self.idle_s or now - self._last < self.every_s:
+            return None
+        t0 = time.perf_counter()
+        gc.collect()
+        self._last = now
+        self.collections += 1
+        return (time.perf_counter() - t0) * 1e3
 
 
 @dataclass
@@ -76,7 +121,8 @@ class GcPauses:
         ``gc.frozen`` (objects in the permanent generation)."""
         return {f"{prefix}collections": "/".join(str(c) for c in self.count),
                 f"{prefix}max_pause_ms": "/".join(f"{m:.2f}" for m in self.max_ms),
-                f"{prefix}frozen": gc.get_freeze_count()}
+                f"{prefix}frozen": gc.get_freeze_count(),
+                f"{prefix}full_held": gc.get_threshold()[2] >= FULL_HELD}
 
 
 #: this process's pause record (installed by whoever needs it: ``pauses.install()``)

@@ -42,7 +42,7 @@ from typing import Any, Callable, Optional, Self, Sequence
 import can
 
 from ff_hwbridge.drive.cycle import CycleScheduler, Resolved
-from ff_hwbridge.drive.gc_pauses import freeze_heap
+from ff_hwbridge.drive.gc_pauses import IdleCollector, freeze_heap, hold_full_collections
 from ff_hwbridge.drive.epos import ECHO_INTERFACES, REFRESH_PERIOD, SYNC_COB_ID, EposMaster
 from ff_hwbridge.drive.placement import GridPlacement
 from ff_hwbridge.drive.player import (MAX_REPORTS, SWITCH_INTERVAL, AppliedSetpoint, PlayerBase, PlayerConfig,
@@ -240,7 +240,9 @@ class _Child:
     def status(self) -> None:
         if self.spec.rt_priority > 0:         # the refresh and the heartbeat to the bridge
             use_fifo(self.spec.rt_priority, "player process status")
+        idle_gc = IdleCollector(lambda: self.sched.pending == 0)
         while not self.stopped.wait(STATUS_PERIOD):
+            idle_gc.tick()
             now = time.monotonic()
             for i in range(self.n):                 # the drive's RPDO deadline: refresh
                 if now - self.last_tx[i] >= REFRESH_PERIOD:
@@ -256,7 +258,10 @@ class _Child:
 
     def run(self) -> None:
         sys.setswitchinterval(SWITCH_INTERVAL)
-        freeze_heap()       # a full collection would hold the scheduler thread off the GIL
+        # a full collection would hold the scheduler thread off the GIL: the heap built so far
+        # is frozen, and later full collections run only while nothing is pending
+        freeze_heap()
+        hold_full_collections()
         threading.Thread(target=self.receive, name="ff-player-rx", daemon=True).start()
         threading.Thread(target=self.status, name="ff-player-status", daemon=True).start()
         self.sched.start()

@@ -54,6 +54,7 @@ CAN hub's ws://127.0.0.1:PORT/). Command line: ``ff-hwbridge [--autostart] [--co
 from __future__ import annotations
 
 import argparse
+import gc
 import logging
 import math
 import sys
@@ -78,7 +79,7 @@ from ff_hwbridge.drive.config import (OPTION_RANGES, BridgeConfig, ConfigError, 
                                       with_bus)
 from ff_hwbridge.drive.epos import EposError, EposMaster
 from ff_hwbridge.drive.player import SWITCH_INTERVAL, AppliedSetpoint, SetpointPlayer, SetpointRejected
-from ff_hwbridge.drive.gc_pauses import freeze_heap
+from ff_hwbridge.drive.gc_pauses import IdleCollector, freeze_heap, hold_full_collections
 from ff_hwbridge.drive.gc_pauses import pauses as gc_pauses
 from ff_hwbridge.drive.player_process import ProcessPlayer
 from ff_hwbridge.protocol.cia402 import State
@@ -319,6 +320,8 @@ class BridgeNode(LifecycleNode):
         self.master: Optional[EposMaster] = None
         self.player: Optional[Union[SetpointPlayer, ProcessPlayer]] = None
         self._active = False
+        self._gc_thresholds: Optional[tuple[int, int, int]] = None   # held while active
+        self._idle_gc = IdleCollector(self._player_idle)
         self._entities: list[tuple[str, Any]] = []
         self._timers: list[Any] = []
         self._pub_js: Any = None
@@ -438,7 +441,10 @@ class BridgeNode(LifecycleNode):
         self._active = True
         # what configure and activate built lives as long as the node: out of the collector's
         # scans, so that a full collection cannot hold the GIL for a SYNC cycle (gc_pauses)
+        # and no automatic full collection while active: one runs when the player is idle
         frozen = freeze_heap()
+        if self._gc_thresholds is None:
+            self._gc_thresholds = hold_full_collections()
         self.get_logger().info(f"active: operation enabled, accepting setpoints "
                                f"({frozen} objects frozen out of the collector's scans)")
         return super().on_activate(state)
@@ -447,6 +453,9 @@ class BridgeNode(LifecycleNode):
         """Drop pending setpoints, zero current, disable operation (transition 5)."""
         self._active = False
         self._profile, self._commands_live = None, 0.0
+        if self._gc_thresholds is not None:
+            gc.set_threshold(*self._gc_thresholds)
+            self._gc_thresholds = None
         if self.player is not None:
             self.player.clear()
         if self.master is not None:
@@ -567,6 +576,10 @@ class BridgeNode(LifecycleNode):
             else:
                 text = f"setpoint {msg.seq} ignored: {exc}"
             self.get_logger().warning(text, throttle_duration_sec=1.0)
+
+    def _player_idle(self) -> bool:
+        """Nothing queued or in flight, no profile running: a full collection harms no timing."""
+        return self.player is None or (self.player.pending == 0 and not self._profile_running())
 
     def _profile_running(self) -> Optional[str]:
         """The id of the profile in control of the currents, or None: from its first setpoint
@@ -720,7 +733,9 @@ class BridgeNode(LifecycleNode):
         st = self.master.status()
         if self.player is not None:
             st.update(self.player.diagnostics())
+        self._idle_gc.tick()
         st.update(gc_pauses.as_dict())
+        st["gc.idle_collections"] = self._idle_gc.collections
         st["active"] = self._active
         st["commands.topic"] = self._get("command_topic")
         st["commands.accepted"] = self.commands_accepted

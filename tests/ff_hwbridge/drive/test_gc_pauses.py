@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import gc
 
-from ff_hwbridge.drive.gc_pauses import GcPauses, freeze_heap
+from ff_hwbridge.drive.gc_pauses import FULL_HELD, GcPauses, IdleCollector, freeze_heap, hold_full_collections
 
 
 def test_freeze_heap_takes_the_heap_out_of_later_collections():
@@ -32,3 +32,34 @@ def test_pauses_are_counted_and_timed_per_generation():
     before = list(p.count)
     gc.collect(2)                            # uninstalled: no longer counted
     assert p.count == before
+
+
+def test_held_full_collections_wait_for_the_idle_collector():
+    before = hold_full_collections()
+    try:
+        assert gc.get_threshold()[2] == FULL_HELD and before[2] != FULL_HELD
+        p = GcPauses().install()
+        junk = []
+        for _ in range(100_000):           # many young collections, no automatic full one
+            junk.append([])
+        p.uninstall()
+        assert p.count[0] > 0 and p.count[2] == 0, p.count
+    finally:
+        gc.set_threshold(*before)
+    now = [0.0]
+    busy = [True]
+    idle = IdleCollector(lambda: not busy[0], idle_s=1.0, every_s=10.0, clock=lambda: now[0])
+    assert idle.tick() is None                       # busy
+    busy[0] = False
+    assert idle.tick() is None                       # idle, not yet for 1 s
+    now[0] = 1.5
+    assert idle.tick() is not None and idle.collections == 1
+    now[0] = 5.0
+    assert idle.tick() is None                       # at most every 10 s
+    busy[0] = True
+    now[0] = 20.0
+    assert idle.tick() is None                       # busy again: the idle time starts over
+    busy[0] = False
+    assert idle.tick() is None
+    now[0] = 21.5
+    assert idle.tick() is not None and idle.collections == 2
