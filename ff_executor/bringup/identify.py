@@ -386,7 +386,7 @@ IDENTIFY_EXECUTOR = {"lead_time": 0.8, "start_margin": 1.0}
 
 def identification_options(true_params: Mapping[str, float] = {}, *, q_start: float = 0.0,
                            friction: Optional[Mapping[str, float]] = None, run_dir: Optional[str] = None,
-                           rt_priority: int = 10, setpoint_timing: str = "sync", planner: bool = False,
+                           rt_priority: int = 0, setpoint_timing: str = "sync", planner: bool = False,
                            **more: Any) -> Any:
     """StackOptions of a simulated stack to identify on: ``true_params`` (SI) and ``friction``
     (not Eq. 9, ``StackOptions.sim_friction``) for the arm, setpoints latched at SYNC
@@ -419,7 +419,7 @@ def run_on_stack(ex: Excitation, base: Arm1DofParams, true_params: Mapping[str, 
                  log: Callable[[str], None] = print, run_dir: Optional[str] = None,
                  stack_log: Optional[Callable[[str], None]] = None,
                  measure: str = "joints", envelope: Optional[Envelope] = None,
-                 rt_priority: int = 10, bus_times: bool = True,
+                 rt_priority: int = 0, bus_times: bool = True,
                  friction: Optional[Mapping[str, float]] = None,
                  setpoint_timing: str = "sync") -> tuple[list[RunRecord], dict]:
     """Start the simulated stack (``identification_options``: ``true_params``, ``friction`` —

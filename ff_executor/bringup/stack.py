@@ -45,6 +45,7 @@ that fails its enable sequence is restarted once.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import signal
 import socket
@@ -285,10 +286,15 @@ class Stack:
     def _apply_nice(self, proc: NodeProcess) -> None:
         """Give every thread of ``proc`` the timing nice value (Linux nice is per thread;
         threads inherit it from their creator, so this runs at start and again once up); with
-        ``rt_priority`` the simulated driver's threads get SCHED_FIFO instead."""
+        ``rt_priority`` the simulated driver's threads get SCHED_FIFO instead. The CAN hub keeps
+        the SCHED_FIFO it sets itself (SYNC timer 50, forwarding threads 49): at the driver's
+        lower priority, a driver thread busy with the plant would hold the SYNC timer off its CPU
+        (measured: SYNC frames up to 103 ms late, setpoints missing their cycle)."""
         task_dir = f"/proc/{proc.pid}/task"
         tids = [int(t) for t in os.listdir(task_dir)] if os.path.isdir(task_dir) else [proc.pid]
-        rt = int(self.options.rt_priority) if proc.name in ("ff_sim_driver", "ff_can_hub") else 0
+        if proc.name == "ff_can_hub" and self._is_fifo(proc.pid):
+            return
+        rt = int(self.options.rt_priority) if proc.name == "ff_sim_driver" else 0
         nice = self.options.timing_nice
         for tid in tids:
             try:
@@ -310,6 +316,13 @@ class Stack:
                 return
             except OSError:
                 continue
+
+    @staticmethod
+    def _is_fifo(pid: int) -> bool:
+        try:
+            return os.sched_getscheduler(pid) == os.SCHED_FIFO
+        except OSError:
+            return False
 
     # --- what each process gets (start() and --print-config) ---------------------------------
     def sim_parameters(self) -> dict[str, object]:
@@ -490,6 +503,35 @@ class Stack:
                 raise BringupError(f"ff_sim_driver refused the parameters: {bad}")
         finally:
             node.destroy_client(cli)
+
+    def sync_report(self, timeout: float = 3.0) -> Optional[dict]:
+        """The hub's SYNC report now (``ff-can-hub`` prints it on SIGUSR1): count, jitter and
+        ``late_slots``, the SYNCs its timer thread (SCHED_FIFO, the stack's highest priority)
+        sent more than one period late: the machine gave no CPU even to that thread, so no
+        process of the stack kept its timing meanwhile. None without a SYNC-producing hub."""
+        hub = next((p for p in self.procs if p.name == "ff_can_hub"), None)
+        if hub is None or not self.hub_syncs or not hub.alive():
+            return None
+
+        def reports() -> list[dict]:
+            out = []
+            for line in hub.output().splitlines():
+                if line.startswith('{"sync"'):
+                    try:
+                        out.append(json.loads(line)["sync"])
+                    except (ValueError, KeyError):
+                        pass
+            return out
+
+        seen = len(reports())
+        os.kill(hub.pid, signal.SIGUSR1)
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            got = reports()
+            if len(got) > seen:
+                return got[-1]
+            time.sleep(0.05)
+        return None
 
     def dead(self) -> list[NodeProcess]:
         """Children that have exited."""

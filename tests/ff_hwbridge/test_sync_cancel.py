@@ -32,7 +32,7 @@ ZERO_TOL = 0.05
 def _stack(run_dir: str) -> Any:
     from ff_executor.bringup.stack import Stack, StackOptions
 
-    return Stack(StackOptions(true_scale={"pc": 1.2}, rt_priority=10, setpoint_timing="sync",
+    return Stack(StackOptions(true_scale={"pc": 1.2}, setpoint_timing="sync",
                               run_dir=run_dir), log=lambda s: None)
 
 

