@@ -48,7 +48,7 @@ from ff_hwbridge.drive.placement import GridPlacement
 from ff_hwbridge.drive.player import (MAX_REPORTS, SWITCH_INTERVAL, AppliedSetpoint, PlayerBase, PlayerConfig,
                                       SetpointPlayer)
 from ff_hwbridge.drive.safety import SafetyGuard
-from ff_hwbridge.drive.scheduler import SwitchStats, use_fifo
+from ff_hwbridge.drive.scheduler import SwitchStats, fifo_process, use_fifo
 from ff_hwbridge.protocol.epos_od import rpdo_layout, struct_format
 from ff_hwbridge.protocol.units import DriveUnits
 
@@ -262,6 +262,8 @@ class _Child:
         # is frozen, and later full collections run only while nothing is pending
         freeze_heap()
         hold_full_collections()
+        if self.spec.rt_priority > 1:     # no thread here holds the GIL at normal priority
+            fifo_process(self.spec.rt_priority - 1, "setpoint player process")
         threading.Thread(target=self.receive, name="ff-player-rx", daemon=True).start()
         threading.Thread(target=self.status, name="ff-player-status", daemon=True).start()
         self.sched.start()

@@ -47,6 +47,32 @@ def use_fifo(priority: int, who: str, tid: int = 0, hint: str = "") -> bool:
         return False
 
 
+def fifo_process(priority: int, who: str) -> int:
+    """SCHED_FIFO at ``priority`` for every thread of this process now (Linux ``/proc/self/task``),
+    and so for every thread they start; returns how many threads got it (0 with a logged warning
+    when not permitted).
+
+    A thread at normal priority that holds the GIL can be preempted by any ordinary process; a
+    SCHED_FIFO thread of the same process that needs the GIL then waits for it (priority
+    inversion). With every thread of the process under SCHED_FIFO, the GIL holder keeps its CPU."""
+    try:
+        tids = [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        tids = [0]
+    done = 0
+    for tid in tids:
+        try:
+            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(int(priority)))
+            done += 1
+        except ProcessLookupError:
+            continue                    # the thread ended meanwhile
+        except (AttributeError, OSError) as exc:
+            log.warning("%s: cannot use SCHED_FIFO priority %d for its threads (%s); they run at "
+                        "normal priority", who, priority, exc)
+            return 0
+    return done
+
+
 @dataclass(order=True)
 class StampedItem:
     """A queued payload: ordered by stamp (ns), then by submission order."""

@@ -82,6 +82,7 @@ from ff_hwbridge.drive.player import SWITCH_INTERVAL, AppliedSetpoint, SetpointP
 from ff_hwbridge.drive.gc_pauses import IdleCollector, freeze_heap, hold_full_collections
 from ff_hwbridge.drive.gc_pauses import pauses as gc_pauses
 from ff_hwbridge.drive.player_process import ProcessPlayer
+from ff_hwbridge.drive.scheduler import fifo_process
 from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.protocol.units import DriveUnits
 from ff_msgs.msg import CurrentSetpoint
@@ -321,6 +322,9 @@ class BridgeNode(LifecycleNode):
         self.player: Optional[Union[SetpointPlayer, ProcessPlayer]] = None
         self._active = False
         self._gc_thresholds: Optional[tuple[int, int, int]] = None   # held while active
+        #: the process is this node's own (its entry point): configure puts all its threads under
+        #: SCHED_FIFO one below the player's priority; not for a node sharing its process
+        self.fifo_threads = False
         self._idle_gc = IdleCollector(self._player_idle)
         self._entities: list[tuple[str, Any]] = []
         self._timers: list[Any] = []
@@ -415,6 +419,14 @@ class BridgeNode(LifecycleNode):
             return TransitionCallbackReturn.ERROR
         # player_process (sync only): guard, units, RPDO and SYNC watch in a process of its own,
         # which this node's executor (and its GIL) cannot stall; else a thread here
+        if cfg.rt_priority > 1 and self.fifo_threads:
+            # every thread of this node's process one below the player and the bus receiver: an executor
+            # thread holding the GIL is then never preempted by ordinary processes while the
+            # player waits for it (threads started later inherit it)
+            n = fifo_process(cfg.rt_priority - 1, "ff_hwbridge")
+            if n:
+                self.get_logger().info(f"SCHED_FIFO {cfg.rt_priority - 1} for the node's {n} threads, "
+                                       f"{cfg.rt_priority} for the setpoint player and the bus receiver")
         kind = ProcessPlayer if cfg.player_process and cfg.synchronous else SetpointPlayer
         self.player = kind(self.master).start()
         if isinstance(self.player, ProcessPlayer):
@@ -780,6 +792,7 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
     node = None
     try:
         node = BridgeNode(config_file=args.config, channel=args.channel)
+        node.fifo_threads = True
         executor = MultiThreadedExecutor(num_threads=4)
         executor.add_node(node)
         if args.autostart:
