@@ -292,8 +292,6 @@ class Stack:
         (measured: SYNC frames up to 103 ms late, setpoints missing their cycle)."""
         task_dir = f"/proc/{proc.pid}/task"
         tids = [int(t) for t in os.listdir(task_dir)] if os.path.isdir(task_dir) else [proc.pid]
-        if proc.name == "ff_can_hub" and self._is_fifo(proc.pid):
-            return
         rt = int(self.options.rt_priority) if proc.name == "ff_sim_driver" else 0
         nice = self.options.timing_nice
         for tid in tids:
@@ -316,13 +314,6 @@ class Stack:
                 return
             except OSError:
                 continue
-
-    @staticmethod
-    def _is_fifo(pid: int) -> bool:
-        try:
-            return os.sched_getscheduler(pid) == os.SCHED_FIFO
-        except OSError:
-            return False
 
     # --- what each process gets (start() and --print-config) ---------------------------------
     def sim_parameters(self) -> dict[str, object]:
