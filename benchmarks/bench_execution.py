@@ -29,7 +29,8 @@ Per run:
 a 2-core machine). Summary: median / max |measured − predicted_true| and of the other differences;
 the load averages (1, 5, 15 min) at the start, per run and at the end.
 
-    python benchmarks/bench_execution.py [--runs 20] [--objective robust-box] [--load 2] [--out FILE]
+    python benchmarks/bench_execution.py [--runs 20] [--objective robust-box] [--load 2]
+        [--player process|thread] [--out FILE]
 """
 from __future__ import annotations
 
@@ -185,8 +186,9 @@ def main(argv: Any = None) -> int:
     ap.add_argument("--rt-priority", type=int, default=0,
                     help="SCHED_FIFO priority of the simulated drive and the bridge's scheduler thread "
                          "(0 = default priorities, the benchmark's condition)")
-    ap.add_argument("--player-process", action="store_true",
-                    help="the bridge's setpoint player in its own process (player_process: true)")
+    ap.add_argument("--player", choices=("process", "thread"), default="process",
+                    help="the bridge's setpoint player in its own process (the stack's default) "
+                         "or a thread of the bridge's process")
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
 
@@ -197,9 +199,8 @@ def main(argv: Any = None) -> int:
     load = busy_processes(a.load)
     rows: list[dict[str, Any]] = []
     try:
-        bridge = {"player_process": True} if a.player_process else {}
         with Stack(StackOptions(true_params={"pc": true.pc}, rt_priority=a.rt_priority,
-                                bridge_overrides=bridge), log=log) as stack:
+                                player_process=a.player == "process"), log=log) as stack:
             with StackClient(stack.env, "ff_bench_execution") as client:
                 late = SimLateSwitches(client)
                 resp = client.plan(plan_request(a.objective))
@@ -246,7 +247,7 @@ def main(argv: Any = None) -> int:
         "true_params": {"pc": true.pc}, "pc_scale": PC_SCALE, "runs": len(rows), "repeats": 0,
         "load_processes": a.load,
         "priorities": f"SCHED_FIFO {a.rt_priority}" if a.rt_priority else "default",
-        "player_process": bool(a.player_process), "cpus": os.cpu_count(),
+        "player_process": a.player == "process", "cpus": os.cpu_count(),
         "loadavg_start": loadavg_start, "loadavg_end": list(os.getloadavg()),
         "summary": {
             "abs_measured_minus_predicted_rad": stats([r["measured_minus_predicted"] for r in rows]),

@@ -73,6 +73,6 @@ def test_every_tour_block_runs_against_the_stack_and_prints_what_the_readme_says
         proc = subprocess.run(args, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
         out = proc.stdout + proc.stderr
         where = f"tour block {k + 1} ({block.lang}):\n{block.code}\n--- output:\n{out[-3000:]}"
-        assert proc.returncode == 0, where
+        assert proc.returncode == 0, f"{where}\n{stack.log_tails()}"
         for want in block.prints:
             assert want in out, f"{want!r} not printed by {where}"

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import struct
 import threading
+import time
 from collections import deque
 from typing import Any, Optional, Sequence
 
@@ -104,6 +105,7 @@ class BusMonitor:
         self._sync_times: deque[float] = deque(maxlen=keep)               # SYNC bus s
         self.syncs = 0
         self.unpaired = 0               # TPDO1s not placed (no SYNC, or not certainly theirs)
+        self.latest = 0.0               # bus s of the newest frame received
         self._stop = threading.Event()
         self._bus: Any = open_bus({"interface": "remote", "channel": hub_url, "bitrate": 1_000_000})
         self._thread = threading.Thread(target=self._run, name="bus-monitor", daemon=True)
@@ -123,6 +125,7 @@ class BusMonitor:
             t = float(m.timestamp)
             cid = m.arbitration_id
             with self._lock:
+                self.latest = max(self.latest, t)
                 if cid == SYNC_ID:
                     self.syncs += 1
                     self.pairing.sync(t)
@@ -153,6 +156,18 @@ class BusMonitor:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+    def wait_seen(self, t: float, timeout: float = 1.0) -> bool:
+        """Wait until a frame with a bus time after ``t`` s has been received (the monitor is a
+        thread of a process that may be slow: it can lag the bus); False after ``timeout`` s."""
+        end = time.monotonic() + timeout
+        while True:
+            with self._lock:
+                if self.latest > t:
+                    return True
+            if time.monotonic() >= end:
+                return False
+            time.sleep(0.005)
 
     def sample_instants(self, stamps: Sequence[float] | np.ndarray, tol: float = 2e-6) -> np.ndarray:
         """The SYNC instant (s) each joint-state ``stamp`` was sampled at: the stamp is a TPDO1's

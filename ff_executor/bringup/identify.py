@@ -75,6 +75,7 @@ class StackProbe:
         self._samples: deque[tuple[float, float]] = deque(maxlen=400)
         self._diag: dict[str, tuple[int, str]] = {}      # status name -> (level, message)
         self._late: Optional[tuple[float, int]] = None    # (monotonic s, sim driver's late_switches)
+        self.last_rest: Optional[float] = None            # rad, the last position wait_at_rest returned
         client.node.create_subscription(JointState, "/ff_hwbridge/joint_states", self._on_js, 50)
         client.node.create_subscription(DiagnosticArray, "/diagnostics", self._on_diag, 20)
         self._reset = client.node.create_client(Trigger, "/ff_hwbridge/fault_reset")
@@ -158,7 +159,8 @@ class StackProbe:
                 q = np.array([s[0] for s in win])
                 v = np.array([s[1] for s in win])
                 if np.abs(v).max() <= rest_velocity and np.ptp(q) <= 2.0 * q_res + 1e-12:
-                    return float(np.median(q))
+                    self.last_rest = float(np.median(q))
+                    return self.last_rest
                 last = f"|v| up to {np.abs(v).max():.3g} rad/s, q spread {np.ptp(q):.3g} rad"
         raise ArmNotAtRest(f"the arm is not at rest ({last}); identification moves an arm only from rest")
 
@@ -240,11 +242,8 @@ def record_of(outcome: Any, profile: CurrentProfile, q_res: float, measure: str 
     q, eff = q[:, 0], eff[:, 0]
     applied = None
     if bus is not None and measure == "joints":
-        timed = bus_timing(bus, t, profile, float(outcome.profile_start))
-        if timed is None:         # the drive did not apply the profile as sent: no data
-            raise StackFault("the CAN bus did not show the run's current changes in order (or too few "
-                             "samples could be placed at their SYNC): the run gave no data")
-        t, applied, keep = timed
+        # StackFault when the drive did not apply the profile as sent: no data
+        t, applied, keep = bus_timing(bus, t, profile, float(outcome.profile_start))
         q, eff = q[keep], eff[keep]
     if applied is None:
         t = t - float(outcome.profile_start)
@@ -256,20 +255,21 @@ def record_of(outcome: Any, profile: CurrentProfile, q_res: float, measure: str 
 
 
 def bus_timing(bus: BusMonitor, stamps: np.ndarray, profile: CurrentProfile, start: float, tol: float = 0.01,
-               latched: Optional[bool] = None) -> Optional[tuple[np.ndarray, CurrentProfile, np.ndarray]]:
+               latched: Optional[bool] = None) -> tuple[np.ndarray, CurrentProfile, np.ndarray]:
     """(sample times s, applied profile, mask of the stamps kept) on the bus's clock, time 0 at
     the RPDO that started the profile: the drive's current changes between ``start`` − 0.1 s
     and the profile's end + 0.2 s (the bus time of each RPDO that changed it; the currents as
     the drive decoded them, each within ``tol`` A of a commanded one, in order), and each joint
-    state at the SYNC its TPDO1 answered. None when the bus did not show the profile's changes
-    in order ending at zero, or too few samples could be placed. ``latched`` (None:
+    state at the SYNC its TPDO1 answered. StackFault (saying which) when the bus did not show
+    the profile's changes in order ending at zero, or too few samples could be placed. ``latched`` (None:
     the monitor's): the drive latches setpoints at SYNC (``setpoint_timing: sync``), each change
     at the first SYNC after its RPDO."""
     changes = bus.current_changes(start - 0.1, start + (profile.tf - profile.coast) + 0.2, latched)
     while changes and changes[0][1] == 0.0:
         changes.pop(0)
     if len(changes) < 2 or changes[-1][1] != 0.0:
-        return None
+        raise StackFault(f"the CAN bus showed current changes {[round(a, 4) for _, a in changes]} A for a run "
+                         f"of {profile.currents[:, 0].round(4).tolist()} A then 0: the run gave no data")
     amps = np.array([a for _, a in changes[:-1]])
     # the drive's currents are the commanded ones in order (a step latched together with the
     # next one at a late SYNC never took effect: it is missing, not wrong)
@@ -278,15 +278,20 @@ def bus_timing(bus: BusMonitor, stamps: np.ndarray, profile: CurrentProfile, sta
         while j < len(cmd) and abs(a - cmd[j]) > tol:
             j += 1
         if j == len(cmd):
-            return None
+            raise StackFault(f"the CAN bus showed current changes {amps.round(4).tolist()} A, not those of the "
+                             f"run ({profile.currents[:, 0].round(4).tolist()} A) in order: the run gave no data")
         j += 1
     t0 = changes[0][0]
     st = np.array([c[0] - t0 for c in changes])          # the steps' starts and the last one's end
     applied = CurrentProfile(st, amps.reshape(-1, 1), float(st[-1]) + profile.coast, profile.coast)
     inst = bus.sample_instants(stamps)
     keep = np.isfinite(inst)
-    if keep.sum() < max(10, 0.8 * stamps.size):
-        return None
+    # a joint state that cannot be placed (its TPDO came more than the pairing allows after its
+    # SYNC: a stalled simulated drive) is left out; the placed ones are exact, so half will do
+    if keep.sum() < max(20, 0.5 * stamps.size):
+        raise StackFault(f"only {int(keep.sum())} of the run's {stamps.size} joint states could be placed at the "
+                         f"SYNC they were sampled at ({bus.unpaired} drive answers not paired so far): the run "
+                         "gave no data")
     return inst[keep] - t0, applied, keep
 
 
@@ -302,13 +307,20 @@ def execute_run(client: Any, probe: StackProbe, run: Any, q_res: float, envelope
 
     q = probe.wait_at_rest(q_res)
     probe.check_drive()
+    reach = getattr(run, "reach", (0.0, 0.0))
+    if q + reach[0] < envelope.q_min - 1e-9 or q + reach[1] > envelope.q_max + 1e-9:
+        raise RuntimeError(f"the arm rests at {q:.4g} rad, {q - run.q0:+.4g} rad from where the run was "
+                           f"designed to start: it could reach [{q + reach[0]:.4g}, {q + reach[1]:.4g}] rad, "
+                           f"outside the envelope [{envelope.q_min:.4g}, {envelope.q_max:.4g}] rad; "
+                           "identification stopped, nothing was sent")
     msg = profile_to_msg(run.profile, "arm1dof", [q], [q + run.q_end - run.q0])
     mv = client.execute(msg, timeout=run.profile.tf + 15.0)
     _, qs, _, _ = mv.joints.arrays()
     if qs.size and (qs.min() < envelope.q_min - 1e-9 or qs.max() > envelope.q_max + 1e-9):
         raise RuntimeError(f"the arm left the envelope [{envelope.q_min:.4g}, {envelope.q_max:.4g}] rad "
-                           f"(reached [{qs.min():.4g}, {qs.max():.4g}] rad; switch delays "
-                           f"{np.round(mv.switch_delays, 4).tolist()} s): identification stopped")
+                           f"(from rest at {q:.4g} rad it reached [{qs.min():.4g}, {qs.max():.4g}] rad; switch "
+                           f"delays {np.round(mv.switch_delays, 4).tolist()} s; {mv.result.message}): "
+                           "identification stopped")
     if not mv.succeeded:
         raise StackFault(f"the executor did not complete a run: {mv.result.message}")
     changes = len(switch_changes(run.profile.currents))
@@ -316,7 +328,8 @@ def execute_run(client: Any, probe: StackProbe, run: Any, q_res: float, envelope
         raise StackFault(f"the bridge applied {len(mv.switch_delays)} of {changes} current "
                          f"changes of a run (safe state? ff-ctl diag)")
     if bus is not None:
-        time.sleep(0.05)                 # the monitor's last frames of the run
+        jt = mv.joints.arrays()[0]
+        bus.wait_seen(float(jt.max()) if jt.size else time.time(), timeout=2.0)   # the run's last frames
     rec = record_of(mv, run.profile, q_res, measure, bus)
     if float(np.ptp(rec.q)) < 100.0 * q_res:         # every run moves the arm by tenths of a rad
         raise StackFault(f"the arm moved {float(np.ptp(rec.q)):.3g} rad in a run: the drive did not apply it")
@@ -332,7 +345,9 @@ def identify_runs(client: Any, ex: Excitation, q_res: float, envelope: Envelope,
     (``StackProbe.check_stack``) and the drive must not be in fault; before each run the arm must
     be at rest. A run that produced no data (StackFault: the executor aborted it, or the bridge
     latched a safe state before all its current changes: there is no partial data) is run again
-    after a fault reset, at most ``retries`` times, and named in ``meta["stack_faults"]``; a run
+    after a fault reset, at most ``retries`` times, and named in ``meta["stack_faults"]``; one
+    that gave no data but moved the arm is not repeated (the next run starts where it ended, as
+    designed) but left out, at most ``retries`` of them (``meta["lost_runs"]``, 1-based); a run
     that completed always counts."""
     probe = probe or StackProbe(client)
     probe.check_stack()
@@ -341,13 +356,23 @@ def identify_runs(client: Any, ex: Excitation, q_res: float, envelope: Envelope,
     delays: list[list[float]] = []
     faults: list[str] = []
     t0 = time.monotonic()
+    lost: list[int] = []
     for k, run in enumerate(ex.runs):
+        rec = None
         for attempt in range(1, retries + 2):
             try:
                 rec, dl = execute_run(client, probe, run, q_res, envelope, log=log, measure=measure, bus=bus)
                 break
             except StackFault as exc:      # no data: reset the bridge, run it again
+                q_before = probe.last_rest
                 faults.append(f"run {k + 1}: {exc}; fault reset: {probe.fault_reset()}")
+                q_now = probe.wait_at_rest(q_res)
+                if q_before is not None and abs(q_now - q_before) > 100.0 * q_res and len(lost) < retries:
+                    # the run moved the arm: the sequence goes on from where it stopped (each run
+                    # starts where the one before ended); its data is lost, not repeated
+                    lost.append(k + 1)
+                    log(f"  stack fault, run {k + 1} moved the arm and gave no data; next run: {faults[-1]}")
+                    break
                 log(f"  stack fault, run {k + 1} again: {faults[-1]}")
                 if attempt > retries:
                     raise
@@ -356,13 +381,15 @@ def identify_runs(client: Any, ex: Excitation, q_res: float, envelope: Envelope,
                     raise                  # a fault before anything moved, or one a reset does not clear
                 faults.append(f"before run {k + 1}: {exc}; fault reset: {probe.fault_reset()}")
                 log(f"  safe state, reset, run {k + 1}: {faults[-1]}")
+        if rec is None:
+            continue
         records.append(rec)
         delays.append(dl)
         log(f"  run {k + 1}/{len(ex.runs)}: {run.direction * run.level:+.3g} A, "
             f"{rec.t.size} samples, switch delays {np.round(dl, 4).tolist()} s")
     timing = "bus (SYNC instants, RPDO bus times)" if bus is not None else "bridge stamps"
     meta = {"source": f"simulated stack ({measure}; timing: {timing})", "wall_s": time.monotonic() - t0,
-            "switch_delays": delays, "stack_faults": faults, "q_resolution": q_res,
+            "switch_delays": delays, "stack_faults": faults, "lost_runs": lost, "q_resolution": q_res,
             "timing": "bus" if bus is not None else "bridge"}
     if bus is not None:
         meta["bus"] = {"syncs": bus.syncs, "tpdo_unpaired": bus.unpaired}
@@ -384,17 +411,31 @@ def stack_q_resolution(base: Arm1DofParams) -> float:
 IDENTIFY_EXECUTOR = {"lead_time": 0.8, "start_margin": 1.0}
 
 
+#: the bridge's safe-state envelope around an identification envelope: this fraction of its span
+#: beyond each end, and this factor on its speed (the design keeps every prior corner inside the
+#: envelope itself; the bridge stops an arm whose friction is far outside the prior)
+GUARD_MARGIN = 0.1
+GUARD_SPEED = 1.25
+
+
+def guard_envelope(envelope: Envelope) -> tuple[float, float, float]:
+    """(q_min, q_max, v_max) of the bridge's envelope for an identification in ``envelope``."""
+    m = GUARD_MARGIN * (envelope.q_max - envelope.q_min)
+    return envelope.q_min - m, envelope.q_max + m, GUARD_SPEED * envelope.v_max
+
+
 def identification_options(true_params: Mapping[str, float] = {}, *, q_start: float = 0.0,
                            friction: Optional[Mapping[str, float]] = None, run_dir: Optional[str] = None,
                            rt_priority: int = 0, setpoint_timing: str = "sync", planner: bool = False,
-                           **more: Any) -> Any:
+                           envelope: Optional[Envelope] = None, **more: Any) -> Any:
     """StackOptions of a simulated stack to identify on: ``true_params`` (SI) and ``friction``
     (not Eq. 9, ``StackOptions.sim_friction``) for the arm, setpoints latched at SYNC
     (``setpoint_timing`` "sync": an instant the bus shows exactly), ``IDENTIFY_EXECUTOR`` timing,
     SCHED_FIFO ``rt_priority`` for the simulated drive and the bridge's scheduler where permitted,
     with ``planner`` a planner that rounds its plans' currents to the drive's setpoint quantum
-    (EPOS4: per mille of the nominal current) and certifies the rounded profile; ``more``: other
-    StackOptions fields."""
+    (EPOS4: per mille of the nominal current) and certifies the rounded profile; with
+    ``envelope`` the bridge latches its safe state outside ``guard_envelope(envelope)``;
+    ``more``: other StackOptions fields."""
     from ff_executor.bringup.stack import NOMINAL_CURRENT, StackOptions
 
     ex_over = dict(IDENTIFY_EXECUTOR)
@@ -404,7 +445,7 @@ def identification_options(true_params: Mapping[str, float] = {}, *, q_start: fl
     return StackOptions(true_params=dict(true_params), planner=planner, q0=[float(q_start)], run_dir=run_dir,
                         rt_priority=int(rt_priority), sim_friction=dict(friction or {}),
                         setpoint_timing=setpoint_timing, executor_overrides=ex_over, planner_overrides=pl_over,
-                        **more)
+                        joint_envelope=guard_envelope(envelope) if envelope is not None else None, **more)
 
 
 def bus_monitor(stack: Any) -> BusMonitor:
@@ -437,7 +478,7 @@ def run_on_stack(ex: Excitation, base: Arm1DofParams, true_params: Mapping[str, 
     if env is None:
         raise ValueError("run_on_stack needs the envelope the excitation was designed for")
     opts = identification_options(true_params, q_start=q_start, friction=friction, run_dir=run_dir,
-                                  rt_priority=rt_priority, setpoint_timing=setpoint_timing)
+                                  rt_priority=rt_priority, setpoint_timing=setpoint_timing, envelope=env)
     t0 = time.monotonic()
     with Stack(opts, log=stack_log or (lambda s: None)) as stack:
         bus = bus_monitor(stack) if bus_times else None

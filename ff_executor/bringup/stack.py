@@ -137,11 +137,19 @@ class StackOptions:
                                                # "on_receipt": applied when they arrive, at their stamps
     sync_jitter_model_us: float = 0.0          # µs: the hub's SYNC bus instant is its timer deadline
                                                # plus a jitter drawn uniformly in [0, this] (0: ideal)
+    player_process: bool = True                # sync: the bridge's setpoint player in a process of
+                                               # its own, which no ROS executor (nor its GIL) stalls
+    stall_dump: float = 0.1                    # s: the bridge's setpoint cycle away this long while
+                                               # setpoints are pending dumps every thread's stack
+                                               # to ff_hwbridge.out (0 = off)
     rt_priority: int = 0                       # 1..99: SCHED_FIFO for the sim driver process and the
                                                # bridge's scheduler thread (root/CAP_SYS_NICE); 0 = off
     timing_nice: Optional[int] = -10           # nice value for the sim driver and the bridge (the
                                                # timing-critical end); None = leave as is
     record: Optional[str] = None               # bag folder: record the run with ff-record (MCAP)
+    joint_envelope: Optional[tuple[float, float, float]] = None   # (q_min rad, q_max rad, v_max rad/s)
+                                               # for every joint: outside it the bridge latches its
+                                               # safe state (None: no envelope)
     sim_friction: Mapping[str, float] = field(default_factory=dict)   # the simulated arm's friction
                                                # that is not Eq. 9 (1-DOF): stribeck, stribeck_speed,
                                                # coulomb_ripple, coulomb_period (sim driver friction.*)
@@ -342,8 +350,16 @@ class Stack:
         bdata["setpoint_timing"] = self.options.setpoint_timing
         if self.hub_syncs:
             bdata["sync_producer"] = "external"
+        if self.options.setpoint_timing == "sync":
+            bdata["player_process"] = bool(self.options.player_process)
+        bdata["stall_dump"] = float(self.options.stall_dump)
         if self.options.rt_priority:
             bdata["scheduler_rt_priority"] = int(self.options.rt_priority)
+        if self.options.joint_envelope is not None:
+            lo, hi, vmax = (float(x) for x in self.options.joint_envelope)
+            for joint in bdata["joints"]:
+                joint["position_limits"] = [lo, hi]
+                joint["velocity_limit"] = vmax
         return bdata
 
     def planner_files(self) -> tuple[list[str], dict[str, object]]:
@@ -523,6 +539,11 @@ class Stack:
                 return got[-1]
             time.sleep(0.05)
         return None
+
+    def log_tails(self, chars: int = 2000) -> str:
+        """The last ``chars`` characters of every process's output, for a report of what went
+        wrong (a stall dump among them)."""
+        return "\n".join(f"--- {p.name} ({p.log_path}):\n{p.output()[-chars:]}" for p in self.procs)
 
     def dead(self) -> list[NodeProcess]:
         """Children that have exited."""

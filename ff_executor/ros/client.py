@@ -150,6 +150,8 @@ class StackClient:
     def close(self) -> None:
         """Stop the executor thread, destroy the node and shut the context down."""
         self.executor.shutdown()
+        # the spin thread must leave its wait set before the node's entities are destroyed
+        self._spin.join(timeout=5.0)
         self.node.destroy_node()
         if self.ctx.ok():
             rclpy.shutdown(context=self.ctx)

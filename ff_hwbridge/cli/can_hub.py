@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import signal
 import sys
 import threading
@@ -22,6 +21,7 @@ from typing import Optional, Sequence
 
 from ff_hwbridge.drive.bus import LOOPBACK, CanConfigError
 from ff_hwbridge.drive.gc_pauses import freeze_heap
+from ff_hwbridge.drive.scheduler import fifo_process
 from ff_hwbridge.sim.can_hub import CanHub, start_hub
 from ff_hwbridge.sim.sync import STAMPS
 
@@ -30,17 +30,6 @@ __all__ = ["main"]
 #: s, the interpreter's thread switch interval in the hub (default 5 ms): the SYNC timer thread
 #: gets the GIL back from the hub's forwarding threads within this
 SWITCH_INTERVAL = 0.0001
-
-
-def _realtime_process(priority: int) -> None:
-    """SCHED_FIFO for this thread and so every thread it starts (the hub's forwarding threads):
-    no thread holding the GIL is ever preempted by ordinary processes, which would stall the
-    SYNC timer thread (one priority above) waiting for the GIL. A warning when not permitted."""
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-    except (AttributeError, OSError) as exc:
-        print(f"ff-can-hub: cannot use SCHED_FIFO ({exc}); the hub runs at normal priority, "
-              "expect SYNC jitter under load", file=sys.stderr, flush=True)
 
 
 def _report(hub: CanHub) -> None:
@@ -85,7 +74,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if args.sync_period:
         sys.setswitchinterval(SWITCH_INTERVAL)
         if args.sync_rt_priority > 1:
-            _realtime_process(args.sync_rt_priority - 1)
+            # the forwarding threads one below the SYNC timer: no GIL holder is preempted by
+            # ordinary processes while the timer waits for the GIL (a warning when not permitted)
+            fifo_process(args.sync_rt_priority - 1, "ff-can-hub")
     try:
         hub = start_hub(args.port, args.host, sync_period=args.sync_period,
                         sync_rt_priority=args.sync_rt_priority, sync_stamp=args.sync_stamp,

@@ -50,6 +50,8 @@ Example (``config/bridge_epos4_1dof.yaml``)::
     player_process: false         # sync: the setpoint player (guard, units, RPDO, SYNC watch) in
                                   #   its own process with its own bus connection
                                   #   (ff_hwbridge.drive.player_process); false: a thread here
+    stall_dump: 0.0               # s: the setpoint cycle away this long while setpoints are
+                                  #   pending -> every thread's stack to stderr (0 = off)
     joints:
       - name: joint1
         node_id: 1
@@ -189,6 +191,7 @@ class BridgeConfig:
     sync_timeout: float = 0.0
     missed_cycle_tolerance: int = 1
     player_process: bool = False
+    stall_dump: float = 0.0
 
     @property
     def rt_priority(self) -> int:
@@ -232,6 +235,8 @@ class BridgeConfig:
             v = getattr(self, key)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise ConfigError(f"{key} must be a number of seconds > 0, got {v!r}")
+        if not (isinstance(self.stall_dump, (int, float)) and 0.0 <= self.stall_dump <= 3600.0):
+            raise ConfigError(f"stall_dump must be 0 .. 3600 s (0 = off), got {self.stall_dump!r}")
         if not 0 <= self.spin_margin < 0.05:
             raise ConfigError(f"spin_margin must be in [0, 0.05) s, got {self.spin_margin!r}")
         if not (isinstance(self.heartbeat_producer_ms, int) and 0 < self.heartbeat_producer_ms <= 65535):

@@ -47,6 +47,7 @@ from typing import Any, Callable, Optional
 import numpy as np
 
 from ff_hwbridge.drive.scheduler import StampedItem, StampedQueue, SwitchStats
+from ff_hwbridge.drive.stall_dump import StallDump
 from ff_hwbridge.drive.sync_watch import SyncEvent, SyncWatch
 
 log = logging.getLogger(__name__)
@@ -71,6 +72,7 @@ class _InFlight:
     stop: bool = False        # a zero-current stop (no cycle of its own to keep)
     picked_wall_ns: int = 0   # when the thread took it from the queue
     send_ns: int = 0          # how long preparing and sending took
+    queued_wall_ns: int = 0   # when it was submitted
 
 
 @dataclass(frozen=True)
@@ -88,6 +90,7 @@ class Resolved:
     early_cycles: int = 0     # SYNC cycles before its own (sent by the clock, its SYNC late)
     picked_ns: int = 0        # wall ns: when the thread took it from the queue to send it
     send_took_ns: int = 0     # ns: preparing and sending it
+    queued_ns: int = 0        # wall ns: when it was submitted (0: unknown)
 
 
 @dataclass(frozen=True)
@@ -116,8 +119,12 @@ class CycleScheduler(StampedQueue):
                  on_fault: Callable[[str], object] = lambda reason: None,
                  tolerance: float = 0.1, missed_tolerance: int = 1, rt_priority: int = 0,
                  max_records: int = 200_000, name: str = "ff-cycle-scheduler",
-                 clock_ns: Callable[[], int] = time.time_ns, clock_opens: bool = True) -> None:
+                 clock_ns: Callable[[], int] = time.time_ns, clock_opens: bool = True,
+                 stall_dump: float = 0.0) -> None:
         super().__init__(name, rt_priority, threading.Condition(threading.RLock()))
+        # s: this thread away that long while setpoints are pending dumps every thread's stack
+        # (what held it: the GIL's holder, a lock); 0 = off. One per process (faulthandler).
+        self._stall = StallDump(stall_dump)
         self.watch = watch
         self._send, self._report, self._prepare = send, report, prepare
         self._echo_time = echo_time
@@ -223,6 +230,10 @@ class CycleScheduler(StampedQueue):
         with self._cond:
             item: Optional[StampedItem] = None
             while not self._stop:
+                if self._heap or self._inflight:
+                    self._stall.arm()
+                else:
+                    self._stall.disarm()
                 done += self._resolve()
                 if done:
                     break
@@ -247,6 +258,7 @@ class CycleScheduler(StampedQueue):
                     break
                 self._cond.wait(wait)
             if self._stop:
+                self._stall.disarm()
                 return True
         for r in done:
             self._deliver(r)
@@ -296,7 +308,7 @@ class CycleScheduler(StampedQueue):
         with self._cond:
             self._inflight.append(_InFlight(item.stamp_ns, target, ev.count + k, seen_count, marks,
                                             sent, lead, token, bool(item.stop),
-                                            picked_ns or t0, sent - t0))
+                                            picked_ns or t0, sent - t0, item.queued_ns))
             self._cond.notify_all()
 
     def _resolve(self) -> list[Resolved]:
@@ -323,7 +335,7 @@ class CycleScheduler(StampedQueue):
                 self.superseded += 1
             self._last_applied_ns = hit.bus_ns
             out.append(Resolved(f.stamp_ns, hit.bus_ns, f.sent_wall_ns, missed, f.token, f.stop, early,
-                                f.picked_wall_ns, f.send_ns))
+                                f.picked_wall_ns, f.send_ns, f.queued_wall_ns))
         return out
 
     def _deliver(self, r: Resolved) -> None:
@@ -345,9 +357,12 @@ class CycleScheduler(StampedQueue):
             self.late_stops += 1
             log.warning("a stop took effect %d SYNC cycle(s) after its stamp's", r.missed_cycles)
         elif r.missed_cycles > self.missed_tolerance:
+            # queued late: its sender or this process's intake was held up; taken late with
+            # time to spare: this thread was
+            queued = f"queued {(r.queued_ns - r.stamp_ns) / 1e3:+.0f} µs, " if r.queued_ns else ""
             self._fault(f"setpoint missed its SYNC cycle: took effect {r.missed_cycles} "
                             f"cycle(s) of {self.period_ns / 1e6:g} ms late (missed_cycle_tolerance "
                             f"{self.missed_tolerance}); stamp {r.stamp_ns} ns, sent "
-                            f"{(r.sent_ns - r.stamp_ns) / 1e3:+.0f} µs from it (taken from the "
-                            f"queue {(r.picked_ns - r.stamp_ns) / 1e3:+.0f} µs, preparing and "
+                            f"{(r.sent_ns - r.stamp_ns) / 1e3:+.0f} µs from it ({queued}taken from "
+                            f"the queue {(r.picked_ns - r.stamp_ns) / 1e3:+.0f} µs, preparing and "
                             f"sending took {r.send_took_ns / 1e3:.0f} µs)")

@@ -84,17 +84,22 @@ class PlayerConfig:
 
     cycle_tolerance: fraction of the SYNC period a stamp may lie after a SYNC and still be
                     assigned to it (float rounding, SYNC jitter).
+    stall_dump:     s: the synchronous player's thread away this long while setpoints are pending
+                    dumps every thread's stack to stderr (``StallDump``); 0 = off.
     """
 
     spin_margin: float = 0.0003
     rt_priority: int = 0
     prepare_ahead: bool = True
     cycle_tolerance: float = 0.1
+    stall_dump: float = 0.0
 
     @classmethod
     def from_bridge(cls, config: BridgeConfig) -> "PlayerConfig":
-        """The timing of a bridge configuration (``spin_margin``, ``scheduler_rt_priority``)."""
-        return cls(spin_margin=config.spin_margin, rt_priority=config.rt_priority)
+        """The timing of a bridge configuration (``spin_margin``, ``scheduler_rt_priority``,
+        ``stall_dump``)."""
+        return cls(spin_margin=config.spin_margin, rt_priority=config.rt_priority,
+                   stall_dump=float(config.stall_dump))
 
 
 @dataclass(frozen=True)
@@ -227,7 +232,8 @@ class SetpointPlayer(PlayerBase):
                 tolerance=self.config.cycle_tolerance,
                 missed_tolerance=master.config.missed_cycle_tolerance,
                 rt_priority=self.config.rt_priority, max_records=MAX_RECORDS, name=name,
-                clock_ns=clock_ns, clock_opens=_sync_keeps_time(master))
+                clock_ns=clock_ns, clock_opens=_sync_keeps_time(master),
+                stall_dump=self.config.stall_dump)
         self._scheduler: StampScheduler | CycleScheduler = self._cycle or StampScheduler(self._apply, clock_ns=clock_ns,
                                          spin_margin=self.config.spin_margin,
                                          max_records=MAX_RECORDS,

@@ -87,6 +87,7 @@ class _Spec:
     missed_tolerance: int
     rt_priority: int
     setpoint_timeout: float
+    stall_dump: float = 0.0
 
 
 # --- the child ------------------------------------------------------------------------------------
@@ -126,7 +127,8 @@ class _Child:
                                     prepare=self._prepare, on_fault=self._fault,
                                     tolerance=spec.cycle_tolerance,
                                     missed_tolerance=spec.missed_tolerance,
-                                    rt_priority=spec.rt_priority, name="ff-player-process")
+                                    rt_priority=spec.rt_priority, name="ff-player-process",
+                                    stall_dump=spec.stall_dump)
         self.placement = GridPlacement(self.sched.grid)
         self.rx_rt = False
 
@@ -157,28 +159,42 @@ class _Child:
             return None                       # the master owns this drive's RPDO now
         return struct.pack(self.spec.joints[i].rx_fmt, cw & 0xFFFF, int(raw))
 
-    def _tx(self, i: int, data: bytes) -> None:
+    def _tx(self, i: int, data: bytes, raw: int) -> None:
+        """Send RPDO1 ``data`` (setpoint ``raw``) to joint ``i``; call with ``_send_lock`` held,
+        so that a refresh never goes out between a setpoint and the record of it: a refresh of
+        the previous setpoint after a new one would be what the drive latches at the SYNC."""
+        self.sent_data[i].append(data)
+        self.bus.send(can.Message(arbitration_id=0x200 + self.spec.joints[i].node_id, data=data,
+                                  is_extended_id=False))
+        self.tx_seq[i] += 1
+        self.last_frame[i] = data
+        self.last_tx[i] = time.monotonic()
+        self.raw[i] = int(raw)
+
+    def _refresh(self, i: int) -> None:
+        """Repeat joint ``i``'s latest setpoint when none went out for ``REFRESH_PERIOD`` (the
+        drive's RPDO deadline); decided and sent under ``_send_lock``."""
         with self._send_lock:
-            self.sent_data[i].append(data)
-            self.bus.send(can.Message(arbitration_id=0x200 + self.spec.joints[i].node_id, data=data,
-                                      is_extended_id=False))
-            self.tx_seq[i] += 1
-            self.last_frame[i] = data
-            self.last_tx[i] = time.monotonic()
+            if time.monotonic() - self.last_tx[i] < REFRESH_PERIOD:
+                return
+            cw, ok = self._gate(i)
+            if ok:
+                self._tx(i, struct.pack(self.spec.joints[i].rx_fmt, cw & 0xFFFF, self.raw[i]),
+                         self.raw[i])
 
     def _send(self, stamp_ns: int, prepared: tuple) -> tuple[Optional[tuple[int, ...]], Any]:
         q, raws, reason, latched = prepared
         marks: list[int] = []
         echo = self.spec.echo
         for i, raw in enumerate(raws):
-            data = self._frame(i, raw)
-            if data is None:
-                self.raw[i] = 0
-                echo = False
-                continue
-            self._tx(i, data)
-            self.raw[i] = int(raw)
-            marks.append(self.tx_seq[i])
+            with self._send_lock:
+                data = self._frame(i, raw)
+                if data is None:
+                    self.raw[i] = 0
+                    echo = False
+                    continue
+                self._tx(i, data, raw)
+                marks.append(self.tx_seq[i])
         currents = tuple(j.units.setpoint_to_amps(r) for j, r in zip(self.spec.joints, self.raw))
         return (tuple(marks) if echo else None), (q, currents, reason, latched)
 
@@ -246,10 +262,7 @@ class _Child:
             now = time.monotonic()
             for i in range(self.n):                 # the drive's RPDO deadline: refresh
                 if now - self.last_tx[i] >= REFRESH_PERIOD:
-                    cw, ok = self._gate(i)
-                    if ok:
-                        self._tx(i, struct.pack(self.spec.joints[i].rx_fmt, cw & 0xFFFF,
-                                                self.raw[i]))
+                    self._refresh(i)
             s, c, w = self.sched.stats(), self.sched.cycle_stats(), self.watch.stats()
             g = self.sched.grid()
             self.tell("status", self.received, self.sched.pending, s, c, w.as_dict(), g,
@@ -290,7 +303,12 @@ class _Child:
         finally:
             self.stopped.set()
             self.sched.close()
-            self.bus.shutdown()
+            try:
+                self.bus.shutdown()
+            except (OSError, can.CanError) as exc:
+                # the receiver thread may be reading the connection as it closes, or the bus
+                # went first (the hub stopped): nothing is left to send on it
+                log.debug("closing the player's bus: %s", exc)
 
 
 def _child_main(spec: _Spec, conn: Any, gate: Any) -> None:
@@ -343,7 +361,8 @@ class ProcessPlayer(PlayerBase):
                        for j, u in zip(cfg.joints, self.master.units))
         return _Spec(bus, bus.get("interface") in ECHO_INTERFACES, joints, float(cfg.sync_period),
                      self.config.cycle_tolerance, int(cfg.missed_cycle_tolerance),
-                     int(self.config.rt_priority), float(cfg.setpoint_timeout))
+                     int(self.config.rt_priority), float(cfg.setpoint_timeout),
+                     float(self.config.stall_dump))
 
     def start(self) -> Self:
         """Spawn the player process and wait until it has opened the bus (idempotent)."""

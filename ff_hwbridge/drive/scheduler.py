@@ -81,6 +81,7 @@ class StampedItem:
     order: int
     payload: Any = field(compare=False)
     stop: bool = field(default=False, compare=False)
+    queued_ns: int = field(default=0, compare=False)   # wall ns: when it was submitted
 
 
 class StampedQueue:
@@ -122,7 +123,8 @@ class StampedQueue:
         """Queue ``payload`` for ``stamp_ns``; ``stop``: a stop (zero current), never dropped as
         stale."""
         with self._cond:
-            heapq.heappush(self._heap, StampedItem(int(stamp_ns), next(self._counter), payload, bool(stop)))
+            heapq.heappush(self._heap, StampedItem(int(stamp_ns), next(self._counter), payload, bool(stop),
+                                                  time.time_ns()))
             self._cond.notify_all()
 
     def clear(self) -> int:

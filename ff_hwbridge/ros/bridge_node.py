@@ -419,15 +419,18 @@ class BridgeNode(LifecycleNode):
             return TransitionCallbackReturn.ERROR
         # player_process (sync only): guard, units, RPDO and SYNC watch in a process of its own,
         # which this node's executor (and its GIL) cannot stall; else a thread here
-        if cfg.rt_priority > 1 and self.fifo_threads:
+        kind = ProcessPlayer if cfg.player_process and cfg.synchronous else SetpointPlayer
+        if cfg.rt_priority > 1 and self.fifo_threads and kind is SetpointPlayer:
             # every thread of this node's process one below the player and the bus receiver: an executor
             # thread holding the GIL is then never preempted by ordinary processes while the
-            # player waits for it (threads started later inherit it)
+            # player waits for it (threads started later inherit it). Not with the player in a
+            # process of its own: nothing here is timing-critical then, and a child started
+            # from a SCHED_FIFO thread would import numpy and canopen under SCHED_FIFO
+            # (measured: the hub's SYNC 100-110 ms late while it did)
             n = fifo_process(cfg.rt_priority - 1, "ff_hwbridge")
             if n:
                 self.get_logger().info(f"SCHED_FIFO {cfg.rt_priority - 1} for the node's {n} threads, "
                                        f"{cfg.rt_priority} for the setpoint player and the bus receiver")
-        kind = ProcessPlayer if cfg.player_process and cfg.synchronous else SetpointPlayer
         self.player = kind(self.master).start()
         if isinstance(self.player, ProcessPlayer):
             self.get_logger().info(f"setpoint player in its own process (pid {self.player.pid})")

@@ -43,7 +43,7 @@ from ff_hwbridge.drive.bus import CanConfigError
 from ff_hwbridge.drive.gc_pauses import freeze_heap
 from ff_hwbridge.sim.arm import FrictionMismatch
 from ff_hwbridge.sim.can_hub import CanHub, start_hub
-from ff_hwbridge.sim.drive import SimConfigError, SimEpos
+from ff_hwbridge.sim.drive import RX_LATE_S, SimConfigError, SimEpos
 from ff_hwbridge.sim.rig import RigConfig, SimRig
 from ff_planner.model.params import ParameterError, check_model, default_params, preset
 
@@ -67,6 +67,8 @@ PARAMETERS: dict[str, tuple[Any, str]] = {
     "ground_truth_rate": (100.0, "Hz"),
     "diagnostics_rate": (1.0, "Hz"),
     "switch_interval": (0.0005, "s, python thread switch interval (latency of the CAN thread)"),
+    "stall_dump": (1.0, "s: no SYNC handled for this long after one was dumps every thread's stack to "
+                        "stderr (what held a stalled driver; 0 = off)"),
     "reconnect_timeout": (30.0, "s, after the hub was lost (drives in Fault 0x81FD, bus off): reconnect "
                                 "every 0.5 s for this long, then exit with code 3"),
 }
@@ -75,6 +77,7 @@ RANGES: dict[str, tuple[float, float]] = {
     "hub_port": (1, 65535), "bus.bitrate": (10_000, 8_000_000), "physics_step": (1e-6, 1e-2),
     "counts_per_rev": (1, 1 << 24), "nominal_current": (0.001, 1000.0), "ground_truth_rate": (0.1, 10_000.0),
     "diagnostics_rate": (0.01, 1000.0), "switch_interval": (0.0, 0.1), "reconnect_timeout": (0.0, 3600.0),
+    "stall_dump": (0.0, 3600.0),
     "fault.delay_ms": (0.0, 60_000.0), "fault.drop_fraction": (0.0, 1.0), "fault.drop_next": (0, 1_000_000),
     "fault.emcy_code": (0, 0xFFFF), "fault.warning_code": (0, 0xFFFF), "friction.stribeck_speed": (1e-6, 100.0),
     "friction.coulomb_period": (1e-6, 100.0),
@@ -142,6 +145,8 @@ class SimDriverNode(Node):
             if self.hub is not None:
                 self.hub.close()
             raise
+        for d in self.rig.drives:
+            d.set_stall_dump(float(self._p("stall_dump")))
         names = [n for n in self._p("joint_names") if n]
         self.joint_names = names or [f"joint{j + 1}" for j in range(len(node_ids))]
         if len(self.joint_names) != len(node_ids):
@@ -159,6 +164,7 @@ class SimDriverNode(Node):
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_service(Trigger, "~/reset", self._on_reset)
         self._late_seen = 0
+        self._rx_late_seen = 0
         self.create_timer(1.0 / float(self._p("ground_truth_rate")), self._publish_truth)
         self.create_timer(1.0 / float(self._p("diagnostics_rate")), self._publish_diagnostics)
         self.rig.boot()
@@ -276,10 +282,20 @@ class SimDriverNode(Node):
                       "applied_current_A": f"{d.applied_current:.4f}",
                       "setpoints_received": str(len(d.setpoint_log())),
                       "rx_frames": str(stats.rx_frames), "rx_dropped": str(stats.rx_dropped),
+                      "rx_lag_max_us": f"{stats.rx_lag_max_us:.0f}", "rx_late": str(stats.rx_late),
+                      "handle_max_us": f"{stats.handle_max_us:.0f}",
                       "tx_frames": str(stats.tx_frames), "tx_dropped": str(stats.tx_dropped)}
             st.values = [KeyValue(key=k, value=v) for k, v in values.items()]
             arr.status.append(st)
         self.pub_diag.publish(arr)
+        rx_late = sum(d.link_stats.rx_late for d in self.rig.drives)
+        if rx_late > self._rx_late_seen:
+            self._rx_late_seen = rx_late
+            st = [d.link_stats for d in self.rig.drives]
+            self.get_logger().warning(
+                f"{rx_late} CAN frame(s) so far handled more than {RX_LATE_S * 1e3:.0f} ms after their bus "
+                f"time (up to {max(x.rx_lag_max_us for x in st) / 1e3:.1f} ms; the longest handling of one "
+                f"frame {max(x.handle_max_us for x in st) / 1e3:.1f} ms): this driver process was stalled")
         late = self.rig.arm.late_changes
         if late > self._late_seen:
             self._late_seen = late

@@ -8,7 +8,9 @@ differ from the model the planner believed.
 Time is ``time.monotonic_ns()`` unless a clock is given. The state is advanced to the instant
 someone sets a current or asks for the state: a current change takes effect at the instant it is
 set (the drive calls ``set_current`` with the frame's arrival time), and between changes the
-model is stepped in sub-steps of at most ``step`` s (default 0.1 ms). ``start_clock(period)``
+model is stepped in sub-steps of at most ``step`` s (default 0.1 ms), or in one step where the
+model's ``advance`` is exact over any interval (the 1-DOF arm's Eq. 9; ``advance_exact``): a plant
+that fell behind, or replays a late change, then catches up in microseconds. ``start_clock(period)``
 runs the plant on its own thread, advancing it to a little before now every ``period`` s, so that
 a caller (a CAN callback) only ever integrates the last few ms, however long the rig was idle.
 Thread-safe (one lock). Units: rad, rad/s, A, s.
@@ -30,8 +32,7 @@ from typing import Callable, Optional, Sequence
 
 import numpy as np
 
-from ff_planner.identify.measure import FrictionMismatch
-from ff_planner.model.arm1dof import advance_core
+from ff_planner.identify.measure import FrictionMismatch, advance_mismatch
 from ff_planner.model.params import Arm1DofParams, ParameterError, Params
 from ff_planner.model.registry import model_spec
 
@@ -50,19 +51,16 @@ def planner_advance(params: Params) -> AdvanceFn:
     return model_spec(params.model).advance
 
 
-def mismatch_advance(mismatch: FrictionMismatch) -> AdvanceFn:
-    """A 1-DOF one-step model whose Coulomb level is ``mismatch.coulomb(pc, q, q̇)`` at the
-    step's start (Nm), the rest exact Eq. 9 (pv, pt, J, kt, n of the parameters)."""
+def mismatch_advance(mismatch: FrictionMismatch, step: Optional[float] = None) -> AdvanceFn:
+    """A 1-DOF one-step model whose Coulomb level is ``mismatch.coulomb(pc, q, q̇)`` at the start
+    of each sub-step of ``step`` s (default ``mismatch.step``), the rest exact Eq. 9 (pv, pt, J,
+    kt, n of the parameters); it takes any ``dt`` and sub-steps inside (compiled)."""
     mismatch.validate()
 
     def advance(params: Params, q: np.ndarray, qd: np.ndarray, currents: np.ndarray,
                 dt: float) -> tuple[np.ndarray, np.ndarray]:
-        p = params
-        assert isinstance(p, Arm1DofParams)
-        q0, v0 = float(q[0]), float(qd[0])
-        q1, v1 = advance_core(float(p.J), float(p.torque_per_amp), float(p.pv),
-                              mismatch.coulomb(float(p.pc), q0, v0), float(p.pt), q0, v0,
-                              float(currents[0]), float(dt))
+        assert isinstance(params, Arm1DofParams)
+        q1, v1 = advance_mismatch(params, mismatch, float(q[0]), float(qd[0]), float(currents[0]), dt, step)
         return np.array([q1]), np.array([v1])
 
     return advance
@@ -117,6 +115,9 @@ class SimArm:
         self.step = float(step)
         self._advance = advance if advance is not None else planner_advance(params)
         self._own_advance = self._advance
+        # an advance exact over any interval (the 1-DOF Eq. 9 motion) needs no sub-steps
+        self._own_any_dt = advance is None and model_spec(params.model).advance_exact
+        self._any_dt = self._own_any_dt
         self.friction: Optional[FrictionMismatch] = None    # None: the model's Eq. 9
         self._clock = clock
         self._lock = threading.Lock()
@@ -180,7 +181,7 @@ class SimArm:
     def _integrate(self, dt: float) -> None:
         p = self.params
         while dt > 0.0:
-            h = min(self.step, dt)
+            h = dt if self._any_dt else min(self.step, dt)
             q, qd = self._advance(p, self._q.copy(), self._qd.copy(), self._i.copy(), h)
             self._q[:], self._qd[:] = q, qd
             dt -= h
@@ -303,10 +304,11 @@ class SimArm:
         active = mismatch is not None and mismatch.active
         if active and not isinstance(self.params, Arm1DofParams):
             raise ParameterError("friction that is not Eq. 9 is offered for the 1-DOF arm only")
-        adv = mismatch_advance(mismatch) if active and mismatch is not None else self._own_advance
+        adv = mismatch_advance(mismatch, self.step) if active and mismatch is not None else self._own_advance
         with self._lock:
             self._advance_to(self._clock())
             self._advance = adv
+            self._any_dt = True if active else self._own_any_dt     # mismatch_advance sub-steps itself
             self.friction = mismatch if active else None
             self._forget_history()
 

@@ -90,6 +90,7 @@ from canopen.objectdictionary import ObjectDictionary, ODVariable
 from canopen.pdo.base import PdoBase, PdoMaps
 from canopen.sdo import SdoAbortedError
 
+from ff_hwbridge.drive.stall_dump import StallDump
 from ff_hwbridge.protocol import cia402, epos_od
 from ff_hwbridge.protocol.cia402 import Command, State
 from ff_hwbridge.protocol.epos_od import (CURRENT_MODE, FACTORY_QUICK_STOP_OPTION, MAXON_VENDOR_ID,  # noqa: F401
@@ -200,6 +201,17 @@ class LinkStats:
     rx_dropped: int = 0
     tx_frames: int = 0
     tx_dropped: int = 0
+    rx_lag_max_us: float = 0.0      # longest a frame waited between its bus time and its handling
+    rx_late: int = 0                # frames handled more than RX_LATE_S after their bus time
+    handle_max_us: float = 0.0      # longest the drive took to handle one frame
+
+
+#: s: a frame handled this long after its bus time counts as late (``LinkStats.rx_late``)
+RX_LATE_S = 0.1
+#: s, ``SimEpos.stall_dump``'s default: with > 0, no SYNC handled for this long after one was
+#: (a stalled drive process, or SYNC stopped) dumps every thread's stack to stderr
+#: (``faulthandler``: its watchdog needs no GIL, so it sees what holds it); 0 = off
+STALL_DUMP_S = 0.0
 
 
 _POWERED = frozenset({State.OPERATION_ENABLED})
@@ -367,6 +379,7 @@ class _Link:
         self._dispatch = threading.RLock()
         self._delay: Optional[_DelayLine] = None
         self._send_lock = threading.Lock()
+        self.stall = StallDump(STALL_DUMP_S, rearm_every=0.1)
 
     def _delay_line(self) -> _DelayLine:
         if self._delay is None:
@@ -415,7 +428,19 @@ class _Link:
                 stamps = (time.monotonic_ns(), time.time_ns())
             self.rx_mono_ns, self.rx_wall_ns = stamps
             self.rx_bus_ns = int(round(timestamp * 1e9)) if timestamp else stamps[1]
+            began = time.time_ns()
+            lag = (began - self.rx_bus_ns) / 1e3
+            st = self.stats
+            if lag > st.rx_lag_max_us:
+                st.rx_lag_max_us = lag
+            if lag > RX_LATE_S * 1e6:
+                st.rx_late += 1
+            if cid == 0x80:
+                self.stall.arm(stamps[0])
             cb(cid, bytearray(data), timestamp)
+            took = (time.time_ns() - began) / 1e3
+            if took > st.handle_max_us:
+                st.handle_max_us = took
 
     def unsubscribe(self, can_id: int, callback: Optional[Callable] = None) -> None:
         for key in [k for k in self._wrappers if k[0] == can_id and callback in (None, k[1])]:
@@ -451,6 +476,7 @@ class _Link:
 
     def close(self) -> None:
         self.unsubscribe_all()
+        self.stall.disarm()
         if self._delay is not None:
             self._delay.close()
             self._delay = None
@@ -506,6 +532,7 @@ class SimEpos:
         self._rpdo_callbacks = False
         self._pending_emcy: list[int] = []
         self.last_error_time = 0.0       # time.monotonic() s of the latest error or communication error
+        self.stall_dump = STALL_DUMP_S
         self._reset_application()
 
     # -- state ------------------------------------------------------------------------------
@@ -540,6 +567,14 @@ class SimEpos:
     @property
     def node_id(self) -> int:
         return self.config.node_id
+
+    def set_stall_dump(self, seconds: float) -> None:
+        """Dump every thread's stack to stderr when no SYNC was handled for ``seconds`` s after
+        one was (``STALL_DUMP_S``; 0 = off): what held a stalled drive process."""
+        self.stall_dump = max(0.0, float(seconds))
+        if self._link is not None:
+            self._link.stall.disarm()
+            self._link.stall = StallDump(self.stall_dump, rearm_every=0.1)
 
     @property
     def link_stats(self) -> LinkStats:
@@ -653,6 +688,7 @@ class SimEpos:
         if self._link is not None:
             raise RuntimeError(f"drive {self.node_id} is already attached")
         link = self._link = _Link(network, self.faults, self.node_id, self._seed)
+        link.stall = StallDump(self.stall_dump, rearm_every=0.1)
         # the link offers the Network interface the LocalNode uses (subscribe, send_message, ...)
         self.node.associate_network(cast(canopen.Network, link))
         link.unsubscribe(0, self.node.nmt.on_command)

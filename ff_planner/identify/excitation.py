@@ -63,8 +63,10 @@ class Envelope:
 
 @dataclass
 class ExcitationRun:
-    """One run: its profile (starts at rest at q0), level (A), direction (±1), and the nominal
-    figures (peak speed rad/s, end position rad) under the guessed friction."""
+    """One run: its profile (starts at rest at q0), level (A), direction (±1), the nominal
+    figures (peak speed rad/s, end position rad) under the guessed friction, and ``reach`` (rad):
+    the lowest and highest position relative to the start over the prior box's corners, also
+    with a switch ``timing_margin`` late (what the envelope check of the design saw)."""
 
     profile: CurrentProfile
     level: float
@@ -72,6 +74,7 @@ class ExcitationRun:
     q0: float
     q_end: float
     peak_speed: float
+    reach: tuple[float, float] = (0.0, 0.0)
 
 
 @dataclass
@@ -145,20 +148,22 @@ def _late(prof: CurrentProfile, margin: float) -> list[CurrentProfile]:
 
 
 def _check_corners(corners: Sequence[Arm1DofParams], prof: CurrentProfile, q0: float,
-                   env: Envelope, margin: float = 0.0) -> tuple[bool, float]:
-    """(fits, time to rest s): every corner stays in the envelope and sticks for good before tf,
-    also with a switch ``margin`` s late."""
+                   env: Envelope, margin: float = 0.0) -> tuple[bool, float, tuple[float, float]]:
+    """(fits, time to rest s, reach rad relative to q0): every corner stays in the envelope and
+    sticks for good before tf, also with a switch ``margin`` s late."""
     t_rest = 0.0
+    lo = hi = 0.0
     for c, p in itertools.product(corners, _late(prof, margin)):
         res = simulate_arm1dof(c, p, q0, trajectory=True, dt=2e-3, t_end=p.tf)
         assert res.q is not None and res.qd is not None
         q, v = res.q[:, 0], res.qd[:, 0]
         if not (np.all(np.isfinite(q)) and q.min() >= env.q_min and q.max() <= env.q_max
                 and np.abs(v).max() <= env.v_max and abs(float(res.qd_f[0])) == 0.0):
-            return False, math.inf
+            return False, math.inf, (lo, hi)
         sticks = [t for t, kind in res.events if kind == "stick"]
         t_rest = max(t_rest, sticks[-1] if sticks else 0.0)
-    return True, t_rest
+        lo, hi = min(lo, float(q.min()) - q0), max(hi, float(q.max()) - q0)
+    return True, t_rest, (lo, hi)
 
 
 def design_excitation(guess: Arm1DofParams, envelope: Envelope, q_start: float = 0.0, *,
@@ -221,13 +226,13 @@ def _fit_run(guess: Arm1DofParams, corners: Sequence[Arm1DofParams], env: Envelo
                 break
             cur = direction * np.array([[level], [-level]])
             prof = CurrentProfile(np.array([0.0, t1, t1 + t2]), cur, t1 + t2 + max_coast, max_coast)
-            ok, t_rest = _check_corners(corners, prof, q0, env, margin)
+            ok, t_rest, reach = _check_corners(corners, prof, q0, env, margin)
             if ok:
                 coast = max(0.05, t_rest - (t1 + t2)) + 0.1
                 prof = CurrentProfile(prof.step_times, cur, t1 + t2 + coast, coast)
                 tq = np.linspace(0.0, prof.tf, 400)
                 qn, vn = sample_params(guess, prof, q0, tq)
-                return ExcitationRun(prof, level, direction, q0, float(qn[-1]), float(np.abs(vn).max()))
+                return ExcitationRun(prof, level, direction, q0, float(qn[-1]), float(np.abs(vn).max()), reach)
         v_target *= 0.75
     room = min(env.q_max - q0, q0 - env.q_min) if direction < 0 else env.q_max - q0
     raise ParameterError(

@@ -9,6 +9,8 @@ A and s (a 1-DOF model also takes plain numbers):
     sensitivities(params, profile, q0, names, method="exact", rel_step=None, *, rest=False)
         -> {"q1/pc2": ∂q1(tf)/∂pc2, ...} (the model's keys, see ``ff_planner.model.sensitivity``)
     advance(params, q, qd, currents, dt) -> (q, qd) after dt s of constant currents
+        (``advance_exact``: exact for any dt, e.g. the 1-DOF arm's event-exact Eq. 9 motion;
+        otherwise to be called with steps of at most the parameters' ``plant_step``)
 
 ``simulate`` takes the model's own options (``dt``, ``t_end``; scara2 also ``h``, ``settle``).
 ``ff_planner.model.simulate`` and ``ff_planner.model.sensitivity`` validate inputs and call these.
@@ -44,6 +46,7 @@ class ModelSpec:
     rest_position: Callable[..., np.ndarray]
     sensitivities: Callable[..., dict[str, float]]
     advance: Callable[..., tuple[np.ndarray, np.ndarray]]
+    advance_exact: bool = False
 
 
 _SPECS: dict[str, ModelSpec] = {}
@@ -58,7 +61,8 @@ def _load_specs() -> dict[str, ModelSpec]:
         ModelSpec(name=Arm1DofParams.model, n_joints=Arm1DofParams.n_joints,
                   params_class=Arm1DofParams, simulate=arm1dof.simulate_arm1dof,
                   rest_position=arm1dof.rest_position_arm1dof,
-                  sensitivities=arm1dof.sensitivities_arm1dof, advance=arm1dof.advance_joints),
+                  sensitivities=arm1dof.sensitivities_arm1dof, advance=arm1dof.advance_joints,
+                  advance_exact=True),
         ModelSpec(name=Scara2Params.model, n_joints=Scara2Params.n_joints,
                   params_class=Scara2Params, simulate=scara2.simulate_scara2,
                   rest_position=scara2.rest_position_scara2,

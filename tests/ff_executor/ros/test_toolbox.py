@@ -99,7 +99,7 @@ def test_plan_then_execute_a_motion_file_while_recording(stack, capsys, tmp_path
         code, out = run_ctl(stack, capsys, "execute", str(motion), "--tolerance", "0")
         executed = out
         t_done = time.time_ns()
-        assert code == 0, out
+        assert code == 0, f"{out}\n{stack.log_tails()}"
         assert "execute succeeded" in out and out.count("  t = ") >= 5, out   # live feedback lines
         time.sleep(0.5)
     finally:

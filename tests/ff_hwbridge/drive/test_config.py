@@ -41,6 +41,7 @@ def test_ros_params_sim_config_has_the_master_heartbeat_on():
     ("scaling_source", "yaml", "scaling_source must be one of"),
     ("master_heartbeat_timeout_ms", 50, "master_heartbeat_timeout_ms must be an integer ms above"),
     ("boot_wait", -1, "boot_wait must be"),
+    ("stall_dump", -0.1, r"stall_dump must be 0 \.\. 3600 s"),
 ])
 def test_bad_drive_settings_are_refused(key, value, words):
     with pytest.raises(ConfigError, match=words):

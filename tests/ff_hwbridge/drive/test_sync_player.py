@@ -149,6 +149,9 @@ def _assigns_cycles(bench: SyncBench) -> None:
     assert wait_for(lambda: bench.player.pending == 0, 5.0)
     reports = []
     assert wait_for(lambda: reports.extend(bench.player.take_applied()) or len(reports) == 5)
+    # the master's receiver may see a SYNC before the drive's thread has handled it
+    raws = {bench.drive.current_to_setpoint(0.5 + 0.1 * k) for k in range(5)}
+    assert wait_for(lambda: raws <= {r.raw for r in bench.drive.setpoint_log()}), bench.drive.setpoint_log()
     log = {r.raw: r for r in bench.drive.setpoint_log()}
     for k, (s, rep) in enumerate(zip(stamps, reports)):
         assert rep.stamp_ns == s
