@@ -3,7 +3,6 @@ the executor action, timed on the CAN bus; the fit; a box-robust plan over the i
 landing within its certificate; and bad input refused with one clear line, nothing moved."""
 from __future__ import annotations
 
-import math
 import threading
 import time
 
@@ -141,16 +140,3 @@ def test_no_stack_is_a_clear_error_and_nothing_is_sent(tmp_path):
         assert time.monotonic() - t0 < 15.0 and "\n" not in str(info.value)
     finally:
         client.close()
-
-
-def test_identification_with_friction_that_is_not_eq9_is_flagged_on_the_stack(tmp_path):
-    ex = design_excitation(BASE, ENV, 0.0, levels=[0.75, 1.5, 3.0], timing_margin=0.02)
-    from ff_executor.bringup.identify import run_on_stack
-    from ff_planner.identify import fit_friction
-
-    records, meta = run_on_stack(ex, BASE, TRUE, 0.0, log=lambda s: None, run_dir=str(tmp_path),
-                                 friction={"stribeck": 0.3, "stribeck_speed": 0.1})
-    assert meta["friction_mismatch"]["stribeck"] == 0.3 and meta["timing"] == "bus"
-    fit = fit_friction(records, BASE)
-    assert not fit.adequate and "MODEL MISMATCH" in fit.message
-    assert math.isfinite(fit.rms) and fit.rms > 3.0 * fit.sigma
