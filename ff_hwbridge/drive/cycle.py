@@ -78,7 +78,8 @@ class _InFlight:
 @dataclass(frozen=True)
 class Resolved:
     """A setpoint latched by the drives: stamp, SYNC instant it took effect at (bus, wall ns),
-    RPDO send time (wall ns), SYNC cycles after its own (0 = on time), the sender's token, and
+    RPDO's bus instant (wall ns: its echo's stamp, the one the drive latched it by; without an
+    echo when its send returned), SYNC cycles after its own (0 = on time), the sender's token, and
     whether it was a stop."""
 
     stamp_ns: int
@@ -334,7 +335,7 @@ class CycleScheduler(StampedQueue):
             if self._last_applied_ns == hit.bus_ns:
                 self.superseded += 1
             self._last_applied_ns = hit.bus_ns
-            out.append(Resolved(f.stamp_ns, hit.bus_ns, f.sent_wall_ns, missed, f.token, f.stop, early,
+            out.append(Resolved(f.stamp_ns, hit.bus_ns, t_bus, missed, f.token, f.stop, early,
                                 f.picked_wall_ns, f.send_ns, f.queued_wall_ns))
         return out
 

@@ -19,8 +19,9 @@ so a :class:`~ff_hwbridge.drive.cycle.CycleScheduler` replaces the stamp schedul
 is assigned to the first SYNC at or after its stamp, guarded, converted and sent as soon as the
 SYNC before that one has been seen (up to one period early), and reported once its SYNC has come:
 ``AppliedSetpoint.sent_ns`` is then the SYNC's bus instant (when the drive applied it),
-``rpdo_sent_ns`` the send and ``missed_cycles`` how many SYNCs late it took effect (counted;
-more than ``missed_cycle_tolerance`` latches the safe state).
+``rpdo_sent_ns`` the RPDO's bus instant (its echo's stamp; the send without an echo) and
+``missed_cycles`` how many SYNCs late it took effect (counted; more than
+``missed_cycle_tolerance`` latches the safe state).
 
 Stops: a setpoint whose currents are all zero is a stop. Whatever the phase bookkeeping does, a
 stop is never dropped (applied at once even when a later-stamped setpoint has been sent) and
@@ -115,7 +116,7 @@ class AppliedSetpoint:
     last: bool
     reason: Optional[str]        # None: sent as requested; else why the guard changed it
     latched: bool                # the safe state was latched when it was prepared
-    rpdo_sent_ns: int = 0        # when its RPDO was sent (sync: before ``sent_ns``, the SYNC)
+    rpdo_sent_ns: int = 0        # its RPDO's bus instant (sync: before ``sent_ns``, the SYNC)
     missed_cycles: int = 0       # sync: SYNC cycles after its own that it took effect (0 = on time)
 
 

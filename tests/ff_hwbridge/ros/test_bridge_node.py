@@ -139,6 +139,9 @@ def test_lifecycle_setpoints_faults_and_reset(bridge):
     fut = cli.call_async(Trigger.Request())
     assert _wait(fut.done, 5.0) and fut.result().success, fut.result().message
     assert not node.master.latched
+    # the reset answers once the latch is cleared; the drive is enabled again a moment later
+    # (shutdown, switch on, enable operation), and only an enabled drive has an operation to disable
+    assert _wait(lambda: drive.transitions[-1] == 4), drive.transitions[-6:]
 
     node.trigger_deactivate()
     assert not node.active
