@@ -13,6 +13,23 @@ import pytest
 sys.dont_write_bytecode = False
 
 
+#: pytest-xdist workers for the library suite run alone (``-m "not integration"``): its cases are
+#: short and independent, and half their time is spent waiting (timers, threads, SYNC). A run that
+#: includes the integration tests stays in one process: they start processes whose timing a
+#: second worker would disturb. ``-n 0`` (or ``-p no:xdist``) runs the library suite in one process.
+LIBRARY_WORKERS = 2
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_cmdline_main(config: pytest.Config) -> None:
+    if (config.pluginmanager.hasplugin("xdist") and config.getoption("numprocesses", None) is None
+            and config.getoption("markexpr").strip() == "not integration"
+            and not config.getoption("collectonly") and not os.environ.get("PYTEST_XDIST_WORKER")):
+        config.option.numprocesses = LIBRARY_WORKERS
+        if config.getoption("dist") == "no":
+            config.option.dist = "worksteal"       # an idle worker takes cases from a busy one
+
+
 _USED_DOMAINS: set[int] = set()
 
 
