@@ -307,7 +307,7 @@ def execute_run(client: Any, probe: StackProbe, run: Any, q_res: float, envelope
 
     q = probe.wait_at_rest(q_res)
     probe.check_drive()
-    reach = getattr(run, "reach", (0.0, 0.0))
+    reach = run.reach
     if q + reach[0] < envelope.q_min - 1e-9 or q + reach[1] > envelope.q_max + 1e-9:
         raise RuntimeError(f"the arm rests at {q:.4g} rad, {q - run.q0:+.4g} rad from where the run was "
                            f"designed to start: it could reach [{q + reach[0]:.4g}, {q + reach[1]:.4g}] rad, "
@@ -315,7 +315,7 @@ def execute_run(client: Any, probe: StackProbe, run: Any, q_res: float, envelope
                            "identification stopped, nothing was sent")
     msg = profile_to_msg(run.profile, "arm1dof", [q], [q + run.q_end - run.q0])
     mv = client.execute(msg, timeout=run.profile.tf + 15.0)
-    _, qs, _, _ = mv.joints.arrays()
+    ts, qs, _, _ = mv.joints.arrays()
     if qs.size and (qs.min() < envelope.q_min - 1e-9 or qs.max() > envelope.q_max + 1e-9):
         raise RuntimeError(f"the arm left the envelope [{envelope.q_min:.4g}, {envelope.q_max:.4g}] rad "
                            f"(from rest at {q:.4g} rad it reached [{qs.min():.4g}, {qs.max():.4g}] rad; switch "
@@ -328,8 +328,7 @@ def execute_run(client: Any, probe: StackProbe, run: Any, q_res: float, envelope
         raise StackFault(f"the bridge applied {len(mv.switch_delays)} of {changes} current "
                          f"changes of a run (safe state? ff-ctl diag)")
     if bus is not None:
-        jt = mv.joints.arrays()[0]
-        bus.wait_seen(float(jt.max()) if jt.size else time.time(), timeout=2.0)   # the run's last frames
+        bus.wait_seen(float(ts.max()) if ts.size else time.time(), timeout=2.0)   # the run's last frames
     rec = record_of(mv, run.profile, q_res, measure, bus)
     if float(np.ptp(rec.q)) < 100.0 * q_res:         # every run moves the arm by tenths of a rad
         raise StackFault(f"the arm moved {float(np.ptp(rec.q)):.3g} rad in a run: the drive did not apply it")

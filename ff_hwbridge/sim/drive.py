@@ -367,7 +367,7 @@ class _Link:
     delayed or passed on; outgoing frames likewise."""
 
     def __init__(self, network: canopen.Network, faults: FaultSettings, node_id: int,
-                 seed: Optional[int] = None) -> None:
+                 seed: Optional[int] = None, stall_dump: float = STALL_DUMP_S) -> None:
         self.network, self.faults, self.node_id = network, faults, node_id
         self.stats = LinkStats()
         self.rx_by_id: dict[int, int] = {}        # frames seen per COB-ID (diagnostics)
@@ -379,7 +379,7 @@ class _Link:
         self._dispatch = threading.RLock()
         self._delay: Optional[_DelayLine] = None
         self._send_lock = threading.Lock()
-        self.stall = StallDump(STALL_DUMP_S, rearm_every=0.1)
+        self.stall = StallDump(stall_dump, rearm_every=0.1)
 
     def _delay_line(self) -> _DelayLine:
         if self._delay is None:
@@ -574,7 +574,7 @@ class SimEpos:
         self.stall_dump = max(0.0, float(seconds))
         if self._link is not None:
             self._link.stall.disarm()
-            self._link.stall = StallDump(self.stall_dump, rearm_every=0.1)
+            self._link.stall.seconds = self.stall_dump      # from the next SYNC on
 
     @property
     def link_stats(self) -> LinkStats:
@@ -687,8 +687,7 @@ class SimEpos:
         """Join ``network`` (connected canopen Network); call ``boot()`` next."""
         if self._link is not None:
             raise RuntimeError(f"drive {self.node_id} is already attached")
-        link = self._link = _Link(network, self.faults, self.node_id, self._seed)
-        link.stall = StallDump(self.stall_dump, rearm_every=0.1)
+        link = self._link = _Link(network, self.faults, self.node_id, self._seed, self.stall_dump)
         # the link offers the Network interface the LocalNode uses (subscribe, send_message, ...)
         self.node.associate_network(cast(canopen.Network, link))
         link.unsubscribe(0, self.node.nmt.on_command)
