@@ -74,6 +74,7 @@ NMT STOPPED halts PDOs and SDO but (as on the real drive) does not change the po
 """
 from __future__ import annotations
 
+import bisect
 import heapq
 import math
 import random
@@ -212,6 +213,19 @@ RX_LATE_S = 0.1
 #: (a stalled drive process, or SYNC stopped) dumps every thread's stack to stderr
 #: (``faulthandler``: its watchdog needs no GIL, so it sees what holds it); 0 = off
 STALL_DUMP_S = 0.0
+#: SYNCs a drive remembers, with what each latched, to latch an RPDO delivered late at the SYNC
+#: it was on the bus before (at 1 kHz: 0.25 s; an older one is latched at the oldest remembered)
+SYNC_HISTORY = 256
+
+
+@dataclass
+class _SyncLatch:
+    """One SYNC a drive handled: its bus instant (wall ns), the plant's clock then (monotonic ns)
+    and, per RPDO map (``id``), the bus stamp (wall ns) and data of the RPDO it latched."""
+
+    bus: int
+    t_ns: int
+    latched: dict[int, tuple[int, bytes]]
 
 
 _POWERED = frozenset({State.OPERATION_ENABLED})
@@ -550,10 +564,9 @@ class SimEpos:
             self._sync_counts: dict[int, int] = {}
             self._tpdo_structs: dict[tuple, struct.Struct] = {}
             self._pending_sync_rpdo: list[Any] = []
-            # the last SYNC seen (bus wall ns, plant ns) and, per RPDO map, the bus stamp of
-            # the RPDO it latched: an RPDO delivered after that SYNC but stamped before it
-            self._last_sync: Optional[tuple[int, int]] = None
-            self._latched_at_sync: dict[int, int] = {}
+            # the latest SYNCs seen and what each latched: an RPDO delivered after a SYNC but
+            # stamped before it is latched at the SYNC it was on the bus before
+            self._syncs: deque[_SyncLatch] = deque(maxlen=SYNC_HISTORY)
             self.transitions: list[int] = []
             self.state_log: deque[StateChange] = deque(maxlen=1000)
             self._left_enabled_ns = 0
@@ -596,8 +609,7 @@ class SimEpos:
     @property
     def last_sync_ns(self) -> int:
         """Bus instant (wall ns) of the last SYNC this drive handled (0: none yet)."""
-        last = self._last_sync
-        return last[0] if last is not None else 0
+        return self._syncs[-1].bus if self._syncs else 0
 
     @property
     def zero_current_ns(self) -> int:
@@ -993,11 +1005,14 @@ class SimEpos:
             for tr in fired:
                 self._set_state(new, tr, t_ns)
 
-    def _setpoint(self, raw: int, t_ns: int, wall_ns: int, source: str) -> None:
+    def _setpoint(self, raw: int, t_ns: int, wall_ns: int, source: str,
+                  record: bool = True) -> None:
         with self._lock:
             self._setpoint_raw = raw
             self._apply(t_ns)
-            self._log.append(SetpointRecord(t_ns, wall_ns, raw, self._commanded, self._applied, source))
+            if record:
+                self._log.append(SetpointRecord(t_ns, wall_ns, raw, self._commanded, self._applied,
+                                                source))
 
     def _apply(self, t_ns: int) -> None:
         """Recompute the power stage's current and push it to the plant at ``t_ns``."""
@@ -1028,20 +1043,37 @@ class SimEpos:
         self._rpdo_seen[no] = time.monotonic()
         self._rpdo_tripped.discard(no)
         if pdo_map.trans_type is not None and pdo_map.trans_type <= 240:
-            ts, last = link.rx_bus_ns, self._last_sync
-            if last is not None and ts <= last[0]:
-                # on the bus before the last SYNC, delivered after it (two senders' frames
-                # reach a virtual channel in the order they got its lock, not of their stamps):
-                # that SYNC latched it unless a later-stamped RPDO was latched there
-                if ts >= self._latched_at_sync.get(id(pdo_map), ts):
-                    self._latched_at_sync[id(pdo_map)] = ts
-                    self._take_rpdo(pdo_map, bytes(pdo_map.data), last[1], last[0])
+            ts = link.rx_bus_ns
+            if self._syncs and ts <= self._syncs[-1].bus:
+                self._latch_late(pdo_map, bytes(pdo_map.data), ts)
                 return
             self._pending_sync_rpdo.append((pdo_map, bytes(pdo_map.data), ts))
             return
         self._take_rpdo(pdo_map, bytes(pdo_map.data), t_ns, wall)
 
-    def _take_rpdo(self, pdo_map: Any, data: bytes, t_ns: int, wall: int) -> None:
+    def _latch_late(self, pdo_map: Any, data: bytes, ts: int) -> None:
+        """A synchronous RPDO on the bus at ``ts`` (wall ns) before a SYNC already handled, delivered
+        after it (two senders' frames reach a virtual channel in the order they got its lock, not
+        of their stamps): latched at the first SYNC at or after ``ts``, as a drive on a real bus
+        would have, unless a later-stamped RPDO of the same map was latched there. When a later
+        SYNC latched a newer RPDO of that map, the drive goes on with that one (the plant puts the
+        late change in its place in its history and replays what followed)."""
+        syncs = list(self._syncs)
+        k = max(0, bisect.bisect_left([s.bus for s in syncs], ts))
+        at = syncs[k]
+        prev = at.latched.get(id(pdo_map))
+        if prev is not None and prev[0] > ts:
+            return
+        at.latched[id(pdo_map)] = (ts, data)
+        self._take_rpdo(pdo_map, data, at.t_ns, at.bus)
+        for later in reversed(syncs[k + 1:]):
+            if id(pdo_map) in later.latched:
+                self._take_rpdo(pdo_map, later.latched[id(pdo_map)][1], later.t_ns, later.bus,
+                                record=False)
+                break
+
+    def _take_rpdo(self, pdo_map: Any, data: bytes, t_ns: int, wall: int,
+                   record: bool = True) -> None:
         sp_key = SETPOINT_OBJ[self.family]
         with self._lock:
             self._in_rpdo = True
@@ -1064,7 +1096,7 @@ class SimEpos:
             if cw is not None:
                 self._apply_controlword(cw, t_ns)
             if sp is not None:
-                self._setpoint(sp, t_ns, wall, "rpdo")
+                self._setpoint(sp, t_ns, wall, "rpdo", record)
             else:
                 self._apply(t_ns)
 
@@ -1078,9 +1110,10 @@ class SimEpos:
         wall = bus
         pending = self._pending_sync_rpdo
         self._pending_sync_rpdo = [p for p in pending if p[2] > bus]   # on the bus after it
-        self._last_sync, self._latched_at_sync = (bus, t_ns), {}
+        sync = _SyncLatch(bus, t_ns, {})
+        self._syncs.append(sync)
         for m, d, ts in sorted((p for p in pending if p[2] <= bus), key=lambda p: p[2]):
-            self._latched_at_sync[id(m)] = ts
+            sync.latched[id(m)] = (ts, d)
             self._take_rpdo(m, d, t_ns, wall)
         live: Optional[dict] = None
         for m in _maps(self.node.tpdo).values():

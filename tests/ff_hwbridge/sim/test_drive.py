@@ -655,3 +655,46 @@ def test_a_lost_bus_faults_the_drive_and_it_reports_on_the_next_one(rig):
     assert wait_for(lambda: rig.seen(0x701) and rig.seen(0x701)[-1] == b"\x7f")  # PRE-OPERATIONAL
     assert len([d for d in rig.seen(0x701) if d == b"\x00"]) == n_boot
     assert rig.node.sdo[0x603F].raw == 0x81FD
+
+
+def test_a_synchronous_rpdo_delivered_late_latches_at_the_sync_it_was_on_the_bus_before(rig):
+    """Frames reach a virtual channel in the order their senders got it, not of their stamps:
+    an RPDO stamped before SYNC A but handled after SYNC B is latched at A (the player reports A),
+    and a newer RPDO latched at B stays the drive's setpoint."""
+    rig.configure_contract_pdos()
+    rig.node.rpdo[1].trans_type = 1
+    rig.node.rpdo[1].save()
+    rig.node.sdo[0x6060].raw = 10
+    rig.node.nmt.send_command(0x01)
+    d, net = rig.drive, rig.net_s
+    assert wait_for(lambda: d.nmt_state == "OPERATIONAL")
+
+    def sync(t: float) -> None:
+        net.notify(0x80, bytearray(), t)
+
+    def rpdo(sp: int, t: float, cw: int = 0x0F) -> None:
+        net.notify(0x201, bytearray(struct.pack("<Hh", cw, sp)), t)
+
+    t0 = time.time()
+    for k, cw in enumerate((0x06, 0x07, 0x0F)):          # each latched at the SYNC after it
+        rpdo(0, t0 + 0.001 * k, cw)
+        sync(t0 + 0.001 * k + 0.0005)
+    assert d.state is State.OPERATION_ENABLED
+    ta, tb, tc = t0 + 0.005, t0 + 0.010, t0 + 0.015
+    sync(ta)
+    sync(tb)
+    d.clear_setpoint_log()
+    rpdo(111, ta - 0.002)                                # on the bus before A, handled after B
+    log = d.setpoint_log()
+    assert [(r.raw, r.wall_ns) for r in log] == [(111, int(round(ta * 1e9)))]
+    rpdo(222, tb - 0.001)                                # before B: latched at B
+    sync(tc)
+    rpdo(99, ta - 0.0023)                                # older than 111 at A: superseded there
+    rpdo(112, ta - 0.001)                                # newer than 111 at A: A latched it...
+    log = d.setpoint_log()
+    assert [(r.raw, r.wall_ns) for r in log] == [(111, int(round(ta * 1e9))),
+                                                 (222, int(round(tb * 1e9))),
+                                                 (112, int(round(ta * 1e9)))]
+    assert d._setpoint_raw == 222                        # ...and B's newer one is still in force
+    rpdo(333, tc + 0.001)                                # after the last SYNC: waits for the next
+    assert d._setpoint_raw == 222 and len(d.setpoint_log()) == 3
