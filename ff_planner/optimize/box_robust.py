@@ -39,8 +39,11 @@ BOX_CANDIDATES best over all coasts are refined to convergence with equal steps,
 switch times and a free coast from there (for N ≤ FREE_DIRECT_MAX_STEPS also from the LM plan
 itself), and the next ones up to BOX_EXTRA_CANDIDATES only while the best is above
 BOX_EXTRA_TARGET (5 mrad) and within BOX_EXTRA_REACH (25 mrad): the median N = 12 request pays
-nothing for them. The best verified plan among the LM plan, the equal-step and the free-time
-refinements is returned.
+nothing for them. For N ≤ RANDOM_TIMES_MAX_STEPS a global stage over the step durations follows
+(``_random_time_candidates``): LM plans at RANDOM_TIMES_DRAWS seeded unequal duration vectors and
+coasts, the RANDOM_TIMES_REFINE of least worst at the corners refined with free times (N = 5,
+seeds 0-19: 22-59 mrad, median ~25, where the equal-step LM plans' basins end at 123-131). The
+best verified plan among the LM plan, the equal-step and the free-time refinements is returned.
 
 With a ``grid`` the free times are rounded to it and the currents solved again. When no plan is
 derivative-robust, the LM end point of the shortest coast nearest the robust set (least |r|²)
@@ -126,6 +129,13 @@ SPLIT_TARGET = 5e-3     # rad: the continuation stops once the box worst is with
 BEST_ITERATE = True     # SLSQP returns the iterate of least merit (worst + equality residuals)
 EQ_WEIGHT = 0.2         # merit weight of the scaled derivative residuals (rad per unit = box fraction)
 ERR_SCALE = 1e3         # the epigraph variable in mrad (SLSQP's tolerances suit O(1) values)
+RANDOM_TIMES_MAX_STEPS = 6  # up to this N a global stage over the step durations runs too
+RANDOM_TIMES_DRAWS = 1000   # ... drawing this many duration vectors (Dirichlet(1.5) of tf − coast,
+#                             the coast uniform in [coast, coast_max], every step >= MIN_STEP)
+RANDOM_TIMES_STARTS = 5     # ... LM starts per draw (currents uniform in ±i_max)
+RANDOM_TIMES_SCREEN = 20    # ... the derivative-robust plans of least worst at the corners get a
+RANDOM_TIMES_SCREEN_ITER = 25   # short free-time minimax (this many SLSQP iterations, one round)
+RANDOM_TIMES_REFINE = 5     # ... and the best of those a full one
 
 
 class _OneBlasThread:
@@ -564,6 +574,42 @@ def _candidates(prob: _Problem, starts: int, seed: int, deadline: float,
     return found, tried, iters
 
 
+def _random_time_candidates(request: PlanRequest, params: Arm1DofParams, n: int,
+                            grid: Optional[float], coast_range: tuple[float, float], seed: int,
+                            deadline: float, base: np.ndarray
+                            ) -> tuple[list[tuple[float, np.ndarray, _Problem]], int, int]:
+    """The global stage over step durations: RANDOM_TIMES_DRAWS seeded duration vectors (and
+    coasts in ``coast_range``, s), RANDOM_TIMES_STARTS LM starts each; returns the
+    RANDOM_TIMES_SCREEN derivative-robust plans of least worst rest error (rad) over the
+    ``base`` samples as (worst, currents (N,) A, problem with those step times), the starts run
+    and the LM iterations."""
+    rng = np.random.default_rng([int(seed), n, 0x7157])
+    tf = float(request.tf)
+    found: list[tuple[float, np.ndarray, _Problem]] = []
+    tried = iters = 0
+    for _ in range(RANDOM_TIMES_DRAWS):
+        if time.perf_counter() > deadline:
+            break
+        coast = float(rng.uniform(coast_range[0], coast_range[1]))
+        d = rng.dirichlet(np.full(n, 1.5)) * (tf - coast)
+        if d.min() < MIN_STEP:
+            continue
+        prob = _with_times(_Problem(dc_replace(request, coast=coast), params, n, grid),
+                           np.concatenate([[0.0], np.cumsum(d)]), grid)
+        block = np.ascontiguousarray(rng.uniform(-1.0, 1.0, (RANDOM_TIMES_STARTS, n))
+                                     * prob.i_max)
+        done, st, it, _, _ = prob.run(block, False)
+        tried += done
+        iters += int(it[:done].sum())
+        for k in range(done):
+            if st[k] == _lm1d.OK:
+                w = _worst(prob, prob.times, block[k], base)
+                if math.isfinite(w):
+                    found.append((w, block[k].copy(), prob))
+    found.sort(key=lambda r: r[0])
+    return found[:RANDOM_TIMES_SCREEN], tried, iters
+
+
 def _structured_starts(prob: _Problem, m: int, seed: int, level: int) -> np.ndarray:
     """``m`` seeded LM starts (m, N) A shaped like the plans that land best: the first current
     anywhere in ±i_max, the inner ones in ±STRUCT_SPREAD·i_max, the last but one braking
@@ -824,6 +870,40 @@ def _plan_box(request: PlanRequest, progress: Progress = None,
             consider(_polish(prob_t, I_f), prob_t)
         if progress is not None:
             progress({"stage": f"robust-box refine {refined}", "starts_done": tried,
+                      "best": float(best[0]) if best else math.inf})
+    if n <= RANDOM_TIMES_MAX_STEPS and time.perf_counter() < deadline:
+        # few steps: the equal-step LM plans all lie in poor basins (N = 5, seeds 0-3: 123-131
+        # mrad); plans with unequal steps from the start reach 5-35 mrad after the free-time
+        # minimax
+        extra, t_, i_ = _random_time_candidates(request, params, n, grid, coast_range,
+                                                int(request.seed), deadline, base_scales)
+        tried += t_
+        iters += i_
+        free_range = coast_range if FREE_COAST else None
+        screened_t: list = []     # (worst after the short minimax, I, its problem)
+        for _w0, I0, prob_r in extra:
+            if time.perf_counter() > deadline:
+                break
+            try:
+                I_s, t_s = _refine(prob_r, I0, base_scales, check_scales, deadline, free_range,
+                                   maxiter=RANDOM_TIMES_SCREEN_ITER, rounds=1)
+            except (ValueError, ArithmeticError):
+                continue
+            prob_s = _with_times(prob_r, t_s)
+            screened_t.append((_worst(prob_s, prob_s.times, I_s, base_scales), I_s, prob_s))
+        screened_t.sort(key=lambda r: r[0])
+        for _w1, I_s, prob_s in screened_t[:RANDOM_TIMES_REFINE]:
+            if time.perf_counter() > deadline:
+                break
+            refined += 1
+            try:
+                I_f, t_f = _refine(prob_s, I_s, base_scales, check_scales, deadline, free_range)
+            except (ValueError, ArithmeticError):
+                continue
+            prob_t = _with_times(prob_s, t_f, grid)
+            consider(_polish(prob_t, I_f), prob_t)
+        if progress is not None:
+            progress({"stage": "robust-box step durations", "starts_done": tried,
                       "best": float(best[0]) if best else math.inf})
     if best is None:        # the budget ran out before any refinement: the LM plans, verified
         for _w1, _I1, prob, I0 in pool[:BOX_CANDIDATES]:
