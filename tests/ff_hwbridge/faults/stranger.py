@@ -5,6 +5,7 @@ torque mode over a CAN bus given as python-can arguments, checking what it sees 
 ``run(bus_kwargs, node_id, eds_path)`` returns what it observed (times in s, raw values)."""
 from __future__ import annotations
 
+import threading
 import time
 from typing import Any, Callable
 
@@ -43,9 +44,14 @@ def run(bus_kwargs: dict[str, Any], node_id: int, eds_path: str) -> dict[str, An
     net.add_node(node)
     hb = sync = None
     try:
-        # boot: reset communication, wait for the boot-up frame
+        # boot: reset communication, wait for the boot-up frame. The callback is in place before
+        # the command: canopen's wait_for_bootup only sees a boot-up that comes after it is
+        # called, and a drive can answer before that on a loaded machine
+        booted = threading.Event()
+        node.nmt.add_heartbeat_callback(lambda state: booted.set() if state == 0 else None)
         node.nmt.send_command(0x82)
-        node.nmt.wait_for_bootup(10.0)
+        if not booted.wait(10.0):
+            raise AssertionError("no boot-up frame within 10 s of the reset communication command")
         sdo = node.sdo
         # identity
         seen["device_type"] = sdo[0x1000].raw
