@@ -41,8 +41,9 @@ itself), and the next ones up to BOX_EXTRA_CANDIDATES only while the best is abo
 BOX_EXTRA_TARGET (5 mrad) and within BOX_EXTRA_REACH (25 mrad): the median N = 12 request pays
 nothing for them. For N ≤ RANDOM_TIMES_MAX_STEPS a global stage over the step durations follows
 (``_random_time_candidates``): LM plans at RANDOM_TIMES_DRAWS seeded unequal duration vectors and
-coasts, the RANDOM_TIMES_REFINE of least worst at the corners refined with free times (N = 5,
-seeds 0-19: 22-59 mrad, median ~25, where the equal-step LM plans' basins end at 123-131). The
+coasts; the RANDOM_TIMES_SCREEN of least worst at the corners get a short free-time minimax, the
+RANDOM_TIMES_REFINE best of those a full one (N = 5, seeds 0-19: 21.8-67 mrad, median 22.8, where
+the equal-step LM plans' basins end at 123-131). The
 best verified plan among the LM plan, the equal-step and the free-time refinements is returned.
 
 With a ``grid`` the free times are rounded to it and the currents solved again. When no plan is
