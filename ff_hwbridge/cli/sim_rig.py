@@ -13,6 +13,12 @@ On a hub it joined (``--bus-url``) the rig treats a lost hub as bus off (the dri
 0x81FD and drive no current), reconnects every 0.5 s and puts the drives back on the bus
 (PRE-OPERATIONAL, EMCY 0x81FD), and exits with code 3 when the hub is not back within
 ``--reconnect-timeout`` s; each step is a line on stderr.
+
+``--rt-priority P`` (1..99) puts every thread of the rig (python-can's receive thread, the bus
+watch, the plant's clock, the drives' timers) under SCHED_FIFO P once it is up: a loaded machine
+holds normal-priority processes off their CPU for 0.1-1.4 s, and the drives must react to a lost
+bus or a silent master within their own timeouts (a warning, and normal priority, when Linux
+does not permit it).
 """
 from __future__ import annotations
 
@@ -23,6 +29,7 @@ import threading
 from typing import Optional, Sequence
 
 from ff_hwbridge.drive.gc_pauses import freeze_heap
+from ff_hwbridge.drive.scheduler import fifo_process
 from ff_hwbridge.sim.can_hub import CanHub, start_hub
 from ff_hwbridge.sim.drive import SimConfigError
 from ff_hwbridge.sim.rig import SWITCH_INTERVAL, RigConfig, SimRig, run_command, write_record
@@ -55,7 +62,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--switch-interval", type=float, default=SWITCH_INTERVAL, metavar="S",
                     help="python thread switch interval (s, python's default 0.005); smaller = "
                          "shorter waits of the CAN receive thread behind other threads")
+    ap.add_argument("--rt-priority", type=int, default=0, metavar="P",
+                    help="SCHED_FIFO priority 1..99 for every thread of the rig (0 = normal "
+                         "priority)")
     a = ap.parse_args(argv)
+    if not 0 <= a.rt_priority <= 99:
+        print(f"ff-sim-rig: --rt-priority must be 0..99, got {a.rt_priority}", file=sys.stderr)
+        return 2
     if not (a.boot_delay >= 0.0 and a.reconnect_timeout > 0.0):
         print(f"ff-sim-rig: --boot-delay must be >= 0 s and --reconnect-timeout > 0 s, got "
               f"{a.boot_delay} / {a.reconnect_timeout}", file=sys.stderr)
@@ -110,6 +123,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     else:
         rig.boot()
     freeze_heap()       # a full collection would hold the drives' bus thread off the GIL
+    if a.rt_priority > 0:
+        fifo_process(a.rt_priority, "ff-sim-rig")   # threads started later inherit it
     print("sim rig ready", flush=True)
     if not sys.stdin.isatty():
         threading.Thread(target=read_stdin, daemon=True).start()

@@ -43,7 +43,9 @@ HARDWARE_TIMING: dict[str, Any] = {
 PATIENT: dict[str, Any] = {**HARDWARE_TIMING, "master_heartbeat_timeout_ms": 1000}
 HOLD_A = 0.5                 # A, the current held when the fault comes
 START_TIMEOUT = 120.0        # s for a process to start (a loaded machine imports slowly)
-RIG_ARGS = ["--model", "arm1dof", "--node-ids", "1"]
+#: The rig's threads run under SCHED_FIFO: its reactions (bus lost, master silent) are what the
+#: scenarios time, and a loaded machine stalls normal-priority processes for up to ~1.4 s.
+RIG_ARGS = ["--model", "arm1dof", "--node-ids", "1", "--rt-priority", "20"]
 
 
 @dataclass
