@@ -111,11 +111,12 @@ def release_rig(master: Optional[EposMaster], rig: RigProcess, timeout: float = 
 
 def feed_stream(player: SetpointPlayer | ProcessPlayer, stamps: Sequence[int], currents: Sequence[float], *,
                 profile_id: str = "bench", mark_last: bool = False, ahead_ns: int = 100_000_000,
-                poll: float = 0.02) -> int:
+                poll: float = 0.02, on_poll: Optional[Callable[[], None]] = None) -> int:
     """Submit one current (A) per stamp (ns, wall clock), each once its stamp is less than
     ``ahead_ns`` away (as the bridge node feeds its player), then wait until the player has
     played them all. ``mark_last`` flags the final setpoint as the motion's last. Stops feeding at
-    the player's first refusal (safe state). Returns how many setpoints were submitted."""
+    the player's first refusal (safe state); ``on_poll()`` is called between batches. Returns how
+    many setpoints were submitted."""
     from ff_hwbridge.drive.player import SetpointRejected
 
     n = len(stamps)
@@ -129,8 +130,12 @@ def feed_stream(player: SetpointPlayer | ProcessPlayer, stamps: Sequence[int], c
                 submitted += 1
         except SetpointRejected:
             break
+        if on_poll is not None:
+            on_poll()
         time.sleep(poll)
     while player.pending:
+        if on_poll is not None:
+            on_poll()
         time.sleep(0.01)
     return submitted
 

@@ -22,6 +22,12 @@ Figures:
     .venv/bin/python benchmarks/bench_sync.py --duration 60            # quiet
     .venv/bin/python benchmarks/bench_sync.py --duration 60 --load 2   # two busy processes
     .venv/bin/python benchmarks/bench_sync.py --duration 60 --load 2 --player-process
+    .venv/bin/python benchmarks/bench_sync.py --duration 60 --player-process --lead 0.02
+
+``--lead S`` (with ``--player-process``): the bridge's ``setpoint_lead``: each setpoint is handed
+to the hub's transmit schedule up to S before its cycle and goes on the bus mid-cycle before its
+SYNC (``ff_hwbridge.sim.time_keeper``); ``time_keeper`` reports what the hub's schedule sent,
+cancelled and how late its thread was.
 """
 from __future__ import annotations
 
@@ -46,6 +52,10 @@ from ff_hwbridge.drive.player_process import ProcessPlayer
 from ff_hwbridge.sim.rig_process import RigProcess, free_port, rig_master_config
 
 
+#: ns: setpoints are submitted this long before their stamp (the executor's default lead_time)
+FEED_AHEAD_NS = 300_000_000
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=60.0, help="s of streaming")
@@ -66,23 +76,40 @@ def main() -> int:
                     help="SCHED_FIFO for the simulated drive's process (chrt -f N; 0 = normal)")
     ap.add_argument("--player-process", action="store_true",
                     help="the player in its own process (player_process: true)")
+    ap.add_argument("--hub", choices=("process", "rig"), default="process",
+                    help="the CAN hub and its SYNC in a process of their own (ff-can-hub), or "
+                         "hosted by the simulated rig (ff-sim-rig --host-hub --sync-period: the "
+                         "simulated drive on the hub's channel, no websocket hop for it)")
+    ap.add_argument("--lead", type=float, default=0.0,
+                    help="s: setpoint_lead, setpoints handed to the hub's transmit schedule this "
+                         "early (needs --player-process; 0 = off)")
     a = ap.parse_args()
+    if a.lead > 0 and not a.player_process:
+        ap.error("--lead needs --player-process")
 
     load = busy_processes(a.load)
     port = free_port()
     url = f"ws://127.0.0.1:{port}/"
     record = os.path.join(tempfile.mkdtemp(prefix="ff-bench-sync-"), "sim.json")
     load_before = os.getloadavg()
-    hub = subprocess.Popen([sys.executable, "-u", "-m", "ff_hwbridge.cli.can_hub", "--port", str(port),
-                            "--sync-period", str(a.sync_period),
-                            "--sync-rt-priority", str(a.hub_rt_priority), "--sync-stamp", a.sync_stamp],
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    assert hub.stdout is not None
-    hub.stdout.readline()
-    sim = RigProcess(["--record", record], port=port, host_hub=False, bus_url=url,
-                     prefix=["chrt", "-f", str(a.sim_rt_priority)] if a.sim_rt_priority > 0 else ())
+    hub = None
+    if a.hub == "process":
+        hub = subprocess.Popen([sys.executable, "-u", "-m", "ff_hwbridge.cli.can_hub", "--port",
+                                str(port), "--sync-period", str(a.sync_period),
+                                "--sync-rt-priority", str(a.hub_rt_priority), "--sync-stamp",
+                                a.sync_stamp],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        assert hub.stdout is not None
+        hub.stdout.readline()
+        sim = RigProcess(["--record", record], port=port, host_hub=False, bus_url=url,
+                         prefix=["chrt", "-f", str(a.sim_rt_priority)] if a.sim_rt_priority > 0 else ())
+    else:       # the rig hosts the hub and its SYNC: the drive on the channel itself
+        sim = RigProcess(["--record", record, "--sync-period", str(a.sync_period),
+                          "--sync-rt-priority", str(a.hub_rt_priority),
+                          "--rt-priority", str(a.sim_rt_priority)], port=port, host_hub=True)
     master = None
     hub_sync: dict = {}
+    hub_keeper = None
     submitted = 0
     try:
         cfg = rig_master_config(url, "epos4", 10.0, sync_period=a.sync_period,
@@ -90,7 +117,8 @@ def main() -> int:
                                 # a timing benchmark, not a safety test
                                 heartbeat_timeout=1.0, feedback_timeout=1.0, sync_timeout=1.0,
                                 master_heartbeat_timeout_ms=5000, rpdo_timeout_ms=5000,
-                                setpoint_timeout=1.0, missed_cycle_tolerance=a.missed_tolerance)
+                                setpoint_timeout=1.0, missed_cycle_tolerance=a.missed_tolerance,
+                                player_process=bool(a.player_process), setpoint_lead=a.lead)
         if a.process_rt > 0:       # after the children started (they keep normal priority)
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(a.process_rt))
         master = EposMaster(cfg)
@@ -112,22 +140,34 @@ def main() -> int:
         stamps = [t0 + k * period for k in range(n)]
         player.reset_stats()
         # safe state: feeding stops, and the figures cover what ran until then
-        submitted = feed_stream(player, stamps, pattern, mark_last=True)
+        # fed up to 0.3 s ahead, as the executor publishes (lead_time) and the bridge forwards
+        applied: dict = {}
+
+        def drain() -> None:       # the player keeps the latest 10 000 reports only
+            applied.update((r.stamp_ns, r) for r in player.take_applied())
+
+        submitted = feed_stream(player, stamps, pattern, mark_last=True, ahead_ns=FEED_AHEAD_NS,
+                                on_poll=drain)
         time.sleep(2.0)        # the simulated drive's process may lag the stream on a busy machine
         diag = player.diagnostics()
-        applied = {r.stamp_ns: r for r in player.take_applied()}
+        drain()
         latched = stop_drive(player, master)
     finally:
         release_rig(master, sim)
-        hub.send_signal(signal.SIGTERM)
-        out, _ = hub.communicate(timeout=10)
-        for line in out.splitlines():
-            if line.startswith("{"):
-                hub_sync = json.loads(line).get("sync", {})
+        if hub is not None:
+            hub.send_signal(signal.SIGTERM)
+            out, _ = hub.communicate(timeout=10)
+            for line in out.splitlines():
+                if line.startswith("{"):
+                    hub_sync = json.loads(line).get("sync", {})
+                    hub_keeper = json.loads(line).get("time_keeper")
         stop_processes(load)
 
     with open(record) as fh:
         rec = json.load(fh)
+    if a.hub == "rig":
+        hub_sync = (rec.get("hub") or {}).get("sync") or {}
+        hub_keeper = (rec.get("hub") or {}).get("time_keeper")
     latched_log = rec["setpoints"]["1"]             # [mono_ns, wall_ns (SYNC instant), raw, A]
     units = master.units[0]
     want = [units.amps_to_setpoint(x, limit=10.0) for x in pattern]
@@ -141,9 +181,11 @@ def main() -> int:
     result = {"benchmark": "bench_sync", "host": platform.node(), "cpus": os.cpu_count(),
               "duration_s": a.duration, "sync_period_s": a.sync_period, "busy_processes": a.load,
               "transport": "python-can-remote hub on 127.0.0.1, SYNC from the hub's timer thread",
+              "hub": a.hub, "link_stats": rec.get("link_stats"),
               "player_process": bool(a.player_process), "sim_rt_priority": a.sim_rt_priority,
               "player_rt_priority": a.rt_priority, "hub_rt_priority": a.hub_rt_priority,
-              "process_rt_priority": a.process_rt,
+              "process_rt_priority": a.process_rt, "setpoint_lead_s": a.lead,
+              "time_keeper": hub_keeper,
               "loadavg_1min_before_after": [load_before[0], os.getloadavg()[0]],
               "setpoints_planned": n, "setpoints_sent": submitted,
               "setpoints_applied": len(applied), "setpoints_latched": len(matched),

@@ -22,6 +22,7 @@ from typing import Optional, Sequence
 from ff_hwbridge.drive.bus import LOOPBACK, CanConfigError
 from ff_hwbridge.drive.gc_pauses import freeze_heap
 from ff_hwbridge.drive.scheduler import fifo_process
+from ff_hwbridge.sim.time_keeper import keeper_stats
 from ff_hwbridge.sim.can_hub import CanHub, start_hub
 from ff_hwbridge.sim.sync import STAMPS
 
@@ -33,8 +34,10 @@ SWITCH_INTERVAL = 0.0001
 
 
 def _report(hub: CanHub) -> None:
-    if hub.sync is not None:
-        print(json.dumps({"sync": hub.sync.stats().as_dict()}), flush=True)
+    keeper = keeper_stats(hub.channel)
+    if hub.sync is not None or keeper is not None:
+        print(json.dumps({"sync": hub.sync.stats().as_dict() if hub.sync is not None else None,
+                          "time_keeper": keeper}), flush=True)
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:

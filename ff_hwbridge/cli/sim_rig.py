@@ -14,6 +14,11 @@ On a hub it joined (``--bus-url``) the rig treats a lost hub as bus off (the dri
 (PRE-OPERATIONAL, EMCY 0x81FD), and exits with code 3 when the hub is not back within
 ``--reconnect-timeout`` s; each step is a line on stderr.
 
+``--sync-period S`` (with ``--host-hub``): the hosted hub produces SYNC every S s (its timer
+under SCHED_FIFO ``--sync-rt-priority``, as ``ff-can-hub``'s); the simulated drives then sit on
+the hub's channel itself, with no websocket between them and the bus. The hub's SYNC and
+transmit-schedule statistics go into the ``--record`` file (``hub``).
+
 ``--rt-priority P`` (1..99) puts every thread of the rig (python-can's receive thread, the bus
 watch, the plant's clock, the drives' timers) under SCHED_FIFO P once it is up: a loaded machine
 holds normal-priority processes off their CPU for 0.1-1.4 s, and the drives must react to a lost
@@ -33,9 +38,16 @@ from ff_hwbridge.drive.scheduler import fifo_process
 from ff_hwbridge.sim.can_hub import CanHub, start_hub
 from ff_hwbridge.sim.drive import SimConfigError
 from ff_hwbridge.sim.rig import SWITCH_INTERVAL, RigConfig, SimRig, run_command, write_record
+from ff_hwbridge.sim.time_keeper import keeper_stats
 from ff_planner.model.params import MODELS, ParameterError, default_params
 
 __all__ = ["main"]
+
+
+def hub_stats(hub: CanHub) -> dict:
+    """The hosted hub's SYNC statistics (None without SYNC) and its transmit schedule's."""
+    return {"sync": hub.sync.stats().as_dict() if hub.sync is not None else None,
+            "time_keeper": keeper_stats(hub.channel)}
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
@@ -62,12 +74,21 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--switch-interval", type=float, default=SWITCH_INTERVAL, metavar="S",
                     help="python thread switch interval (s, python's default 0.005); smaller = "
                          "shorter waits of the CAN receive thread behind other threads")
+    ap.add_argument("--sync-period", type=float, default=0.0, metavar="S",
+                    help="with --host-hub: the hub produces SYNC every S s (0 = none)")
+    ap.add_argument("--sync-rt-priority", type=int, default=50, metavar="P",
+                    help="SCHED_FIFO priority of the hosted hub's SYNC timer (0 = normal)")
     ap.add_argument("--rt-priority", type=int, default=0, metavar="P",
                     help="SCHED_FIFO priority 1..99 for every thread of the rig (0 = normal "
                          "priority)")
     a = ap.parse_args(argv)
-    if not 0 <= a.rt_priority <= 99:
-        print(f"ff-sim-rig: --rt-priority must be 0..99, got {a.rt_priority}", file=sys.stderr)
+    if not (0 <= a.rt_priority <= 99 and 0 <= a.sync_rt_priority <= 99):
+        print(f"ff-sim-rig: --rt-priority and --sync-rt-priority must be 0..99, got "
+              f"{a.rt_priority} / {a.sync_rt_priority}", file=sys.stderr)
+        return 2
+    if a.sync_period and (a.host_hub is None or not 0.0001 <= a.sync_period <= 1.0):
+        print(f"ff-sim-rig: --sync-period needs --host-hub and 0.0001..1 s, got {a.sync_period}",
+              file=sys.stderr)
         return 2
     if not (a.boot_delay >= 0.0 and a.reconnect_timeout > 0.0):
         print(f"ff-sim-rig: --boot-delay must be >= 0 s and --reconnect-timeout > 0 s, got "
@@ -79,7 +100,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     try:
         params = default_params(a.model).replace(**dict(kv.split("=", 1) for kv in a.param))
         if a.host_hub is not None:
-            hub = start_hub(a.host_hub)
+            hub = start_hub(a.host_hub, sync_period=a.sync_period,
+                            sync_rt_priority=a.sync_rt_priority)
             bus = hub.local_bus_config()      # same process: join the hub's channel directly
         else:
             bus = {"interface": "remote", "channel": a.bus_url}
@@ -131,7 +153,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     while not stop.wait(0.1):
         pass
     if a.record:
-        write_record(rig, a.record)
+        write_record(rig, a.record, None if hub is None else hub_stats(hub))
     rig.close()
     if hub is not None:
         hub.close()

@@ -41,6 +41,7 @@ from typing import Any, Callable, Optional, Self, Sequence
 
 import can
 
+from ff_hwbridge.drive.bus import send_at
 from ff_hwbridge.drive.cycle import CycleScheduler, Resolved
 from ff_hwbridge.drive.gc_pauses import IdleCollector, freeze_heap, hold_full_collections
 from ff_hwbridge.drive.epos import ECHO_INTERFACES, REFRESH_PERIOD, SYNC_COB_ID, EposMaster
@@ -56,7 +57,9 @@ log = logging.getLogger(__name__)
 
 __all__ = ["ProcessPlayer", "make_player"]
 
-STATUS_PERIOD = 0.02      # s, the child's status report (pending, statistics, heartbeat)
+STATUS_PERIOD = 0.02      # s, the child's status report (pending, heartbeat)
+ECHO_KEEP = 4096          # echoes remembered per joint (their numbers and bus instants)
+STATS_PERIOD = 0.25       # s, ... with statistics refreshed this often
 DEAD_AFTER = 2.0          # s without a status report: the player process counts as dead
 START_TIMEOUT = 30.0      # s for the child to import, open the bus and report ready
 
@@ -88,6 +91,7 @@ class _Spec:
     rt_priority: int
     setpoint_timeout: float
     stall_dump: float = 0.0
+    lead: float = 0.0         # s: setpoints handed to the bus's transmit schedule this early
 
 
 # --- the child ------------------------------------------------------------------------------------
@@ -105,10 +109,15 @@ class _Child:
         cfg = dict(spec.bus)
         if spec.echo:
             cfg["receive_own_messages"] = True
+        # only SYNC and the setpoint RPDOs (our echoes) are of interest here; given at open, the
+        # simulation's hub applies them on its side too and sends this process nothing else
+        # (at 1 kHz SYNC that spares it and the hub ~2000 TPDO frames a second)
+        ids = [SYNC_COB_ID] + [0x200 + j.node_id for j in spec.joints]
+        filters = [can.typechecking.CanFilter(can_id=i, can_mask=0x7FF) for i in ids]
+        cfg["can_filters"] = filters
         self.bus = open_bus(cfg)
-        try:      # only SYNC and the setpoint RPDOs (our echoes) are of interest here
-            ids = [SYNC_COB_ID] + [0x200 + j.node_id for j in spec.joints]
-            self.bus.set_filters([can.typechecking.CanFilter(can_id=i, can_mask=0x7FF) for i in ids])
+        try:
+            self.bus.set_filters(filters)
         except (NotImplementedError, can.CanError, AttributeError):
             pass
         self.watch = SyncWatch(spec.period_s)
@@ -116,8 +125,9 @@ class _Child:
         self.rx_ids = {0x200 + j.node_id: i for i, j in enumerate(spec.joints)}
         self.tx_seq = [0] * self.n
         self.echo_seq = [0] * self.n
-        self.sent_data: list[deque[bytes]] = [deque(maxlen=256) for _ in range(self.n)]
-        self.echo_log: list[deque[tuple[int, int]]] = [deque(maxlen=1024) for _ in range(self.n)]
+        self.sent_data: list[deque[bytes]] = [deque(maxlen=1024) for _ in range(self.n)]
+        # per joint: echo number -> its bus instant (wall ns), the latest ECHO_KEEP of them
+        self.echo_log: list[dict[int, int]] = [{} for _ in range(self.n)]
         self.last_frame: list[Optional[bytes]] = [None] * self.n
         self.last_tx = [0.0] * self.n
         self.raw = [0] * self.n
@@ -128,7 +138,7 @@ class _Child:
                                     tolerance=spec.cycle_tolerance,
                                     missed_tolerance=spec.missed_tolerance,
                                     rt_priority=spec.rt_priority, name="ff-player-process",
-                                    stall_dump=spec.stall_dump)
+                                    stall_dump=spec.stall_dump, lead=spec.lead)
         self.placement = GridPlacement(self.sched.grid)
         self.rx_rt = False
 
@@ -159,16 +169,23 @@ class _Child:
             return None                       # the master owns this drive's RPDO now
         return struct.pack(self.spec.joints[i].rx_fmt, cw & 0xFFFF, int(raw))
 
-    def _tx(self, i: int, data: bytes, raw: int) -> None:
-        """Send RPDO1 ``data`` (setpoint ``raw``) to joint ``i``; call with ``_send_lock`` held,
-        so that a refresh never goes out between a setpoint and the record of it: a refresh of
-        the previous setpoint after a new one would be what the drive latches at the SYNC."""
+    def _tx(self, i: int, data: bytes, raw: int, at_ns: Optional[int] = None) -> None:
+        """Send RPDO1 ``data`` (setpoint ``raw``) to joint ``i``, at once or (``at_ns``, wall ns)
+        through the bus's transmit schedule; call with ``_send_lock`` held, so that a refresh
+        never goes out between a setpoint and the record of it: a refresh of the previous
+        setpoint after a new one would be what the drive latches at the SYNC."""
         self.sent_data[i].append(data)
-        self.bus.send(can.Message(arbitration_id=0x200 + self.spec.joints[i].node_id, data=data,
-                                  is_extended_id=False))
+        msg = can.Message(arbitration_id=0x200 + self.spec.joints[i].node_id, data=data,
+                          is_extended_id=False)
+        ahead = 0.0
+        if at_ns is not None:
+            ahead = max(0.0, (at_ns - time.time_ns()) / 1e9)
+            send_at(self.bus, msg, at_ns)
+        else:
+            self.bus.send(msg)
         self.tx_seq[i] += 1
         self.last_frame[i] = data
-        self.last_tx[i] = time.monotonic()
+        self.last_tx[i] = time.monotonic() + ahead      # its bus instant: no refresh before it
         self.raw[i] = int(raw)
 
     def _refresh(self, i: int) -> None:
@@ -182,7 +199,8 @@ class _Child:
                 self._tx(i, struct.pack(self.spec.joints[i].rx_fmt, cw & 0xFFFF, self.raw[i]),
                          self.raw[i])
 
-    def _send(self, stamp_ns: int, prepared: tuple) -> tuple[Optional[tuple[int, ...]], Any]:
+    def _send(self, stamp_ns: int, prepared: tuple,
+              at_ns: Optional[int] = None) -> tuple[Optional[tuple[int, ...]], Any]:
         q, raws, reason, latched = prepared
         marks: list[int] = []
         echo = self.spec.echo
@@ -193,7 +211,7 @@ class _Child:
                     self.raw[i] = 0
                     echo = False
                     continue
-                self._tx(i, data, raw)
+                self._tx(i, data, raw, at_ns)
                 marks.append(self.tx_seq[i])
         currents = tuple(j.units.setpoint_to_amps(r) for j, r in zip(self.spec.joints, self.raw))
         return (tuple(marks) if echo else None), (q, currents, reason, latched)
@@ -209,8 +227,7 @@ class _Child:
     def _echo_time(self, marks: Sequence[int]) -> Optional[int]:
         t = 0
         for i, m in enumerate(marks):
-            log_ = list(self.echo_log[i])
-            hit = next((ts for seq, ts in reversed(log_) if seq == m), None)
+            hit = self.echo_log[i].get(m)
             if hit is None:
                 return None
             t = max(t, hit)
@@ -247,25 +264,47 @@ class _Child:
                 i = self.rx_ids[cid]
                 data = bytes(msg.data)
                 sent = self.sent_data[i]
-                if sent and sent[0] == data:          # our own frame, echoed by the bus
-                    sent.popleft()
-                    self.echo_seq[i] += 1
+                skip = self._own(sent, data)
+                if skip >= 0:                         # our own frame, echoed by the bus
+                    for _ in range(skip + 1):
+                        sent.popleft()
+                    self.echo_seq[i] += skip + 1
                     ts = int(round(msg.timestamp * 1e9)) if msg.timestamp else time.time_ns()
-                    self.echo_log[i].append((self.echo_seq[i], ts))
+                    log_ = self.echo_log[i]
+                    log_[self.echo_seq[i]] = ts
+                    log_.pop(self.echo_seq[i] - ECHO_KEEP, None)
+
+    def _own(self, sent: "deque[bytes]", data: bytes) -> int:
+        """Index in ``sent`` of the frame ``data`` echoes (-1: not ours). With a transmit schedule
+        a frame sent at once drops those scheduled after it, which never echo: the echo may then
+        match a later entry, and the ones before it are gone."""
+        if sent and sent[0] == data:
+            return 0
+        if self.spec.lead > 0:
+            for k, d in enumerate(sent):
+                if d == data:
+                    return k
+        return -1
 
     def status(self) -> None:
         if self.spec.rt_priority > 0:         # the refresh and the heartbeat to the bridge
             use_fifo(self.spec.rt_priority, "player process status")
         idle_gc = IdleCollector(lambda: self.sched.pending == 0)
+        figures_at, was_pending = 0.0, False
         while not self.stopped.wait(STATUS_PERIOD):
             idle_gc.tick()
             now = time.monotonic()
             for i in range(self.n):                 # the drive's RPDO deadline: refresh
                 if now - self.last_tx[i] >= REFRESH_PERIOD:
                     self._refresh(i)
-            s, c, w = self.sched.stats(), self.sched.cycle_stats(), self.watch.stats()
+            pending = self.sched.pending
+            # percentiles: numpy, but not for free; fresh at once when a stream has ended
+            if now - figures_at >= STATS_PERIOD or (was_pending and not pending):
+                figures_at = now
+                s, c, w = self.sched.stats(), self.sched.cycle_stats(), self.watch.stats()
+            was_pending = pending > 0
             g = self.sched.grid()
-            self.tell("status", self.received, self.sched.pending, s, c, w.as_dict(), g,
+            self.tell("status", self.received, pending, s, c, w.as_dict(), g,
                       int(self.sched.rt_active and (self.rx_rt or self.spec.rt_priority <= 0)),
                       self.sched.stale, self.sched.stale_stops, self.sched.errors)
 
@@ -362,7 +401,7 @@ class ProcessPlayer(PlayerBase):
         return _Spec(bus, bus.get("interface") in ECHO_INTERFACES, joints, float(cfg.sync_period),
                      self.config.cycle_tolerance, int(cfg.missed_cycle_tolerance),
                      int(self.config.rt_priority), float(cfg.setpoint_timeout),
-                     float(self.config.stall_dump))
+                     float(self.config.stall_dump), float(cfg.setpoint_lead))
 
     def start(self) -> Self:
         """Spawn the player process and wait until it has opened the bus (idempotent)."""

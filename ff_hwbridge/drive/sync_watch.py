@@ -20,6 +20,8 @@ from typing import Callable, Optional
 
 import numpy as np
 
+from ff_hwbridge.drive.ring import FloatRing
+
 __all__ = ["SyncEvent", "SyncStats", "SyncWatch"]
 
 
@@ -61,10 +63,11 @@ class SyncWatch:
         self._mono_ns = mono_ns
         self._lock = threading.Lock()
         self._events: deque[SyncEvent] = deque(maxlen=history)
-        self._intervals: deque[int] = deque(maxlen=max_intervals)
+        self._intervals = FloatRing(max_intervals)     # ns between SYNCs
         self._listeners: list[Callable[[SyncEvent], None]] = []
         self.count = 0
         self.missing = 0
+        self._grid: Optional[tuple[int, int, SyncEvent, int]] = None   # (count, window, ev, nominal)
 
     def add_listener(self, fn: Callable[[SyncEvent], None]) -> None:
         """Call ``fn(event)`` on the receiver's thread after every SYNC."""
@@ -105,6 +108,9 @@ class SyncWatch:
             if not self._events:
                 return None
             last = self._events[-1]
+            cached = self._grid
+            if cached is not None and cached[0] == last.count and cached[1] == window:
+                return cached[2], cached[3]       # computed once per SYNC
             p = self.period_ns
             n = min(window, len(self._events))
             best = 0
@@ -112,12 +118,18 @@ class SyncWatch:
                 d = self._events[i].bus_ns - last.bus_ns
                 off = d - round(d / p) * p
                 best = min(best, off)
+            self._grid = (last.count, window, last, last.bus_ns + best)
             return last, last.bus_ns + best
 
     def since(self, count: int) -> list[SyncEvent]:
         """The SYNCs after the one numbered ``count``, oldest first (as far as kept)."""
         with self._lock:
-            return [e for e in self._events if e.count > count]
+            ev = self._events
+            if not ev:
+                return []
+            # the counts are consecutive: slice instead of scanning
+            k = max(0, count + 1 - ev[0].count)
+            return [ev[i] for i in range(k, len(ev))]
 
     def age_s(self) -> Optional[float]:
         """s since the latest SYNC arrived here (None before the first)."""
@@ -131,7 +143,7 @@ class SyncWatch:
 
     def stats(self) -> SyncStats:
         with self._lock:
-            iv = np.array(self._intervals, dtype=float)
+            iv = self._intervals.values()
             count, missing = self.count, self.missing
         age = self.age_s()
         age_ms = -1.0 if age is None else age * 1000.0

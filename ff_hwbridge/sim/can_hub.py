@@ -5,23 +5,57 @@ There is no kernel CAN device here (no vcan). The hub is a python-can-remote ser
 ``{"interface": "remote", "channel": "ws://127.0.0.1:PORT/"}`` (``ff_hwbridge.drive.bus.open_bus``)
 sees the same frames. With ``sync_period`` > 0 the hub also produces SYNC itself
 (:class:`~ff_hwbridge.sim.sync.SyncSource`, a timer thread putting the frame straight on the
-virtual channel), the simulation's stand-in for the kernel's SYNC timer. Every frame's bus
-timestamp is the hub's wall clock at the moment it was put on the channel, but for the SYNC,
-whose timestamp is its modelled instant (the timer's deadline, see ``SyncSource``); clients
-receive it with the frame. It is for tests and demos: a product on socketcan / pcan / kvaser needs
+virtual channel), the simulation's stand-in for the kernel's SYNC timer. Every frame carries
+its bus instant as timestamp: a client's frame its send instant (``open_bus`` stamps it), the
+SYNC its modelled instant (the timer's deadline, see ``SyncSource``); clients receive it with
+the frame. The channel keeps a transmit schedule (:mod:`~ff_hwbridge.sim.time_keeper`): a frame
+stamped with a future instant is put on the bus at that instant, as a controller's scheduled
+transmit or the kernel's broadcast manager would. It is for tests and demos: a product on
+socketcan / pcan / kvaser needs
 none of it. Command line: ``ff-can-hub`` (``ff_hwbridge.cli.can_hub``).
 """
 from __future__ import annotations
 
 import socket
 import threading
+import time
 from dataclasses import dataclass, field
 from typing import Any, Optional
 
+import can
+from can import BusABC
+from can.interfaces.virtual import VirtualBus, channels, channels_lock
+
 from ff_hwbridge.drive.bus import DEFAULT_BITRATE, LOOPBACK, CanConfigError, check_loopback
 from ff_hwbridge.sim.sync import SyncSource
+from ff_hwbridge.sim.time_keeper import INTERFACE as TIMED_INTERFACE
+from ff_hwbridge.sim.time_keeper import fan_out
 
 __all__ = ["CanHub", "start_hub"]
+
+
+class _TransmitOnlyBus(VirtualBus):
+    """A virtual bus that only sends (the SYNC source's): python-can's would get a copy of every
+    frame on the channel, kept unread (at 1 kHz SYNC some 3000 frames a second). It looks the
+    channel up at each send: python-can drops a channel whose last receiver left, and a client
+    joining later gets a new one."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        super().__init__(**kwargs)
+        with channels_lock:
+            self.channel.remove(self.queue)
+            if not self.channel:
+                del channels[self.channel_id]
+
+    def send(self, msg: can.Message, timeout: Optional[float] = None) -> None:
+        self._check_if_open()
+        with channels_lock:
+            self.channel = channels.setdefault(self.channel_id, [])
+        fan_out(self, msg, msg.timestamp if self.preserve_timestamps else time.time())
+
+    def shutdown(self) -> None:
+        BusABC.shutdown(self)
+        self._open = False
 
 
 @dataclass
@@ -41,9 +75,8 @@ class CanHub:
         """Produce SYNC every ``period`` s on the hub's channel (idempotent); ``stamp`` and
         ``jitter_model`` (s): the SYNC timing model (:class:`~ff_hwbridge.sim.sync.SyncSource`)."""
         if self.sync is None:
-            import can
-            self._sync_bus = can.Bus(interface="virtual", channel=self.channel,
-                                     bitrate=DEFAULT_BITRATE, preserve_timestamps=stamp == "deadline")
+            self._sync_bus = _TransmitOnlyBus(channel=self.channel, bitrate=DEFAULT_BITRATE,
+                                              preserve_timestamps=stamp == "deadline")
             try:
                 self.sync = SyncSource(self._sync_bus, period, rt_priority=rt_priority, stamp=stamp,
                                        jitter_model=jitter_model).start()
@@ -120,7 +153,8 @@ def start_hub(port: int = 0, host: str = LOOPBACK, channel: Optional[str] = None
             port = s.getsockname()[1]
     chan = channel or f"ff-hub-{port}"
     try:
-        server = RemoteServer(host, int(port), interface="virtual", channel=chan, bitrate=bitrate)
+        server = RemoteServer(host, int(port), interface=TIMED_INTERFACE, channel=chan,
+                              bitrate=bitrate)
     except OSError as exc:
         raise CanConfigError(f"cannot serve the CAN hub on {host}:{port}: {exc}; "
                              "choose another --port") from exc

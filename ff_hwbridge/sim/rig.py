@@ -248,10 +248,11 @@ def run_command(rig: SimRig, line: str) -> str:
         return f"error {exc}"
 
 
-def write_record(rig: SimRig, path: str) -> None:
-    """Setpoint arrival log of every drive as JSON: {node_id: [[mono_ns, wall_ns, raw, A], ...]}."""
+def write_record(rig: SimRig, path: str, hub: Optional[Mapping[str, Any]] = None) -> None:
+    """Setpoint arrival log of every drive as JSON: {node_id: [[mono_ns, wall_ns, raw, A], ...]},
+    the drives' link statistics and (``hub``) those of a hub the rig hosts."""
     data = {str(d.node_id): [[r.mono_ns, r.wall_ns, r.raw, r.applied] for r in d.setpoint_log()]
             for d in rig.drives}
     stats = {str(d.node_id): vars(d.link_stats) for d in rig.drives}
     with open(path, "w", encoding="utf-8") as fh:
-        json.dump({"setpoints": data, "link_stats": stats}, fh)
+        json.dump({"setpoints": data, "link_stats": stats, "hub": hub}, fh)

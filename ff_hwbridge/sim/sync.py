@@ -85,7 +85,7 @@ class SyncSourceStats:
         return dict(self.__dict__)
 
 
-def _timer_slack_1us() -> None:
+def timer_slack_1us() -> None:
     """Linux: 1 µs timer slack for the calling thread (default 50 µs); ignored elsewhere."""
     try:
         libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6", use_errno=True)
@@ -180,7 +180,7 @@ class SyncSource:
                                self.stamp, self.jitter_model_ns / 1000.0, *late, late_slots)
 
     def _set_priority(self) -> None:
-        _timer_slack_1us()
+        timer_slack_1us()
         if self.rt_priority > 0:
             self.rt_active = use_fifo(self.rt_priority, "SYNC source", hint=", expect more jitter under load")
 

@@ -207,3 +207,42 @@ def test_statistics_can_be_read_while_the_thread_records():
         t.join()
         sys.setswitchinterval(old)
         rig.close()
+
+
+def test_with_a_lead_setpoints_go_to_the_schedule_cycles_early_and_a_stop_replaces_them():
+    """``lead``: handed over up to lead_cycles before their own SYNC, each for the bus instant
+    half a period before it; a stale stop goes at once and the in-flight setpoints scheduled
+    after it are forgotten (the bus dropped them), with no fault."""
+    watch = SyncWatch(PERIOD)
+    sent: list[tuple[Any, Any]] = []
+    faults: list[str] = []
+
+    def send(stamp: int, payload: Any, at_ns: Any = None) -> tuple[None, Any]:
+        sent.append((payload, at_ns))
+        return None, payload
+
+    sched = CycleScheduler(watch, send, lambda r: None, on_fault=faults.append,
+                           lead=6 * PERIOD).start()
+    try:
+        assert sched.lead_cycles == 6
+        t = watch.observe(time.time()).bus_ns
+        for k in range(3, 11):
+            sched.submit(t + k * P_NS, f"s{k}")
+        # s3..s7 are within the lead (the window of cycle k opens at SYNC k - 1 - 6): sent now
+        assert wait_for(lambda: len(sent) == 5)
+        time.sleep(0.2 * PERIOD)
+        assert [p for p, _ in sent] == [f"s{k}" for k in range(3, 8)]
+        for k, (_, at) in enumerate(sent, start=3):
+            assert at is not None and abs(at - (t + k * P_NS - P_NS // 2)) < 1000, (k, at, t)
+        sched.submit(time.time_ns(), "stop", stop=True)     # stale: sent at once
+        assert wait_for(lambda: len(sent) == 6)
+        assert sent[-1] == ("stop", None)
+        assert sched.cancelled == 5 and sched.stale_stops == 1
+        for j in range(1, 15):              # the SYNCs come: s8..s10 go out, nothing is early
+            time.sleep(max(0.0, (t + j * P_NS - time.time_ns()) / 1e9))
+            watch.observe((t + j * P_NS) / 1e9)
+        assert wait_for(lambda: sched.pending == 0)
+        assert [p for p, _ in sent[6:]] == ["s8", "s9", "s10"]
+        assert not faults, faults
+    finally:
+        sched.close()
