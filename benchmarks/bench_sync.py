@@ -65,21 +65,25 @@ def main() -> int:
     ap.add_argument("--load", type=int, default=0, help="busy processes to run beside it")
     ap.add_argument("--hub-rt-priority", type=int, default=50,
                     help="SCHED_FIFO priority of the hub's SYNC timer (ff-can-hub's default)")
-    ap.add_argument("--rt-priority", type=int, default=0,
-                    help="SCHED_FIFO priority of the player's thread (0 = default priority)")
+    ap.add_argument("--rt-priority", type=int, default=-1,
+                    help="SCHED_FIFO priority of the player's thread (0 = normal priority; -1 = "
+                         "the bridge's default: 50 with SYNC)")
     ap.add_argument("--missed-tolerance", type=int, default=1,
                     help="missed_cycle_tolerance of the master (beyond it: safe state)")
     ap.add_argument("--process-rt", type=int, default=0,
                     help="SCHED_FIFO for this whole process (every thread, as 'chrt -f N' would), "
                          "to measure what a master process with no normal-priority thread gains")
     ap.add_argument("--sim-rt-priority", type=int, default=0,
-                    help="SCHED_FIFO for the simulated drive's process (chrt -f N; 0 = normal)")
+                    help="SCHED_FIFO for the simulated drive's process (chrt -f N; 0 = normal; "
+                         "with --hub rig 0 = as ff-can-hub: one below the SYNC timer)")
     ap.add_argument("--player-process", action="store_true",
                     help="the player in its own process (player_process: true)")
     ap.add_argument("--hub", choices=("process", "rig"), default="process",
                     help="the CAN hub and its SYNC in a process of their own (ff-can-hub), or "
                          "hosted by the simulated rig (ff-sim-rig --host-hub --sync-period: the "
                          "simulated drive on the hub's channel, no websocket hop for it)")
+    ap.add_argument("--feedback-every", type=int, default=1,
+                    help="SYNCs per feedback TPDO (the bridge's feedback_every; e.g. 10 at 1 kHz)")
     ap.add_argument("--lead", type=float, default=0.0,
                     help="s: setpoint_lead, setpoints handed to the hub's transmit schedule this "
                          "early (needs --player-process; 0 = off)")
@@ -118,14 +122,16 @@ def main() -> int:
                                 heartbeat_timeout=1.0, feedback_timeout=1.0, sync_timeout=1.0,
                                 master_heartbeat_timeout_ms=5000, rpdo_timeout_ms=5000,
                                 setpoint_timeout=1.0, missed_cycle_tolerance=a.missed_tolerance,
-                                player_process=bool(a.player_process), setpoint_lead=a.lead)
+                                player_process=bool(a.player_process), setpoint_lead=a.lead,
+                                feedback_every=a.feedback_every)
         if a.process_rt > 0:       # after the children started (they keep normal priority)
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(a.process_rt))
         master = EposMaster(cfg)
         if not enable_drive(master):
             raise SystemExit(f"drive not enabled: {master.fault_reason}")
         kind = ProcessPlayer if a.player_process else SetpointPlayer
-        player = kind(master, PlayerConfig(rt_priority=a.rt_priority)).start()
+        pcfg = PlayerConfig.from_bridge(cfg) if a.rt_priority < 0 else PlayerConfig(rt_priority=a.rt_priority)
+        player = kind(master, pcfg).start()
         freeze_heap()           # as the bridge node does at activation (gc_pauses)
         hold_full_collections()
         while player.sync_grid() is None:
@@ -183,8 +189,9 @@ def main() -> int:
               "transport": "python-can-remote hub on 127.0.0.1, SYNC from the hub's timer thread",
               "hub": a.hub, "link_stats": rec.get("link_stats"),
               "player_process": bool(a.player_process), "sim_rt_priority": a.sim_rt_priority,
-              "player_rt_priority": a.rt_priority, "hub_rt_priority": a.hub_rt_priority,
+              "player_rt_priority": pcfg.rt_priority, "hub_rt_priority": a.hub_rt_priority,
               "process_rt_priority": a.process_rt, "setpoint_lead_s": a.lead,
+              "feedback_every": a.feedback_every,
               "time_keeper": hub_keeper,
               "loadavg_1min_before_after": [load_before[0], os.getloadavg()[0]],
               "setpoints_planned": n, "setpoints_sent": submitted,

@@ -15,7 +15,8 @@ On a hub it joined (``--bus-url``) the rig treats a lost hub as bus off (the dri
 ``--reconnect-timeout`` s; each step is a line on stderr.
 
 ``--sync-period S`` (with ``--host-hub``): the hosted hub produces SYNC every S s (its timer
-under SCHED_FIFO ``--sync-rt-priority``, as ``ff-can-hub``'s); the simulated drives then sit on
+under SCHED_FIFO ``--sync-rt-priority``, and without ``--rt-priority`` every other thread one
+below it, as ``ff-can-hub`` does); the simulated drives then sit on
 the hub's channel itself, with no websocket between them and the bus. The hub's SYNC and
 transmit-schedule statistics go into the ``--record`` file (``hub``).
 
@@ -145,8 +146,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     else:
         rig.boot()
     freeze_heap()       # a full collection would hold the drives' bus thread off the GIL
-    if a.rt_priority > 0:
-        fifo_process(a.rt_priority, "ff-sim-rig")   # threads started later inherit it
+    rt = a.rt_priority
+    if rt == 0 and hub is not None and a.sync_period and a.sync_rt_priority > 1:
+        rt = a.sync_rt_priority - 1         # as ff-can-hub: every thread one below the SYNC timer
+    if rt > 0:
+        fifo_process(rt, "ff-sim-rig")      # threads started later inherit it
     print("sim rig ready", flush=True)
     if not sys.stdin.isatty():
         threading.Thread(target=read_stdin, daemon=True).start()

@@ -36,7 +36,9 @@ Example (``config/bridge_epos4_1dof.yaml``)::
                                   #   receiver (needs CAP_SYS_NICE; falls back with a warning);
                                   #   0 = normal; -1 = auto: 50 with setpoint_timing sync, else 0
     feedback_timeout: 0.04        # s, no TPDO this long while SYNC runs -> safe state
-                                  #    (default: max(heartbeat_timeout, 20 SYNC periods))
+                                  #    (default: max(heartbeat_timeout, 20 feedback periods))
+    feedback_every: 1             # SYNCs per TPDO (status, motion): their transmission type
+                                  #   1..240 (CiA 301); e.g. 10 at a 1 kHz SYNC for 100 Hz feedback
     setpoint_timing: sync         # 'sync': setpoint RPDO transmission type 1, latched by the drive
                                   #   at the next SYNC, sent during the cycle before (0x60C2 =
                                   #   sync_period); 'on_receipt': type 255, applied on arrival
@@ -184,6 +186,7 @@ class BridgeConfig:
     heartbeat_timeout: float = 0.1
     setpoint_timeout: float = 0.5
     feedback_timeout: float = 0.0
+    feedback_every: int = 1
     sdo_timeout: float = 0.5
     boot_timeout: float = 2.0
     state_timeout: float = 1.0
@@ -220,9 +223,14 @@ class BridgeConfig:
         names = [j.name for j in self.joints]
         if len(set(names)) != len(names):
             raise ConfigError(f"joints: names must differ, got {names}")
-        if self.feedback_timeout == 0.0:   # default: the heartbeat timeout, >= 20 SYNC periods
+        if not (isinstance(self.feedback_every, int) and not isinstance(self.feedback_every, bool)
+                and 1 <= self.feedback_every <= 240):
+            raise ConfigError("feedback_every must be an integer 1..240 SYNCs (the TPDOs' "
+                              f"transmission type), got {self.feedback_every!r}")
+        if self.feedback_timeout == 0.0:   # default: the heartbeat timeout, >= 20 TPDO periods
             object.__setattr__(self, "feedback_timeout",
-                               max(float(self.heartbeat_timeout), 20.0 * float(self.sync_period)))
+                               max(float(self.heartbeat_timeout),
+                                   20.0 * float(self.sync_period) * self.feedback_every))
         if self.sync_timeout == 0.0:       # default: as patient as with the TPDOs
             object.__setattr__(self, "sync_timeout",
                                max(float(self.heartbeat_timeout), 20.0 * float(self.sync_period)))
@@ -303,7 +311,7 @@ class BridgeConfig:
         return tuple(j.current_limit for j in self.joints)
 
 
-INTEGER_KEYS = frozenset({"heartbeat_producer_ms", "master_heartbeat_ms", "master_node_id",
+INTEGER_KEYS = frozenset({"heartbeat_producer_ms", "master_heartbeat_ms", "master_node_id", "feedback_every",
                           "master_heartbeat_timeout_ms", "missed_cycle_tolerance"} | {k for k, _, _ in OPTION_RANGES})
 
 

@@ -417,8 +417,9 @@ class EposMaster:
             # synchronous (1): the drive latches the setpoint at the next SYNC; 255: on receipt
             self._map_pdo(node.rpdo[RPDO_SETPOINT], 0x200 + nid, 1 if c.synchronous else 255,
                           rpdo_layout(fam))
-            self._map_pdo(node.tpdo[TPDO_STATUS], 0x180 + nid, 1, tpdo1_layout(fam))
-            self._map_pdo(node.tpdo[TPDO_MOTION], 0x280 + nid, 1, tpdo2_layout(fam))
+            # the feedback: every feedback_every-th SYNC (transmission type 1..240)
+            self._map_pdo(node.tpdo[TPDO_STATUS], 0x180 + nid, c.feedback_every, tpdo1_layout(fam))
+            self._map_pdo(node.tpdo[TPDO_MOTION], 0x280 + nid, c.feedback_every, tpdo2_layout(fam))
         except Exception as exc:  # noqa: BLE001
             raise EposError(f"node {nid} ({d.cfg.name}): PDO mapping failed: {exc}") from exc
         # drive-side deadline for the setpoint stream (a hung master whose heartbeat goes on)

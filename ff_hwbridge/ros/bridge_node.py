@@ -127,6 +127,7 @@ PARAMS: dict[str, tuple[Any, str]] = {
                                 "(the simulation's CAN hub)"),
     "sync_timeout": (0.0, "s, no SYNC this long -> safe state (0 = max(heartbeat_timeout, 20 periods))"),
     "missed_cycle_tolerance": (1, "SYNC cycles a setpoint may take effect late before the safe state"),
+    "feedback_every": (1, "SYNCs per feedback TPDO (their transmission type 1..240)"),
     "boot_timeout": (2.0, "s per NMT reset communication waiting for the boot-up frame"),
     "boot_wait": (10.0, "s in all waiting for a drive to boot (retries every boot_timeout)"),
     "check_identity": (True, "0x1000 profile 402 and 0x1018:01 vendor maxon"),
@@ -150,7 +151,7 @@ RANGES: dict[str, tuple[float, float]] = {
     "master_heartbeat_timeout_ms": (0, 65535), "master_node_id": (1, 127),
     **{k: (lo, hi) for k, lo, hi in OPTION_RANGES}, "rpdo_timeout_ms": (-1, 65535),
     "scaling_tolerance": (0.0, 1.0), "sync_timeout": (0.0, 60.0), "missed_cycle_tolerance": (0, 1000),
-    "boot_timeout": (0.0, 600.0), "boot_wait": (0.0, 3600.0), "setpoint_timeout": (0.0, 60.0),
+    "feedback_every": (1, 240), "boot_timeout": (0.0, 600.0), "boot_wait": (0.0, 3600.0), "setpoint_timeout": (0.0, 60.0),
     "spin_margin": (0.0, 0.05), "scheduler_rt_priority": (-1, 99), "joint_state_rate": (0.1, 10_000.0),
     "diagnostics_rate": (0.01, 1000.0),
 }
@@ -211,7 +212,7 @@ FLAT_DRIVE_KEYS = ("master_heartbeat_timeout_ms", "rpdo_timeout_ms", "quick_stop
                    "fault_reaction_option", "abort_connection_option",
                    "communication_error_behaviour", "scaling_source", "scaling_tolerance",
                    "boot_timeout", "boot_wait", "check_identity", "setpoint_timing", "sync_producer",
-                   "sync_timeout", "missed_cycle_tolerance")
+                   "sync_timeout", "missed_cycle_tolerance", "feedback_every")
 
 
 def _envelopes(get: Callable[[str], Any], n: int) -> list[dict[str, Any]]:

@@ -12,6 +12,7 @@ import time
 
 import pytest
 
+from ff_hwbridge.drive.config import ConfigError
 from ff_hwbridge.drive.epos import EposError, EposMaster
 from ff_hwbridge.protocol.cia402 import State
 from tests.support.canopen_helpers import configure_and_enable, mini_config, unique_channel, waiter
@@ -335,3 +336,26 @@ def test_envelope_latches_the_safe_state_and_rearms_inside(joint, words):
     finally:
         master.disconnect()
         drive.close()
+
+
+def test_feedback_every_sets_the_tpdos_transmission_type():
+    """``feedback_every`` N: the status and motion TPDOs answer every N-th SYNC (CiA 301 type N),
+    and the feedback watchdog's default grows with it."""
+    channel = unique_channel("ff-test")
+    cfg = mini_config(channel, "epos4", 1, feedback_every=4)
+    assert cfg.feedback_timeout == pytest.approx(max(0.3, 20 * 0.005 * 4))
+    drives = [MiniEpos(channel, j.node_id, j.units) for j in cfg.joints]
+    master = EposMaster(cfg)
+    try:
+        master.connect()
+        master.configure()
+        d = drives[0]
+        assert int(d.node.sdo[0x1800][2].raw) == 4 and int(d.node.sdo[0x1801][2].raw) == 4
+        assert int(d.node.sdo[0x1400][2].raw) == 1       # the setpoint stays synchronous
+    finally:
+        master.disconnect()
+        for d in drives:
+            d.close()
+    for bad in (0, 241, 2.5, True):
+        with pytest.raises(ConfigError, match="feedback_every must be an integer 1..240"):
+            mini_config(channel, "epos4", 1, feedback_every=bad)

@@ -280,6 +280,26 @@ def test_tpdos_on_sync_only_when_operational():
         r.close()
 
 
+def test_tpdos_of_transmission_type_n_answer_every_nth_sync():
+    r = Rig(plant=MovingPlant(), gear_ratio=54.0, counts_per_rev=4096)
+    try:
+        r.drive.boot()
+        r.configure_contract_pdos()
+        for k in (1, 2):
+            r.node.tpdo[k].trans_type = 3
+            r.node.tpdo[k].save()
+        r.enable()
+        n1, n2 = len(r.seen(0x181)), len(r.seen(0x281))
+        for _ in range(9):
+            r.net_m.sync.transmit()
+            time.sleep(0.005)
+        assert wait_for(lambda: len(r.seen(0x181)) == n1 + 3 and len(r.seen(0x281)) == n2 + 3)
+        time.sleep(0.05)
+        assert len(r.seen(0x181)) == n1 + 3              # and no more
+    finally:
+        r.close()
+
+
 def test_emcy_fault_and_fault_reset(rig):
     rig.configure_contract_pdos()
     rig.enable()
