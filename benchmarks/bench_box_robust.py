@@ -128,7 +128,8 @@ def main() -> None:
     a = ap.parse_args()
     load0 = os.getloadavg()[0]
     scales = judge_box()
-    plan(PlanRequest(objective="robust-box", starts=20))      # compile / load the kernels
+    plan(PlanRequest(objective="robust-box", starts=20))      # compile / load the kernels,
+    plan(PlanRequest(objective="robust-box", steps=5, starts=20))   # N = 5's stage's too
     if a.continuation:
         res = {"benchmark": "box_robust continuation", "seeds": a.seeds,
                **continuation(a.seeds, scales), "load_1min_before": load0,

@@ -151,7 +151,8 @@ RANGES: dict[str, tuple[float, float]] = {
     "master_heartbeat_timeout_ms": (0, 65535), "master_node_id": (1, 127),
     **{k: (lo, hi) for k, lo, hi in OPTION_RANGES}, "rpdo_timeout_ms": (-1, 65535),
     "scaling_tolerance": (0.0, 1.0), "sync_timeout": (0.0, 60.0), "missed_cycle_tolerance": (0, 1000),
-    "feedback_every": (1, 240), "boot_timeout": (0.0, 600.0), "boot_wait": (0.0, 3600.0), "setpoint_timeout": (0.0, 60.0),
+    "feedback_every": (1, 240), "boot_timeout": (0.0, 600.0), "boot_wait": (0.0, 3600.0),
+    "setpoint_timeout": (0.0, 60.0),
     "spin_margin": (0.0, 0.05), "scheduler_rt_priority": (-1, 99), "joint_state_rate": (0.1, 10_000.0),
     "diagnostics_rate": (0.01, 1000.0),
 }

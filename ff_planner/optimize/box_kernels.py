@@ -13,15 +13,24 @@ t_0 = 0 and t_N = tf − coast stay fixed. ``free_terms`` returns, in one compil
 The rest position is smooth in the switch times except where a velocity zero crossing meets a
 switch (the kink radius of ``hd_sim``); there the central difference is the mean of the two
 one-sided slopes. When the coast length is a decision too, ``end_column`` gives the column of
-the coast-entry time t_N (central differences as for the switch times). Units: rad, rad/s, A, s.
+the coast-entry time t_N (central differences as for the switch times).
+
+The structured global stage over step durations (``box_robust._duration_search``) runs here
+too: ``duration_draws`` (the compiled LM from one start per drawn duration vector, and the
+corner worst of each plan it finds) and ``duration_walk`` (a (1+1) evolution strategy over the
+durations, the coast and the LM start from a parent plan). Units: rad, rad/s, A, s.
 """
 from __future__ import annotations
+
+import math
 
 import numpy as np
 from numba import njit
 
 from ff_planner.model.arm1dof import sim_core
 from ff_planner.model.arm1dof_derivatives import NP, Q_, VC_, hd_sim
+from ff_planner.model.friction import stop_speed
+from ff_planner.optimize.lm1d import OK, multistart
 
 
 @njit(cache=True, nogil=True)
@@ -130,3 +139,141 @@ def end_column(J, c, pvals, pscale, scales, times, cur, tf, q0, goal, h, W):
     de = (qp - qm) / (2.0 * h)
     dg = (gp - gm) / (2.0 * h)
     return de, dg
+
+
+# --- the global stage over step durations (``box_robust._duration_search``) -----------------
+_stop_speed = njit(cache=True, nogil=True)(stop_speed)
+
+
+@njit(cache=True, nogil=True)
+def _lm_one(J, c, pvals, umask, pscale, i_max, times, tf, q0, goal, vb, cur, W, lm, st, it, f, kk):
+    """The compiled LM (``lm1d.multistart``) from the currents ``cur`` (1, N) at ``times``
+    (modified in place); lm = [wpen, wq, lam0, tol_q, tol_d, min_kink, max_iter, abandon_iter,
+    abandon_norm, max_reject, lam_down, lam_up]. Returns its status."""
+    multistart(J, c, pvals[0], pvals[1], pvals[2], times, tf, q0, goal, umask, pscale, i_max,
+               cur, W, vb, lm[0], lm[1], lm[2], lm[3], lm[4], lm[5], int(lm[6]), int(lm[7]),
+               lm[8], int(lm[9]), lm[10], lm[11], False, st, it, f, kk)
+    return st[0]
+
+
+@njit(cache=True, nogil=True)
+def _corner_worst(J, c, pvals, scales, times, cur, tf, q0, goal, out, seg, ev):
+    """Largest |rest − qf| (rad) over the rows of friction scale factors (inf: one never
+    stops)."""
+    _rest_all(J, c, pvals, scales, times, cur, tf, q0, out, seg, ev)
+    w = 0.0
+    for s in range(out.shape[0]):
+        e = abs(out[s] - goal)
+        if not e < math.inf:       # nan: that sample never stops
+            return math.inf
+        w = max(w, e)
+    return w
+
+
+@njit(cache=True, nogil=True)
+def duration_draws(J, c, pvals, umask, pscale, i_max, tf, q0, goal, margin, times, starts,
+                   lm, scales, W, status, worst):
+    """LM from each start (M, K, N) A at the step times of its draw (M, N + 1) s (the coast
+    tf − times[m, N]; its stopping bound with ``margin`` s), the starts modified in place into
+    the end points; status (M, K) of each (``lm1d`` codes) and, where it is OK, the worst
+    |rest − qf| (rad) over the friction scale factors ``scales`` into worst (M, K), else inf.
+    Returns the LM iterations run."""
+    m = starts.shape[0]
+    k = starts.shape[1]
+    n = starts.shape[2]
+    st = np.zeros(1, np.int64)
+    it = np.zeros(1, np.int64)
+    f = np.zeros(1)
+    kk = np.zeros(1)
+    cur = np.empty((1, n))
+    out = np.empty(scales.shape[0])
+    seg = np.empty((0, 7))
+    ev = np.empty((0, 3))
+    iters = 0
+    for a in range(m):
+        t = np.ascontiguousarray(times[a])
+        vb = _stop_speed(J, pvals[0], pvals[1], tf - t[n] - margin)
+        for b in range(k):
+            for j in range(n):
+                cur[0, j] = starts[a, b, j]
+            status[a, b] = _lm_one(J, c, pvals, umask, pscale, i_max, t, tf, q0, goal, vb,
+                                   cur, W, lm, st, it, f, kk)
+            iters += it[0]
+            for j in range(n):
+                starts[a, b, j] = cur[0, j]
+            worst[a, b] = math.inf
+            if status[a, b] == OK:
+                worst[a, b] = _corner_worst(J, c, pvals, scales, t, cur[0], tf, q0, goal, out,
+                                            seg, ev)
+    return iters
+
+
+@njit(cache=True, nogil=True)
+def duration_walk(J, c, pvals, umask, pscale, i_max, tf, q0, goal, margin, min_step,
+                  coast_lo, coast_hi, coast_step, current_step, sigma0, times, cur, worst, noise,
+                  lm, scales, W):
+    """A (1+1) evolution strategy over the step durations and the coast of each parent p:
+    a child scales the N durations of times[p] (s) by exp(σ·noise[p, i, :N]) and moves the coast
+    by σ·coast_step·noise[p, i, N] (clipped into [coast_lo, coast_hi] s), the durations then
+    filling tf − coast again (each at least ``min_step`` s, else the child is skipped); the LM
+    from the parent's currents cur[p] (A) moved by σ·current_step·noise[p, i, N + 1:] (clipped
+    to ±i_max) puts it on the robust set, and it replaces the parent
+    when its worst |rest − qf| over ``scales`` (rad) is less than worst[p]. σ starts at
+    ``sigma0``, × 1.5 after a success, × 0.9 otherwise. times, cur and worst are updated in
+    place. Returns (children on the robust set, LM iterations run)."""
+    P = times.shape[0]
+    n = cur.shape[1]
+    kids = noise.shape[1]
+    st = np.zeros(1, np.int64)
+    it = np.zeros(1, np.int64)
+    f = np.zeros(1)
+    kk = np.zeros(1)
+    trial = np.empty((1, n))
+    t = np.empty(n + 1)
+    d = np.empty(n)
+    out = np.empty(scales.shape[0])
+    seg = np.empty((0, 7))
+    ev = np.empty((0, 3))
+    ok = 0
+    iters = 0
+    for p in range(P):
+        sigma = sigma0
+        for i in range(kids):
+            coast = tf - times[p, n] + sigma * coast_step * noise[p, i, n]
+            coast = min(max(coast, coast_lo), coast_hi)
+            s = 0.0
+            for j in range(n):
+                d[j] = (times[p, j + 1] - times[p, j]) * math.exp(sigma * noise[p, i, j])
+                s += d[j]
+            scale = (tf - coast) / s
+            short = False
+            t[0] = 0.0
+            for j in range(n):
+                d[j] *= scale
+                short = short or d[j] < min_step
+                t[j + 1] = t[j] + d[j]
+            t[n] = tf - coast
+            if short:
+                sigma *= 0.9
+                continue
+            for j in range(n):
+                trial[0, j] = min(max(cur[p, j] + sigma * current_step * noise[p, i, n + 1 + j],
+                                      -i_max), i_max)
+            vb = _stop_speed(J, pvals[0], pvals[1], coast - margin)
+            status = _lm_one(J, c, pvals, umask, pscale, i_max, t, tf, q0, goal, vb, trial, W,
+                             lm, st, it, f, kk)
+            iters += it[0]
+            w = math.inf
+            if status == OK:
+                ok += 1
+                w = _corner_worst(J, c, pvals, scales, t, trial[0], tf, q0, goal, out, seg, ev)
+            if w < worst[p]:
+                worst[p] = w
+                for j in range(n):
+                    cur[p, j] = trial[0, j]
+                for j in range(n + 1):
+                    times[p, j] = t[j]
+                sigma *= 1.5
+            else:
+                sigma *= 0.9
+    return ok, iters

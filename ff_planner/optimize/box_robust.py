@@ -22,29 +22,51 @@ worst |rest − qf| + |q(tf) − qf| + EQ_WEIGHT·Σ|∂q/∂p_i·p_i| + the coa
 stopping bound × the coast; ``BEST_ITERATE``), not its last one. The LM's minimum-norm steps
 then put the plan back onto the robust set exactly.
 
-Global search: the basin decides, not the local solver. Derivative-robust equal-step plans of
-the compiled LM multistart (``robust1d``) per coast level (COAST_LEVELS evenly in [coast,
-coast_max]; the scan stops at the first longer coast with no robust plan, and for
-N ≥ STRUCT_MIN_STEPS after STRUCT_SCAN_LEVELS levels with candidates: the winners come from
-the shortest two). For N ≥ STRUCT_MIN_STEPS the LM first runs STRUCT_FACTOR × starts
-*structured* starts on the STRUCT_LEVELS shortest coasts (``_structured_starts``): the last but
-one step brakes near −i_max and the last one pushes gently (0 … STRUCT_LAST·i_max). That is
-the shape of the plans that land best: the rest error is set by the spread of the coast-entry
-speed over the box (the coast distance grows as J·v²/(2·pc)), and most of that spread is the
-torque-dependent friction pt acting during high-current steps; a low-current last step lets
-the arm settle where pt acts little (N = 12, seeds 0-7: median 8.8 → 4.1 mrad from these
-starts alone). Then STARTS_FACTOR × starts of the tuned random cycle. Up to SCREEN_MAX plans
-per coast, least worst first, get a short equal-step minimax (SCREEN_ITER iterations); the
-BOX_CANDIDATES best over all coasts are refined to convergence with equal steps, then with free
-switch times and a free coast from there (for N ≤ FREE_DIRECT_MAX_STEPS also from the LM plan
-itself), and the next ones up to BOX_EXTRA_CANDIDATES only while the best is above
-BOX_EXTRA_TARGET (5 mrad) and within BOX_EXTRA_REACH (25 mrad): the median N = 12 request pays
-nothing for them. For N ≤ RANDOM_TIMES_MAX_STEPS a global stage over the step durations follows
-(``_random_time_candidates``): LM plans at RANDOM_TIMES_DRAWS seeded unequal duration vectors and
-coasts; the RANDOM_TIMES_SCREEN of least worst at the corners get a short free-time minimax, the
-RANDOM_TIMES_REFINE best of those a full one (N = 5, seeds 0-19: 21.8-67 mrad, median 22.8, where
-the equal-step LM plans' basins end at 123-131). The
-best verified plan among the LM plan, the equal-step and the free-time refinements is returned.
+Global search: the basin decides, not the local solver.
+
+N in DUR_STEPS (N = 5): a structured stage over the step durations runs first
+(``_duration_search``, compiled in ``box_kernels``). DUR_DRAWS seeded draws of the durations
+and the coast: the first and the last step DUR_END (3-10 %) of the powered time each, the inner
+ones Dirichlet(DUR_ALPHA) shares of the rest, the coast uniform in [coast, coast_max]; one LM
+start per draw with alternating signs, the first along the move (|I| in DUR_LOW … 1 × i_max).
+The DUR_PARENTS draws of least worst at the box corners then each run a (1+1) evolution
+strategy of DUR_KIDS children (durations × exp(σz), coast + σ·DUR_COAST_STEP·z, the LM from
+the parent's currents + σ·DUR_CURRENT_STEP·i_max·z; a child replaces its parent when its corner
+worst is less). The best parent gets the free-time minimax (DUR_FREE_ITER iterations per
+exchange round), the next ones only until one verifies. That is the shape of the plans that
+land best at N = 5 (10, −7.5, 6, −10, 10 A, steps ~52/225/450/180/40 ms, coast ~0.055 s:
+4.5 mrad), which uniform current starts at Dirichlet(1.5) durations rarely reach (13-25 of
+their 5000 LM starts robust at all, seeds 0-5). Measured (N = 5, seeds 0-19,
+benchmarks/bench_box_robust.py, 1-minute load 2): 5.05 mrad median (4.46-26.4; 3 seeds of 20
+end in a 19.6-26.4 mrad basin whose last current is ~1 A), 60 ms CPU median (draws 19 ms, walk
+14 ms, refinement 27 ms), against 22.8 mrad (21.8-67) and 0.64 s for the equal-step and
+random-duration stages below, which now run only when this stage ends without a verified plan.
+
+Other N: derivative-robust equal-step plans of the compiled LM multistart (``robust1d``) per
+coast level (COAST_LEVELS evenly in [coast, coast_max]; the scan stops at the first longer
+coast with no robust plan, and for N ≥ STRUCT_MIN_STEPS after STRUCT_SCAN_LEVELS levels with
+candidates). For N ≥ STRUCT_MIN_STEPS the LM first runs STRUCT_FACTOR × starts *structured*
+starts on the STRUCT_LEVELS shortest coasts (``_structured_starts``): the last but one step
+brakes near −i_max and the last one pushes gently (0 … STRUCT_LAST·i_max). That is the shape of
+the plans that land best: the rest error is set by the spread of the coast-entry speed over the
+box (the coast distance grows as J·v²/(2·pc)), and most of that spread is the torque-dependent
+friction pt acting during high-current steps; a low-current last step lets the arm settle where
+pt acts little (N = 12, seeds 0-7: median 8.8 → 4.1 mrad from these starts alone). Then
+STARTS_FACTOR × starts of the tuned random cycle. Up to SCREEN_MAX plans per coast, least worst
+first, get a short equal-step minimax (SCREEN_ITER iterations); the BOX_CANDIDATES best over all
+coasts are refined to convergence with equal steps, then with free switch times and a free
+coast from there (for N ≤ FREE_DIRECT_MAX_STEPS also from the LM plan itself), and the next ones
+up to BOX_EXTRA_CANDIDATES only while the best is above BOX_EXTRA_TARGET (5 mrad) (for N ≤
+RANDOM_TIMES_MAX_STEPS, where the random-duration stage follows, and within BOX_EXTRA_REACH).
+Measured (N = 12, seeds 0-19): one structured coast level, one scanned level and one candidate
+give 2.34 mrad median (1.66-6.09) at 0.29 s CPU, against 2.65 (1.61-5.45) at ~0.5 s for two
+levels and two candidates: the second candidate changed one seed of 20, the second level's
+structured starts cost 0.17 s. For N ≤ RANDOM_TIMES_MAX_STEPS (N = 5 only when its structured
+stage found nothing) a global stage over the step durations follows
+(``_random_time_candidates``): LM plans at RANDOM_TIMES_DRAWS seeded unequal duration vectors
+and coasts; the RANDOM_TIMES_SCREEN of least worst at the corners get a short free-time
+minimax, the RANDOM_TIMES_REFINE best of those a full one. The best verified plan among the LM
+plans, the equal-step and the free-time refinements is returned.
 
 With a ``grid`` the free times are rounded to it and the currents solved again. When no plan is
 derivative-robust, the LM end point of the shortest coast nearest the robust set (least |r|²)
@@ -96,10 +118,11 @@ Progress = Optional[Callable[[dict], None]]
 COAST_LEVELS = 5        # coast lengths tried, evenly in [coast, coast_max]
 SCREEN_MAX = 4          # derivative-robust LM plans screened per coast (short minimax) ...
 SCREEN_ITER = 15        # ... of this many SLSQP iterations on the minimax samples
-BOX_CANDIDATES = 2      # screened plans (over all coasts) refined to convergence with exchange
+BOX_CANDIDATES = 1      # screened plans (over all coasts) refined to convergence with exchange
 BOX_EXTRA_CANDIDATES = 3   # ... up to this many while the best is above BOX_EXTRA_TARGET
 BOX_EXTRA_TARGET = 5e-3     # rad
-BOX_EXTRA_REACH = 25e-3     # rad: ... and not above this (N = 5 plans at ~130 mrad get no extras)
+BOX_EXTRA_REACH = 25e-3     # rad: ... and, where the random-duration stage follows (N ≤
+#                             RANDOM_TIMES_MAX_STEPS), not above this
 FREE_DIRECT_MAX_STEPS = 4   # up to this N the free-time minimax also starts from the LM plan
 #                             (measured: at N = 5 it never won once the solves kept their best iterate)
 MIN_STEP = 0.01         # s, shortest current step of a free-time plan
@@ -114,8 +137,8 @@ BARREN_STARTS = 128     # a coast whose first this many LM starts found nothing 
 STARTS_FACTOR = 2      # LM starts per coast = STARTS_FACTOR × request.starts (~0.1 ms a start)
 COAST_STOP_BARREN = True    # the coast scan stops at the first longer coast with no robust plan
 STRUCT_FACTOR = 10      # structured LM starts per coast = this × request.starts (``_structured_starts``)
-STRUCT_LEVELS = 2       # ... on this many of the shortest coast levels
-STRUCT_SCAN_LEVELS = 2  # ... and the coast scan ends after this many levels once it has candidates
+STRUCT_LEVELS = 1       # ... on this many of the shortest coast levels
+STRUCT_SCAN_LEVELS = 1  # ... and the coast scan ends after this many levels once it has candidates
 STRUCT_MIN_STEPS = 6    # ... for N of at least this
 STRUCT_SPREAD = 0.8     # inner currents of a structured start in ±this·i_max
 STRUCT_BRAKE = 0.6      # the last but one current brakes with this..1 × i_max
@@ -137,6 +160,21 @@ RANDOM_TIMES_STARTS = 5     # ... LM starts per draw (currents uniform in ±i_ma
 RANDOM_TIMES_SCREEN = 20    # ... the derivative-robust plans of least worst at the corners get a
 RANDOM_TIMES_SCREEN_ITER = 25   # short free-time minimax (this many SLSQP iterations, one round)
 RANDOM_TIMES_REFINE = 5     # ... and the best of those a full one
+DUR_DRAWS = 400         # structured duration stage (``_duration_search``): draws of the durations
+DUR_END = (0.03, 0.1)   # ... the first and the last step this share of the powered time each
+DUR_ALPHA = 4.0         # ... the inner ones Dirichlet(this) of the rest
+DUR_CHUNK = 100         # ... run this many draws per compiled call
+DUR_STARTS = 1          # ... LM starts per draw, alternating signs, the first along the move,
+DUR_LOW = 0.3           # ... |I| uniform in this … 1 × i_max
+DUR_PARENTS = 3         # ... the best draws each start a (1+1) evolution strategy
+DUR_KIDS = 40           # ... of this many children
+DUR_SIGMA = 0.1         # ... initial step: durations × exp(σ·z), the coast + σ·DUR_COAST_STEP·z
+DUR_COAST_STEP = 0.05   # s
+DUR_CURRENT_STEP = 2.0  # ... and the LM start: the parent's currents + σ·this·i_max·z
+DUR_STEPS = (5,)        # the N this stage runs for
+DUR_REFINE = 3          # free-time refinements of its best plans, until one verifies,
+DUR_FREE_ITER = 80      # ... of this many SLSQP iterations (measured, seeds 0-79: 100 → 80
+#                         moved the median 5.05/5.27 → 5.07/5.37 mrad and saved ~6 ms)
 
 
 class _OneBlasThread:
@@ -316,8 +354,10 @@ class _FreeBox:
         # each interior switch at least MIN_STEP from its neighbours and the ends
         self.lo = np.array([j * MIN_STEP for j in range(1, n)])
         self.hi = np.array([self.end_hi - (n - j) * MIN_STEP for j in range(1, n)])
+        self._gap_tail = MIN_STEP * np.arange(n - 1, 0, -1)   # t_N − t_j ≥ (N − j)·MIN_STEP
         self._tlast: tuple = (b"", None)
         self._blast: tuple = (math.nan, (prob.vb, 0.0))
+        self._rows = np.array([1 + i for i in range(NP) if prob.umask[i]], dtype=np.int64)
 
     def times(self, x: np.ndarray) -> np.ndarray:
         """Step times (N + 1,) s of the decision vector x (clipped into the gaps; the last
@@ -331,9 +371,10 @@ class _FreeBox:
         n = self.prob.n
         t = np.empty(n + 1)
         t[0] = 0.0
-        t[n] = float(np.clip(x[2 * n - 1], self.end_lo, self.end_hi)) if self.free_end else self.end
-        t[1:n] = np.clip(x[n:2 * n - 1], self.lo, np.minimum(self.hi, t[n] - MIN_STEP *
-                                                               np.arange(n - 1, 0, -1)))
+        t[n] = min(max(float(x[2 * n - 1]), self.end_lo), self.end_hi) if self.free_end \
+            else self.end
+        t[1:n] = np.minimum(np.maximum(x[n:2 * n - 1], self.lo),
+                            np.minimum(self.hi, t[n] - self._gap_tail))
         return t
 
     def stop_bound(self, x: np.ndarray) -> tuple[float, float]:
@@ -397,9 +438,8 @@ class _FreeBox:
         e, _, g, _ = self.values(x)
         if not np.all(np.isfinite(e)):
             return math.inf
-        rows = [1 + i for i in range(NP) if pr.umask[i]]
         coast = pr.tf - self.times(x)[pr.n]
-        return float(np.max(np.abs(e)) + abs(g[0]) + EQ_WEIGHT * np.sum(np.abs(g[rows]))
+        return float(np.max(np.abs(e)) + abs(g[0]) + EQ_WEIGHT * np.sum(np.abs(g[self._rows]))
                      + max(0.0, abs(g[4]) - self.stop_bound(x)[0]) * coast)
 
     def start(self, I: np.ndarray, times: np.ndarray) -> np.ndarray:
@@ -426,18 +466,21 @@ class _FreeBox:
         if not self.free_end:
             gap_rhs[n - 1] = self.end
 
+        def dec(y):         # the decision vector x of the SLSQP variables y
+            return y[:nv] if T_UNIT == 1.0 else y[:nv] * unit
+
         def terms(y):
-            return self.terms(y[:nv] * unit)
+            return self.terms(dec(y))
 
         def ineq(y):
-            x = y[:nv] * unit
+            x = dec(y)
             e, _, g, _ = self.values(x)
             vb = self.stop_bound(x)[0]
             return np.concatenate([y[nv] - ERR_SCALE * e, y[nv] + ERR_SCALE * e,
                                    [vb - abs(g[4])], gaps @ y + gap_rhs - MIN_STEP])
 
         def ineq_jac(y):
-            x = y[:nv] * unit
+            x = dec(y)
             e, Ge, g, Gg = terms(y)
             m = e.shape[0]
             A = np.zeros((2 * m + 1 + n, nv + 1))
@@ -450,10 +493,10 @@ class _FreeBox:
             A[2 * m + 1:] = gaps
             return A
 
-        rows = [0] + [1 + i for i in range(NP) if pr.umask[i]]
+        rows = np.array([0] + [1 + i for i in range(NP) if pr.umask[i]], dtype=np.int64)
 
         def eq(y):
-            return self.values(y[:nv] * unit)[2][rows]
+            return self.values(dec(y))[2][rows]
 
         def eq_jac(y):
             Gg = terms(y)[3][rows] * unit
@@ -462,7 +505,7 @@ class _FreeBox:
         best: list = [math.inf, None]    # [merit (rad), y] of the best iterate seen
 
         def keep(y) -> None:
-            m = self.merit(y[:nv] * unit)
+            m = self.merit(dec(y))
             if m < best[0]:
                 best[:] = [m, np.array(y, dtype=float)]
 
@@ -609,6 +652,74 @@ def _random_time_candidates(request: PlanRequest, params: Arm1DofParams, n: int,
                     found.append((w, block[k].copy(), prob))
     found.sort(key=lambda r: r[0])
     return found[:RANDOM_TIMES_SCREEN], tried, iters
+
+
+def _duration_search(request: PlanRequest, params: Arm1DofParams, n: int,
+                     coast_range: tuple[float, float], seed: int, deadline: float,
+                     base: np.ndarray) -> tuple[list[tuple[float, np.ndarray, _Problem]], int, int]:
+    """The structured global stage over step durations (compiled, ``box_kernels``):
+    DUR_DRAWS seeded draws of the step durations and the coast (coast uniform in
+    ``coast_range``, s; the first and the last step DUR_END of the powered time each, the inner
+    ones Dirichlet(DUR_ALPHA) of the rest), DUR_STARTS LM starts each with alternating signs
+    (the first along the move, |I| in DUR_LOW … 1 × i_max); then a (1+1) evolution strategy
+    over the durations and the coast (DUR_KIDS children, the LM from the parent's currents)
+    from each of the DUR_PARENTS best draws. Returns the parents as (worst |rest − qf| (rad)
+    over the ``base`` samples, currents (N,) A, problem with those step times), least worst
+    first, the LM starts run and their iterations."""
+    rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, n, 0x5D7A])
+    tf = float(request.tf)
+    prob0 = _Problem(dc_replace(request, coast=coast_range[0]), params, n)
+    p = params
+    c = p.n * p.kt
+    direction = 1.0 if prob0.goal >= prob0.q0 else -1.0
+    m = DUR_DRAWS
+    coast = rng.uniform(coast_range[0], coast_range[1], m)
+    ends = rng.uniform(DUR_END[0], DUR_END[1], (m, 2))
+    inner = rng.dirichlet(np.full(n - 2, DUR_ALPHA), m) * (1.0 - ends.sum(axis=1))[:, None]
+    d = np.hstack([ends[:, :1], inner, ends[:, 1:]]) * (tf - coast)[:, None]
+    keep = d.min(axis=1) >= MIN_STEP
+    d = d[keep]
+    times = np.ascontiguousarray(np.hstack([np.zeros((d.shape[0], 1)), np.cumsum(d, axis=1)]))
+    signs = direction * np.array([(-1.0) ** j for j in range(n)])
+    starts = np.ascontiguousarray(signs * rng.uniform(DUR_LOW, 1.0, (d.shape[0], DUR_STARTS, n))
+                                  * prob0.i_max)
+    lm = prob0.cfg()        # the LM settings in the order the kernels read them
+    m_run, k_run = int(starts.shape[0]), int(starts.shape[1])
+    status = np.zeros((m_run, k_run), np.int64)
+    worst = np.full((m_run, k_run), math.inf)
+    iters = tried = 0
+    for a in range(0, m_run, DUR_CHUNK):        # the time budget is checked between chunks
+        if a and time.perf_counter() > deadline:
+            break
+        b = min(a + DUR_CHUNK, m_run)
+        iters += box_kernels.duration_draws(
+            p.J, c, prob0.pvals, prob0.umask, prob0.pscale, prob0.i_max, tf, prob0.q0,
+            prob0.goal, STOP_MARGIN, times[a:b], starts[a:b], lm, base, prob0.W, status[a:b],
+            worst[a:b])
+        tried += (b - a) * k_run
+    best_k = np.argmin(worst, axis=1)               # one plan per draw: its least worst
+    best_w = worst[np.arange(m_run), best_k]
+    order = [int(a) for a in np.argsort(best_w, kind="stable") if math.isfinite(best_w[a])]
+    order = order[:DUR_PARENTS]
+    if not order:
+        return [], tried, int(iters)
+    pt = np.ascontiguousarray(times[order])
+    pc = np.ascontiguousarray(starts[order, best_k[order]])
+    pw = np.ascontiguousarray(best_w[order])
+    noise = rng.standard_normal((len(order), DUR_KIDS, 2 * n + 1))
+    if time.perf_counter() < deadline:
+        _, it2 = box_kernels.duration_walk(
+            p.J, c, prob0.pvals, prob0.umask, prob0.pscale, prob0.i_max, tf, prob0.q0,
+            prob0.goal, STOP_MARGIN, MIN_STEP, coast_range[0], coast_range[1], DUR_COAST_STEP,
+            DUR_CURRENT_STEP * prob0.i_max, DUR_SIGMA, pt, pc, pw, noise, lm, base, prob0.W)
+        tried += len(order) * DUR_KIDS
+        iters += it2
+    out = []
+    for a in np.argsort(pw, kind="stable"):
+        prob = _with_times(_Problem(dc_replace(request, coast=float(tf - pt[a, n])), params, n),
+                           pt[a])
+        out.append((float(pw[a]), pc[a].copy(), prob))
+    return out, tried, int(iters)
 
 
 def _structured_starts(prob: _Problem, m: int, seed: int, level: int) -> np.ndarray:
@@ -780,7 +891,51 @@ def _plan_box(request: PlanRequest, progress: Progress = None,
     closest: list = []       # [|r|², I]: the first coast's LM end point nearest the robust set
     pool: list = []          # (worst after the short minimax, its I, prob, the LM plan I0)
     spare: list = []         # [I, prob]: the first derivative-robust LM plan (out of time: its answer)
-    for coast in coasts:
+    best = None     # (worst on samples + check set, I, prob with the final times)
+    refined = 0
+    free_range = coast_range if FREE_COAST else None
+
+    def consider(I: Optional[np.ndarray], prob_t: _Problem) -> None:
+        nonlocal best
+        if I is None:
+            return
+        w = max(_worst(prob_t, prob_t.times, I, base_scales),
+                _worst(prob_t, prob_t.times, I, check_scales))
+        if best is not None and not w < best[0]:
+            return
+        if verify(params, prob_t.profile(I), prob_t.q0, prob_t.goal, unc, request.tol)["robust"]:
+            best = (w, I.copy(), prob_t)
+
+    dur_stats: dict = {}     # the structured duration stage: its parents' worst (rad)
+    if n in DUR_STEPS:
+        # the structured stage over step durations first; the equal-step and the random-
+        # duration stages below run only when it ends without a verified plan
+        found, t_, i_ = _duration_search(request, params, n, coast_range, int(request.seed),
+                                         deadline, base_scales)
+        tried += t_
+        iters += i_
+        dur_stats["parents_worst"] = [float(r[0]) for r in found]
+        for _w0, I0, prob_r in found[:DUR_REFINE]:
+            if time.perf_counter() > deadline:
+                break
+            refined += 1
+            try:
+                I_f, t_f = _refine(prob_r, I0, base_scales, check_scales, deadline, free_range,
+                                   maxiter=DUR_FREE_ITER)
+            except (ValueError, ArithmeticError):
+                continue
+            prob_t = _with_times(prob_r, t_f, grid)
+            consider(_polish(prob_t, I_f), prob_t)
+            if best is not None:
+                break       # the first verified refinement ends the stage
+        for _w0, I0, prob_r in found:   # and the walk's LM plans themselves, least worst first
+            prob_g = _with_times(prob_r, prob_r.times, grid)
+            consider(I0 if grid is None else _polish(prob_g, I0), prob_g)
+        if progress is not None:
+            progress({"stage": "robust-box structured step durations", "starts_done": tried,
+                      "best": float(best[0]) if best else math.inf})
+    structured = best is not None
+    for coast in (coasts if not structured else coasts[:0]):
         if per_coast and time.perf_counter() > deadline:
             break
         if n >= STRUCT_MIN_STEPS and len(per_coast) >= STRUCT_SCAN_LEVELS and pool:
@@ -832,26 +987,13 @@ def _plan_box(request: PlanRequest, progress: Progress = None,
             pool.append((min(box.worst(I1), box.worst(I0)), I1, prob, I0))
         row["screened"] = screened
     pool.sort(key=lambda r: r[0])
-    best = None     # (worst on samples + check set, I, prob with the final times)
-    refined = 0
-
-    def consider(I: Optional[np.ndarray], prob_t: _Problem) -> None:
-        nonlocal best
-        if I is None:
-            return
-        w = max(_worst(prob_t, prob_t.times, I, base_scales),
-                _worst(prob_t, prob_t.times, I, check_scales))
-        if best is not None and not w < best[0]:
-            return
-        if verify(params, prob_t.profile(I), prob_t.q0, prob_t.goal, unc, request.tol)["robust"]:
-            best = (w, I.copy(), prob_t)
-
     for _w1, I1, prob, I0 in pool[:max(BOX_CANDIDATES, BOX_EXTRA_CANDIDATES)]:
         if time.perf_counter() > deadline:
             break
+        reach = BOX_EXTRA_REACH if n <= RANDOM_TIMES_MAX_STEPS else math.inf
         if refined >= BOX_CANDIDATES and (best is None or not
-                                          BOX_EXTRA_TARGET < best[0] <= BOX_EXTRA_REACH):
-            break       # extra candidates only for a best above the target but within reach
+                                          BOX_EXTRA_TARGET < best[0] <= reach):
+            break       # extra candidates only for a best above the target (and within reach)
         refined += 1
         I = _refine_equal(prob, I1, base_scales, check_scales, deadline)
         consider(_polish(prob, I), prob)
@@ -872,7 +1014,7 @@ def _plan_box(request: PlanRequest, progress: Progress = None,
         if progress is not None:
             progress({"stage": f"robust-box refine {refined}", "starts_done": tried,
                       "best": float(best[0]) if best else math.inf})
-    if n <= RANDOM_TIMES_MAX_STEPS and time.perf_counter() < deadline:
+    if n <= RANDOM_TIMES_MAX_STEPS and not structured and time.perf_counter() < deadline:
         # few steps: the equal-step LM plans all lie in poor basins (N = 5, seeds 0-3: 123-131
         # mrad); plans with unequal steps from the start reach 5-35 mrad after the free-time
         # minimax
@@ -880,7 +1022,6 @@ def _plan_box(request: PlanRequest, progress: Progress = None,
                                                 int(request.seed), deadline, base_scales)
         tried += t_
         iters += i_
-        free_range = coast_range if FREE_COAST else None
         screened_t: list = []     # (worst after the short minimax, I, its problem)
         for _w0, I0, prob_r in extra:
             if time.perf_counter() > deadline:
@@ -914,6 +1055,8 @@ def _plan_box(request: PlanRequest, progress: Progress = None,
     stats = {"n_steps": n, "box": fr, "coasts_tried": per_coast, "box_samples": int(
         base_scales.shape[0]), "box_check_samples": int(check_scales.shape[0]),
         "refined": refined, "search_time_s": time.perf_counter() - t0}
+    if dur_stats:
+        stats["structured_durations"] = dict(dur_stats, answered=structured)
     out_of_time = time.perf_counter() > deadline
     if best is None:
         assert fallback is not None     # the first coast always runs

@@ -123,3 +123,70 @@ def test_box_samples_with_nothing_uncertain_are_the_nominal():
     assert np.all(box_samples({}, KEYS) == 1.0) and np.all(box_check_samples({}, KEYS) == 1.0)
     assert box_grid({}, KEYS).shape == (1, 3)
     assert box_grid({"pc": 0.2}, KEYS, 5).shape == (5, 3)
+
+
+def _duration_stage(seed: int, qf: float = 1.0):
+    from ff_planner.model.arm1dof import FRICTION
+    from ff_planner.optimize import box_robust as B
+
+    req = PlanRequest(objective="robust-box", steps=5, qf=(qf,), seed=seed)
+    base = np.ascontiguousarray(B._base_samples(box_fractions(list(FRICTION))))
+    lo = max(float(req.coast), 2.0 * B.STOP_MARGIN)
+    out, tried, iters = B._duration_search(req, req.resolved_params(), 5,
+                                           (lo, req.box_coast_max()), seed, float("inf"), base)
+    return out, tried, iters, base
+
+
+@pytest.mark.parametrize("qf", [1.0, -1.0])
+def test_structured_duration_stage_is_seeded_and_its_plans_are_robust(qf):
+    from ff_planner.optimize import box_robust as B
+    from ff_planner.optimize import lm1d
+
+    out, tried, iters, base = _duration_stage(3, qf)
+    assert 1 <= len(out) <= B.DUR_PARENTS and tried >= B.DUR_DRAWS * B.DUR_STARTS // 2
+    worsts = [w for w, _, _ in out]
+    assert worsts == sorted(worsts)
+    for w, I, prob in out:
+        d = np.diff(prob.times)
+        assert np.all(d >= B.MIN_STEP - 1e-12) and prob.times[-1] == pytest.approx(1.0 - prob.coast)
+        assert B.STOP_MARGIN < prob.coast <= PlanRequest().box_coast_max() + 1e-12
+        # on the robust set at its own step times, and its worst is that of the exact model
+        block = I.reshape(1, -1).copy()
+        done, st, _, _, _ = prob.run(block, False)
+        assert done == 1 and st[0] == lm1d.OK
+        assert w == pytest.approx(rest_errors(prob.params, prob.times, I, base, 0.0, qf).max(),
+                                  rel=1e-9)
+    again = _duration_stage(3, qf)[0]
+    assert all(np.array_equal(a[1], b[1]) and np.array_equal(a[2].times, b[2].times)
+               for a, b in zip(out, again))                                        # seeded
+
+
+def test_duration_walk_only_accepts_better_children():
+    from ff_planner.optimize import box_kernels as K
+    from ff_planner.optimize import box_robust as B
+
+    out, _, _, base = _duration_stage(5)
+    w0, I0, prob = out[-1]
+    times = np.ascontiguousarray(prob.times.reshape(1, -1).copy())
+    cur = np.ascontiguousarray(I0.reshape(1, -1).copy())
+    worst = np.array([w0])
+    noise = np.random.default_rng(0).standard_normal((1, 40, 11))
+    p = prob.params
+    K.duration_walk(p.J, p.n * p.kt, prob.pvals, prob.umask, prob.pscale, prob.i_max, 1.0, 0.0,
+                    1.0, B.STOP_MARGIN, B.MIN_STEP, 0.05, 0.25, B.DUR_COAST_STEP,
+                    B.DUR_CURRENT_STEP * prob.i_max, B.DUR_SIGMA, times, cur, worst, noise,
+                    prob.cfg(), base, prob.W)
+    assert worst[0] <= w0
+    assert worst[0] == pytest.approx(rest_errors(p, times[0], cur[0], base).max(), rel=1e-9)
+
+
+def test_n5_plan_comes_from_the_structured_duration_stage():
+    from ff_planner.optimize.planner import plan
+
+    r = plan(PlanRequest(objective="robust-box", steps=5, seed=2))
+    assert r.success and r.robust
+    st = r.extra["structured_durations"]
+    assert st["answered"] and st["parents_worst"]
+    assert r.extra["coasts_tried"] == []          # the equal-step stage did not run
+    assert r.extra["box_worst"] <= min(st["parents_worst"]) + 1e-12
+    assert verify(r.params, r.profile, 0.0, 1.0, KEYS)["max_abs_derivative"] <= 1e-6
