@@ -139,6 +139,9 @@ class StackOptions:
                                                # plus a jitter drawn uniformly in [0, this] (0: ideal)
     player_process: bool = True                # sync: the bridge's setpoint player in a process of
                                                # its own, which no ROS executor (nor its GIL) stalls
+    setpoint_lead: float = 0.1                 # s: with the player process, setpoints go to the
+                                               # hub's transmit schedule up to this early (the
+                                               # bridge's setpoint_lead; 0 = sent in the cycle before)
     stall_dump: float = 0.1                    # s: the bridge's setpoint cycle away this long while
                                                # setpoints are pending dumps every thread's stack
                                                # to ff_hwbridge.out (0 = off)
@@ -352,6 +355,8 @@ class Stack:
             bdata["sync_producer"] = "external"
         if self.options.setpoint_timing == "sync":
             bdata["player_process"] = bool(self.options.player_process)
+            if self.options.player_process:
+                bdata["setpoint_lead"] = float(self.options.setpoint_lead)
         bdata["stall_dump"] = float(self.options.stall_dump)
         if self.options.rt_priority:
             bdata["scheduler_rt_priority"] = int(self.options.rt_priority)
@@ -638,6 +643,9 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--setpoint-timing", choices=("sync", "on_receipt"), default="sync",
                     help="sync (default): the drives latch setpoints at SYNC, produced by the CAN hub's "
                          "timer; on_receipt: setpoints applied when they arrive, at their stamps")
+    ap.add_argument("--setpoint-lead", type=float, default=StackOptions.setpoint_lead, metavar="S",
+                    help="s: the bridge's player process hands setpoints to the hub's transmit "
+                         "schedule up to this early (0..0.25; 0 = sent in the cycle before)")
     return ap
 
 
@@ -648,10 +656,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         opts = StackOptions(model=a.model, true_scale=parse_key_values(a.true_scale, "--true-scale"),
                             true_params=parse_key_values(a.true_param, "--true-param"), planner=not a.no_planner,
                             hub_port=a.hub_port, start_timeout=a.start_timeout, rt_priority=a.rt_priority,
-                            setpoint_timing=a.setpoint_timing, **environment_options(a))
+                            setpoint_timing=a.setpoint_timing, setpoint_lead=a.setpoint_lead,
+                            **environment_options(a))
         opts.true_friction()
         if not 0 <= a.rt_priority <= 99:
             raise ValueError(f"--rt-priority must be 0..99, got {a.rt_priority}")
+        if not 0.0 <= a.setpoint_lead <= 0.25:
+            raise ValueError(f"--setpoint-lead must be 0..0.25 s, got {a.setpoint_lead}")
     except (ParameterError, ValueError) as exc:
         print(f"ff-bringup: {exc}", file=sys.stderr)
         return 2
