@@ -121,13 +121,19 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     gave_up = threading.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         signal.signal(sig, lambda *_: stop.set())
+
+    def say(text: str) -> None:
+        # one write per line: python-can's receive thread may print its traceback meanwhile,
+        # and print() writes the text and its newline apart
+        sys.stderr.write(f"ff-sim-rig: {text}\n")
+        sys.stderr.flush()
+
     if hub is None:
         def give_up() -> None:
             gave_up.set()
             stop.set()
 
-        rig.watch_bus(lambda text: print(f"ff-sim-rig: {text}", file=sys.stderr, flush=True),
-                      give_up, a.reconnect_timeout)
+        rig.watch_bus(say, give_up, a.reconnect_timeout)
 
     def read_stdin() -> None:
         for line in sys.stdin:          # EOF (stdin /dev/null) just ends the reader

@@ -350,8 +350,9 @@ def hub_restart(down_s: float = 1.0) -> Outcome:
         out.reason = _master_latch(b.master)
         out.notes.update(drive_back_on_bus=back, nmt_after=drive_info(b.rig)["nmt"],
                          fault_after=drive_info(b.rig)["fault"],
-                         rig_log=[ln for ln in b.rig.stderr_text().splitlines()
-                                  if ln.startswith("ff-sim-rig:")])
+                         rig_log=[ln[ln.index("ff-sim-rig:"):]
+                                  for ln in b.rig.stderr_text().splitlines()
+                                  if "ff-sim-rig:" in ln])
         return out
     finally:
         if b is not None:
