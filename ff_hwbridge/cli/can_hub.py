@@ -9,6 +9,12 @@ so that none of them is preempted while holding the GIL the timer needs) and pri
 model and the measured send lateness) every ``--sync-report`` s (0 = never), on SIGUSR1, and at
 exit. ``--sync-stamp deadline`` (default): the SYNC's bus instant is the timer's deadline plus a
 modelled jitter up to ``--sync-jitter-model-us``; ``send``: the instant the thread sent it.
+
+``--rt-priority P`` (1..99) puts every thread of the hub under SCHED_FIFO P (with
+``--sync-period``, the forwarding threads; the SYNC timer keeps ``--sync-rt-priority``). A hub
+that stands for the bus in a timed test then forwards, and dies when killed, without waiting for
+a CPU that ordinary processes hold (a warning, and normal priority, when Linux does not permit
+it).
 """
 from __future__ import annotations
 
@@ -62,6 +68,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     ap.add_argument("--sync-report", type=float, default=0.0,
                     help="s, print the SYNC jitter as a JSON line this often (0 = at exit and "
                          "on SIGUSR1 only)")
+    ap.add_argument("--rt-priority", type=int, default=0,
+                    help="SCHED_FIFO priority of every thread of the hub (0 = normal, the default; "
+                         "with --sync-period its forwarding threads default to one below the "
+                         "SYNC timer)")
     args = ap.parse_args(argv)
     if args.sync_period and not 0.0001 <= args.sync_period <= 1.0:
         print(f"ff-can-hub: --sync-period must be 0.0001..1 s, got {args.sync_period}", file=sys.stderr)
@@ -70,16 +80,20 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print(f"ff-can-hub: --sync-jitter-model-us must be 0..10 % of the period, got "
               f"{args.sync_jitter_model_us}", file=sys.stderr)
         return 2
-    if not 0 <= args.sync_rt_priority <= 99:
-        print(f"ff-can-hub: --sync-rt-priority must be 0..99, got {args.sync_rt_priority}",
-              file=sys.stderr)
+    if not (0 <= args.sync_rt_priority <= 99 and 0 <= args.rt_priority <= 99):
+        print(f"ff-can-hub: --sync-rt-priority and --rt-priority must be 0..99, got "
+              f"{args.sync_rt_priority} / {args.rt_priority}", file=sys.stderr)
         return 2
+    rt = args.rt_priority
     if args.sync_period:
         sys.setswitchinterval(SWITCH_INTERVAL)
-        if args.sync_rt_priority > 1:
+        if rt == 0 and args.sync_rt_priority > 1:
             # the forwarding threads one below the SYNC timer: no GIL holder is preempted by
-            # ordinary processes while the timer waits for the GIL (a warning when not permitted)
-            fifo_process(args.sync_rt_priority - 1, "ff-can-hub")
+            # ordinary processes while the timer waits for the GIL
+            rt = args.sync_rt_priority - 1
+    if rt > 0:
+        fifo_process(rt, "ff-can-hub")      # threads started later inherit it (a warning when
+        #                                     Linux does not permit it)
     try:
         hub = start_hub(args.port, args.host, sync_period=args.sync_period,
                         sync_rt_priority=args.sync_rt_priority, sync_stamp=args.sync_stamp,

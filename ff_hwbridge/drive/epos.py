@@ -128,6 +128,7 @@ class _Drive:
     tpdo_seen: bool = False
     last_tx: float = 0.0          # monotonic s of the latest RPDO
     tx_seq: int = 0               # setpoint RPDOs handed to the bus
+    tx_failing: int = 0           # setpoint RPDOs failed since the last that went through
     echo_seq: int = 0             # of those, echoed back by the bus (receive_own_messages)
     echo_log: deque = field(default_factory=lambda: deque(maxlen=1024))  # (echo_seq, bus ns)
     emcy: deque = field(default_factory=lambda: deque(maxlen=20))   # recent EMCY texts
@@ -1013,7 +1014,15 @@ class EposMaster:
                 d.tx_seq += 1
             except Exception:  # noqa: BLE001 - a full bus must not kill the caller's thread
                 self.tx_errors += 1
-                log.exception("RPDO to node %d failed", d.node_id)
+                d.tx_failing += 1
+                if d.tx_failing == 1:    # a lost bus fails every cycle: one traceback, then a count
+                    log.exception("RPDO to node %d failed (the next failures are counted, not "
+                                  "logged, until one goes through)", d.node_id)
+                return
+            if d.tx_failing:
+                log.warning("RPDO to node %d goes through again after %d failed", d.node_id,
+                            d.tx_failing)
+                d.tx_failing = 0
 
     # --- requests --------------------------------------------------------------------------------
     def _set_target(self, target: State) -> None:

@@ -24,6 +24,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any, Callable, Optional
 
 from ff_hwbridge.drive.epos import EposError, EposMaster
+from ff_hwbridge.drive.scheduler import use_fifo
 from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.sim.rig_process import RigProcess, free_port, rig_master_config, rig_master_data
 
@@ -43,9 +44,11 @@ HARDWARE_TIMING: dict[str, Any] = {
 PATIENT: dict[str, Any] = {**HARDWARE_TIMING, "master_heartbeat_timeout_ms": 1000}
 HOLD_A = 0.5                 # A, the current held when the fault comes
 START_TIMEOUT = 120.0        # s for a process to start (a loaded machine imports slowly)
-#: The rig's threads run under SCHED_FIFO: its reactions (bus lost, master silent) are what the
-#: scenarios time, and a loaded machine stalls normal-priority processes for up to ~1.4 s.
-RIG_ARGS = ["--model", "arm1dof", "--node-ids", "1", "--rt-priority", "20"]
+#: SCHED_FIFO priority of what the scenarios time: the rig's threads (its reactions: bus lost,
+#: master silent), the hub that stands for the bus, and the injection itself. A loaded machine
+#: stalls normal-priority processes for up to ~1.4 s.
+RT_PRIORITY = 20
+RIG_ARGS = ["--model", "arm1dof", "--node-ids", "1", "--rt-priority", str(RT_PRIORITY)]
 
 
 @dataclass
@@ -137,6 +140,22 @@ class _Bench:
         self.log_file.close()
 
 
+def _inject(action: Callable[[], None]) -> float:
+    """Run ``action`` (a kill, a signal) from this thread under SCHED_FIFO ``RT_PRIORITY`` and
+    return ``time.monotonic()`` just before it: a normal-priority caller preempted between its
+    stamp and the kill would add the stall to the drive's reaction time. The thread's scheduling
+    policy is restored afterwards."""
+    policy, param = os.sched_getscheduler(0), os.sched_getparam(0)
+    raised = use_fifo(RT_PRIORITY, "fault injection")
+    try:
+        t0 = time.monotonic()
+        action()
+        return t0
+    finally:
+        if raised:
+            os.sched_setscheduler(0, policy, param)
+
+
 def _master_latch(m: EposMaster, timeout: float = 3.0) -> str:
     _wait(lambda: m.latched, timeout)
     return m.fault_reason or ""
@@ -165,8 +184,7 @@ def master_signal(sig: int) -> Outcome:
             raise RuntimeError(f"ff-epos did not make the drive hold {HOLD_A} A: {drive_info(rig)}")
         time.sleep(0.3)
         before = drive_info(rig)["state"]
-        t0 = time.monotonic()
-        os.kill(p.pid, sig)
+        t0 = _inject(lambda: os.kill(p.pid, sig))
         out = _outcome(name, True, rig, t0, "")
         out.reason = f"drive: {out.drive_state}, 0x603F {out.drive_fault}"
         if before != State.OPERATION_ENABLED.value:
@@ -323,9 +341,12 @@ def powered_late(delay: float = 5.0) -> Outcome:
 def hub_restart(down_s: float = 1.0) -> Outcome:
     """The CAN hub process (``ff-can-hub``) is killed and started again on the same port after
     ``down_s`` s. The simulated drive takes the lost hub as bus off (Fault 0x81FD, current 0),
-    reconnects and reports it; the master loses its bus too and latches on the drive's silence."""
+    reconnects and reports it; the master loses its bus too and latches on the drive's silence.
+    The hub runs under SCHED_FIFO: killed, it is gone at once, as a bus fails, whatever else
+    holds the CPU."""
     port = free_port()
-    hub_cmd = [sys.executable, "-u", "-m", "ff_hwbridge.cli.can_hub", "--port", str(port)]
+    hub_cmd = [sys.executable, "-u", "-m", "ff_hwbridge.cli.can_hub", "--port", str(port),
+               "--rt-priority", str(RT_PRIORITY)]
 
     def start_hub() -> subprocess.Popen:
         hub = subprocess.Popen(hub_cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
@@ -340,8 +361,7 @@ def hub_restart(down_s: float = 1.0) -> Outcome:
     try:
         b = _Bench(bus_url=f"ws://127.0.0.1:{port}/")
         b.enable_and_hold()
-        t0 = time.monotonic()
-        hub.kill()
+        t0 = _inject(hub.kill)
         hub.wait(5)
         out = _outcome("hub_restart", True, b.rig, t0, "")
         time.sleep(down_s)

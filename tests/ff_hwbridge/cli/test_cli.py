@@ -37,6 +37,8 @@ def test_epos_configures_enables_holds_and_disables(tmp_path, capsys):
 def test_bad_settings_exit_2(capsys):
     assert can_hub.main(["--port", "0", "--host", "192.168.1.10"]) == 2
     assert "loopback" in capsys.readouterr().err
+    assert can_hub.main(["--port", "0", "--rt-priority", "100"]) == 2
+    assert "--rt-priority must be 0..99, got 50 / 100" in capsys.readouterr().err
     assert sim_rig.main(["--host-hub", "0", "--param", "no_such_key=1"]) == 2
     assert "ff-sim-rig" in capsys.readouterr().err
     assert sim_rig.main(["--host-hub", "0", "--nominal-current", "-2.5"]) == 2

@@ -7,6 +7,7 @@ tables, TPDOs on SYNC, heartbeat, EMCY + Fault on request. Its "physics" is a tr
 """
 from __future__ import annotations
 
+import logging
 import threading
 import time
 
@@ -177,6 +178,32 @@ def test_a_failed_bus_is_said_at_once_and_stops_the_drive(rig):
     assert _wait(lambda: master.latched, 2.0)
     assert master.fault_reason.startswith("CAN bus lost: CanOperationError: adapter gone"), master.fault_reason
     assert time.monotonic() - t0 < master.config.heartbeat_timeout + 0.5
+
+
+def test_a_failing_send_logs_one_traceback_then_counts(rig, caplog):
+    import can
+
+    master, drives = rig
+    configure_and_enable(master)
+    bus = master.network.bus
+    send = bus.send
+
+    def full(*_a, **_k):
+        raise can.CanOperationError("transmit buffer full")
+
+    with caplog.at_level(logging.WARNING, logger="ff_hwbridge.drive.epos"):
+        bus.send = full
+        errors = master.tx_errors
+        for _ in range(20):
+            master.command_currents([0.5])
+        bus.send = send
+        master.command_currents([0.5])
+    assert master.tx_errors - errors >= 20
+    failed = [r for r in caplog.records if r.getMessage().startswith("RPDO to node 1 failed")]
+    assert len(failed) == 1 and failed[0].exc_info is not None
+    assert any(r.getMessage().startswith("RPDO to node 1 goes through again after ")
+               for r in caplog.records)
+    assert _wait(lambda: drives[0].setpoint_raw != 0)
 
 
 def test_setpoint_watchdog_and_feedback_loss(rig):
