@@ -129,6 +129,7 @@ class _Drive:
     last_tx: float = 0.0          # monotonic s of the latest RPDO
     tx_seq: int = 0               # setpoint RPDOs handed to the bus
     tx_failing: int = 0           # setpoint RPDOs failed since the last that went through
+    sample_unmatched_ns: int = 0  # bus ns of the latest TPDO1 whose SYNC was not seen yet (0: none)
     echo_seq: int = 0             # of those, echoed back by the bus (receive_own_messages)
     echo_log: deque = field(default_factory=lambda: deque(maxlen=1024))  # (echo_seq, bus ns)
     emcy: deque = field(default_factory=lambda: deque(maxlen=20))   # recent EMCY texts
@@ -584,7 +585,15 @@ class EposMaster:
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
         """A SYNC on the bus (receiver thread): its bus instant and the echoes before it."""
         echoes = tuple(d.echo_seq for d in self._drives) if self.echo else None
-        self.sync_watch.observe(timestamp, echoes)
+        ev = self.sync_watch.observe(timestamp, echoes)
+        for d in self._drives:
+            # a TPDO can be received before the SYNC it answers: a bus that fans one frame out
+            # to its receivers one after another (python-can's virtual bus, the hub) may queue
+            # the drive's copy, and so its answer, before the sender's own
+            t = d.sample_unmatched_ns
+            if t and 0 <= t - ev.bus_ns < self.sync_watch.period_ns:
+                d.feedback.sample_ns = ev.bus_ns
+                d.sample_unmatched_ns = 0
 
     def _make_echo_cb(self, d: _Drive) -> Callable[[int, bytearray, float], None]:
         def on_echo(can_id: int, data: bytearray, timestamp: float) -> None:
@@ -861,7 +870,9 @@ class EposMaster:
                 self._gate_changed()
             now = self.clock()
             fb.stamp = now
-            fb.sample_ns = self._sample_instant(int(round(timestamp * 1e9)) if timestamp else time.time_ns())
+            tpdo_ns = int(round(timestamp * 1e9)) if timestamp else time.time_ns()
+            fb.sample_ns = self._sample_instant(tpdo_ns)
+            d.sample_unmatched_ns = tpdo_ns if fb.sample_ns == tpdo_ns and not proxy else 0
             d.tpdo_seen = True
             if proxy:
                 # no echo of our own SYNC: the first drive's synchronous TPDO1 marks the cycle
@@ -897,7 +908,8 @@ class EposMaster:
 
     def _sample_instant(self, tpdo_ns: int) -> int:
         """Wall ns at which a synchronous TPDO's values were sampled: the SYNC it answers (the
-        latest one seen, if the TPDO came within one period after it), else its own bus time."""
+        latest one seen, if the TPDO came within one period after it), else its own bus time
+        (corrected by ``_on_sync`` when that SYNC is received after the TPDO)."""
         if self.config.sync_producer == "master" and not self.echo:
             return tpdo_ns              # our own SYNC is not seen on this bus: no better instant
         ev = self.sync_watch.latest()

@@ -8,6 +8,7 @@ tables, TPDOs on SYNC, heartbeat, EMCY + Fault on request. Its "physics" is a tr
 from __future__ import annotations
 
 import logging
+import struct
 import threading
 import time
 
@@ -160,6 +161,25 @@ def test_feedback_is_stamped_with_the_sync_it_answers(rig):
         fb = master.feedback()[0]
         syncs = {ev.bus_ns for ev in master.sync_watch.since(0)}
         assert fb.sample_ns in syncs, (fb.sample_ns, sorted(syncs)[-3:])
+
+
+def test_a_tpdo_received_before_its_sync_gets_that_sync_as_its_sample_instant(rig):
+    master, drives = rig
+    configure_and_enable(master)
+    drives[0].answer_sync = False             # only the frames below reach the callbacks
+    master.network.sync.stop()
+    time.sleep(0.02)
+    d = master._drives[0]
+    period = master.sync_watch.period_ns
+    sync_ns = master.sync_watch.latest().bus_ns + period
+    tpdo_ns = sync_ns + period // 10
+    tpdo = struct.pack(d.tx1_fmt, 0x0237, 1000)               # Operation enabled
+    master.network.notify(0x181, bytearray(tpdo), tpdo_ns * 1e-9)
+    assert abs(master.feedback()[0].sample_ns - tpdo_ns) < 1000    # no SYNC seen for it yet
+    master.network.notify(0x80, bytearray(), sync_ns * 1e-9)
+    assert abs(master.feedback()[0].sample_ns - sync_ns) < 1000    # ns: float seconds rounding
+    master.network.notify(0x80, bytearray(), (sync_ns + period) * 1e-9)
+    assert abs(master.feedback()[0].sample_ns - sync_ns) < 1000    # a later SYNC does not move it
 
 
 def test_a_failed_bus_is_said_at_once_and_stops_the_drive(rig):
