@@ -11,7 +11,8 @@ def test_freeze_heap_takes_the_heap_out_of_later_collections():
     try:
         frozen = freeze_heap()
         assert frozen >= len(junk)
-        assert gc.get_freeze_count() == frozen
+        # at least: another thread of this process may freeze its own heap meanwhile
+        assert gc.get_freeze_count() >= frozen
         # what survived is frozen: a full collection finds no more of it to scan
         assert sum(len(gc.get_objects(g)) for g in range(3)) < frozen
     finally:
