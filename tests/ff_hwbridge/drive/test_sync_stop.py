@@ -60,6 +60,15 @@ def _final_raw(bench: SyncBench) -> int:
     return log[-1].raw if log else 0
 
 
+def _drive_latched_up_to(bench: SyncBench, applied: list) -> bool:
+    """The simulated drive has logged a latch at or after the last SYNC (bus wall ns) the player
+    reports a setpoint applied at: the player learns of a latch from the bus, the drive's thread
+    logs it on its own schedule, and on a loaded machine the drive may lag the report."""
+    last_sync = max(a.sent_ns for a in applied)
+    log = bench.drive.setpoint_log()
+    return bool(log) and log[-1].wall_ns >= last_sync
+
+
 def _step_stamps(bench: SyncBench) -> list[int]:
     """Stamps of a profile that starts 0.2 periods past a SYNC, 30 cycles ahead (the switch
     times on the SYNC period's grid, as the planner's switch_grid gives them)."""
@@ -87,6 +96,7 @@ def test_cancel_zeros_after_the_profile_end_on_zero_current(bench):
     by_seq = {a.seq: a for a in got}
     # each zero takes effect at or after the step it follows, never before
     assert by_seq[4].sent_ns >= by_seq[0].sent_ns and by_seq[5].sent_ns >= by_seq[1].sent_ns, got
+    assert wait_for(lambda: _drive_latched_up_to(bench, got))
     assert _final_raw(bench) == 0, [r.raw for r in bench.drive.setpoint_log()[-6:]]
     assert bench.master.applied_currents()[0] == 0.0
     assert not bench.master.latched
@@ -103,6 +113,7 @@ def test_a_zero_of_another_profile_stays_after_the_step_it_follows(bench):
     assert wait_for(lambda: bench.player.pending == 0)
     got: list = []
     assert wait_for(lambda: got.extend(bench.player.take_applied()) or len(got) == 2)
+    assert wait_for(lambda: _drive_latched_up_to(bench, got))
     assert _final_raw(bench) == 0, [r.raw for r in bench.drive.setpoint_log()[-4:]]
 
 
