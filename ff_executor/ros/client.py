@@ -123,6 +123,8 @@ class StackClient:
         self._truth: Optional[Recording] = None
         self._joints: Optional[Recording] = None
         self.last_truth: Optional[tuple[float, np.ndarray, np.ndarray]] = None   # (t s, q rad, qd rad/s)
+        # monotonic s of the latest sample received from the simulated arm and from the bridge
+        self._heard: dict[str, float] = {}
         self.node.create_subscription(JointState, "/ff_sim_driver/ground_truth",
                                       lambda m: self._on_js(m, "truth"), qos)
         # the bridge's samples with effort = motor current A (its joint_states carry N·m)
@@ -174,6 +176,7 @@ class StackClient:
         qd = list(msg.velocity) if len(msg.velocity) == len(q) else [0.0] * len(q)
         eff = list(msg.effort) if len(msg.effort) == len(q) else [float("nan")] * len(q)
         with self._lock:
+            self._heard[which] = time.monotonic()
             if which == "truth":
                 self.last_truth = (t, np.array(q), np.array(qd))
             rec = self._truth if which == "truth" else self._joints
@@ -191,6 +194,25 @@ class StackClient:
         if not future.done():
             raise StackCallError(f"{what}: no answer within {timeout:.0f} s")
         return future.result()
+
+    def wait_for_streams(self, timeout: float = 15.0, since: float = 0.0) -> None:
+        """Wait until both recorded streams (the simulated arm's ground truth and the bridge's
+        motor currents) have delivered a sample received after ``since`` (monotonic s).
+
+        Each comes from another process, whose publishers this node discovers on its own
+        schedule: a service or action answering says nothing about them, and on a loaded machine
+        the bridge's may match seconds later (a move recorded with no sample at all)."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            with self._lock:
+                heard = dict(self._heard)
+            if all(heard.get(k, -1.0) > since for k in ("truth", "joints")):
+                return
+            time.sleep(0.01)
+        missing = [topic for k, topic in (("truth", "/ff_sim_driver/ground_truth"),
+                                          ("joints", "/ff_hwbridge/motor_currents"))
+                   if heard.get(k, -1.0) <= since]
+        raise StackCallError(f"no sample on {', '.join(missing)} within {timeout:.0f} s")
 
     # --- calls --------------------------------------------------------------------------------
     def plan(self, request: PlanTrajectory.Request, timeout: float = 120.0) -> PlanTrajectory.Response:
@@ -214,7 +236,10 @@ class StackClient:
                 lt = self.last_truth
             if lt is not None and lt[0] > self.now() - 0.5 and np.allclose(lt[1], target, atol=1e-6) \
                     and np.all(np.abs(lt[2]) <= rest_velocity):
+                seen = time.monotonic()
                 time.sleep(0.2)   # let the bridge's joint states catch up too
+                # and at least one of them received after the arm was seen at rest
+                self.wait_for_streams(max(1.0, end - time.monotonic()), since=seen)
                 return
             time.sleep(0.02)
         raise StackCallError(f"the simulated arm did not come back to {target.tolist()} at rest")
@@ -224,6 +249,7 @@ class StackClient:
         """Send an ExecuteProfile goal and record ground truth and joint states until the result."""
         if not self.action.wait_for_server(timeout_sec=15.0):
             raise StackCallError("the executor action /ff_executor/execute is not available")
+        self.wait_for_streams()
         fb_times: list[float] = []
         with self._lock:
             self._truth, self._joints = Recording(), Recording()
