@@ -27,6 +27,10 @@ pytestmark = pytest.mark.integration
 RUNS = 3
 #: A, |measured motor current| after the cancel (the EPOS4's current steps are 3 mA)
 ZERO_TOL = 0.05
+#: s, the move starts this long after the goal is sent (more than the executor's lead time)
+START_AFTER = 1.0
+#: the cancel falls in this fraction of the profile's powered part (step_times[-1])
+CANCEL_SPAN = (0.2, 0.8)
 
 
 def _stack(run_dir: str) -> Any:
@@ -36,12 +40,15 @@ def _stack(run_dir: str) -> Any:
                               run_dir=run_dir), log=lambda s: None)
 
 
-def cancel_once(client: Any, profile: Any, cancel_after: float) -> dict[str, Any]:
-    """Execute ``profile`` from rest, cancel after ``cancel_after`` s; what the bridge measured."""
+def cancel_once(client: Any, profile: Any, into_move: float) -> dict[str, Any]:
+    """Execute ``profile`` from rest, starting ``START_AFTER`` s after the goal is sent, and cancel
+    ``into_move`` s after its start; what the bridge measured."""
     client.reset_arm([0.0])
-    mv = client.execute(profile, cancel_after=cancel_after)
+    start_ns = int(round((client.now() + START_AFTER) * 1e9))
+    mv = client.execute(profile, start_time_ns=start_ns, cancel_after=START_AFTER + into_move)
     _, _, _, eff = mv.joints.arrays()
     tail = [float(x) for x in eff[-5:, 0]] if eff.size else []
+    peak = float(np.max(np.abs(eff[:, 0]))) if eff.size else 0.0
     # what the bridge reported applied, in the order it reported them: (seq, currents A,
     # stamp ns mod 10 ms, SYNC instant − stamp µs)
     stamps, applied = dict(client._stamps), dict(client._applied)
@@ -49,8 +56,10 @@ def cancel_once(client: Any, profile: Any, cancel_after: float) -> dict[str, Any
               (t - stamps[(pid, seq)][0]) / 1e3)
              for (pid, seq), t in applied.items() if (pid, seq) in stamps]
     return {"status": int(mv.status), "message": str(mv.result.message), "applied": order[-6:],
+            "into_move_s": into_move, "peak_A": peak,
             "final_current_A": tail[-1] if tail else float("nan"), "tail_A": tail,
-            "ok": bool(mv.status == GoalStatus.STATUS_CANCELED and tail
+            # the move was under way (current flowing) when cancelled, and ended on zero current
+            "ok": bool(mv.status == GoalStatus.STATUS_CANCELED and tail and peak > 10 * ZERO_TOL
                        and max(abs(x) for x in tail) < ZERO_TOL)}
 
 
@@ -64,10 +73,11 @@ def cancel_runs(runs: int, run_dir: str, log: Any = lambda _m: None) -> list[dic
     out = []
     try:
         profile = client.plan(plan_request("robust-derivative")).profile
+        powered = float(profile.step_times[-1])
         rng = np.random.default_rng(int.from_bytes(os.urandom(4), "little"))
         for k in range(runs):
             # the cancel falls anywhere in the move's middle, relative to the SYNC grid
-            r = cancel_once(client, profile, 0.45 + 0.2 * float(rng.random()))
+            r = cancel_once(client, profile, powered * float(rng.uniform(*CANCEL_SPAN)))
             out.append(r)
             log(json.dumps({"run": k, **r}))
         if not all(r["ok"] for r in out):
