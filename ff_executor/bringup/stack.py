@@ -29,7 +29,7 @@ SCHED_FIFO N and asks the bridge for a SCHED_FIFO scheduler thread (root / CAP_S
 default here, the demo, tests and benchmarks use 10 where permitted).
 
 Configuration (``--print-config`` shows every value): the executor reads ``config/executor.yaml``
-then ``config/executor_sim.yaml`` (lead time 0.3 s, start margin 0.5 s for a shared machine), the
+then ``config/executor_sim.yaml`` (lead time 0.8 s, start margin 1.0 s for a shared machine), the
 planner ``config/planner.yaml`` (its motion library moved into the run folder); the simulated
 drive's encoder resolution and nominal current come from ``config/sim_arm1dof.yaml``. Generated
 for each run in the run folder: the sim driver's and bridge's parameter files and the bridge
@@ -121,7 +121,7 @@ class StackOptions:
     run_dir: Optional[str] = None              # logs, generated parameter files, motion library
     log_dir: Optional[str] = None              # ROS_LOG_DIR; None = <run_dir>/ros-log
     executor_params: Optional[str] = None      # default config/executor.yaml + executor_sim.yaml
-                                               # (lead time 0.3 s, start margin 0.5 s) + the model's joints
+                                               # (lead time 0.8 s, start margin 1.0 s) + the model's joints
     planner_params: Optional[str] = None       # default config/planner.yaml
     executor_overrides: Mapping[str, object] = field(default_factory=dict)
     planner_overrides: Mapping[str, object] = field(default_factory=dict)

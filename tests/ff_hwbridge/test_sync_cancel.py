@@ -28,7 +28,7 @@ RUNS = 3
 #: A, |measured motor current| after the cancel (the EPOS4's current steps are 3 mA)
 ZERO_TOL = 0.05
 #: s, the move starts this long after the goal is sent (more than the executor's lead time)
-START_AFTER = 1.0
+START_AFTER = 1.2
 #: the cancel falls in this fraction of the profile's powered part (step_times[-1])
 CANCEL_SPAN = (0.2, 0.8)
 

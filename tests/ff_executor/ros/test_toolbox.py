@@ -59,7 +59,7 @@ def test_lifecycle_get_says_active_and_a_bad_transition_fails(stack, capsys):
 
 def test_param_get_set_and_refusals(stack, capsys):
     code, out = run_ctl(stack, capsys, "param", "get", "ff_executor", "lead_time")
-    assert code == 0 and float(out) == 0.3    # the bring-up's override of config/executor.yaml
+    assert code == 0 and float(out) == 0.8    # the bring-up's override of config/executor.yaml
     code, out = run_ctl(stack, capsys, "param", "set", "ff_executor", "feedback_rate", "25")
     assert code == 0, out
     code, out = run_ctl(stack, capsys, "param", "get", "ff_executor", "feedback_rate")
