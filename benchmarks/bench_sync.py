@@ -52,8 +52,9 @@ from ff_hwbridge.drive.player_process import ProcessPlayer
 from ff_hwbridge.sim.rig_process import RigProcess, free_port, rig_master_config
 
 
-#: ns: setpoints are submitted this long before their stamp (the executor's default lead_time)
-FEED_AHEAD_NS = 300_000_000
+#: ns: setpoints are submitted this long before their stamp (the simulated stack's executor
+#: lead_time, config/executor_sim.yaml)
+FEED_AHEAD_NS = 800_000_000
 
 
 def main() -> int:
@@ -146,7 +147,7 @@ def main() -> int:
         stamps = [t0 + k * period for k in range(n)]
         player.reset_stats()
         # safe state: feeding stops, and the figures cover what ran until then
-        # fed up to 0.3 s ahead, as the executor publishes (lead_time) and the bridge forwards
+        # fed up to FEED_AHEAD_NS ahead, as the executor publishes (lead_time) and the bridge forwards
         applied: dict = {}
 
         def drain() -> None:       # the player keeps the latest 10 000 reports only
@@ -190,7 +191,7 @@ def main() -> int:
               "hub": a.hub, "link_stats": rec.get("link_stats"),
               "player_process": bool(a.player_process), "sim_rt_priority": a.sim_rt_priority,
               "player_rt_priority": pcfg.rt_priority, "hub_rt_priority": a.hub_rt_priority,
-              "process_rt_priority": a.process_rt, "setpoint_lead_s": a.lead,
+              "process_rt_priority": a.process_rt, "setpoint_lead_s": a.lead, "feed_ahead_s": FEED_AHEAD_NS / 1e9,
               "feedback_every": a.feedback_every,
               "time_keeper": hub_keeper,
               "loadavg_1min_before_after": [load_before[0], os.getloadavg()[0]],
