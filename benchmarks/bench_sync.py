@@ -74,6 +74,10 @@ def main() -> int:
     ap.add_argument("--process-rt", type=int, default=0,
                     help="SCHED_FIFO for this whole process (every thread, as 'chrt -f N' would), "
                          "to measure what a master process with no normal-priority thread gains")
+    ap.add_argument("--nice", type=int, default=-10,
+                    help="nice value of this process (the bridge's stand-in: the simulated stack "
+                         "runs its bridge at nice -10), where permitted; threads started later "
+                         "inherit it")
     ap.add_argument("--sim-rt-priority", type=int, default=0,
                     help="SCHED_FIFO for the simulated drive's process (chrt -f N; 0 = normal; "
                          "with --hub rig 0 = as ff-can-hub: one below the SYNC timer)")
@@ -127,6 +131,12 @@ def main() -> int:
                                 feedback_every=a.feedback_every)
         if a.process_rt > 0:       # after the children started (they keep normal priority)
             os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(a.process_rt))
+        nice = None
+        if a.nice:                 # before the master's and the player's threads: they inherit it
+            try:
+                nice = os.nice(a.nice - os.nice(0))
+            except PermissionError:
+                print(f"nice {a.nice} not permitted; running at nice {os.nice(0)}", file=sys.stderr)
         master = EposMaster(cfg)
         if not enable_drive(master):
             raise SystemExit(f"drive not enabled: {master.fault_reason}")
@@ -191,7 +201,8 @@ def main() -> int:
               "hub": a.hub, "link_stats": rec.get("link_stats"),
               "player_process": bool(a.player_process), "sim_rt_priority": a.sim_rt_priority,
               "player_rt_priority": pcfg.rt_priority, "hub_rt_priority": a.hub_rt_priority,
-              "process_rt_priority": a.process_rt, "setpoint_lead_s": a.lead, "feed_ahead_s": FEED_AHEAD_NS / 1e9,
+              "process_rt_priority": a.process_rt, "nice": nice, "setpoint_lead_s": a.lead,
+              "feed_ahead_s": FEED_AHEAD_NS / 1e9,
               "feedback_every": a.feedback_every,
               "time_keeper": hub_keeper,
               "loadavg_1min_before_after": [load_before[0], os.getloadavg()[0]],
