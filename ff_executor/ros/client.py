@@ -26,7 +26,7 @@ from ff_executor.engine import NS
 from ff_msgs.action import ExecuteProfile
 from ff_msgs.msg import CurrentSetpoint
 from ff_msgs.srv import PlanTrajectory
-from ff_msgs_py.convert import ns_to_time, time_to_ns
+from ff_msgs_py.convert import time_to_ns
 from ff_msgs_py.launch import apply_ros_environment
 
 
@@ -214,6 +214,17 @@ class StackClient:
                    if heard.get(k, -1.0) <= since]
         raise StackCallError(f"no sample on {', '.join(missing)} within {timeout:.0f} s")
 
+    def _first_stamp(self, timeout: float) -> float:
+        """Stamp (s, ROS clock) of step 0 of the goal being executed, once its setpoint is seen."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            with self._lock:
+                first = next((ns for (_, seq), (ns, _) in self._stamps.items() if seq == 0), None)
+            if first is not None:
+                return first / NS
+            time.sleep(0.005)
+        raise StackCallError(f"the executor published no setpoint within {timeout:.0f} s")
+
     # --- calls --------------------------------------------------------------------------------
     def plan(self, request: PlanTrajectory.Request, timeout: float = 120.0) -> PlanTrajectory.Response:
         """Call /ff_planner/plan with a PlanTrajectory.Request; returns the response."""
@@ -244,9 +255,13 @@ class StackClient:
             time.sleep(0.02)
         raise StackCallError(f"the simulated arm did not come back to {target.tolist()} at rest")
 
-    def execute(self, profile_msg: Any, timeout: float = 30.0, start_time_ns: int = 0,
-                cancel_after: Optional[float] = None) -> MoveOutcome:
-        """Send an ExecuteProfile goal and record ground truth and joint states until the result."""
+    def execute(self, profile_msg: Any, timeout: float = 30.0,
+                cancel_into_move: Optional[float] = None) -> MoveOutcome:
+        """Send an ExecuteProfile goal and record ground truth and joint states until the result.
+
+        cancel_into_move (s): cancel the goal this long after step 0's stamp, as the executor
+        published it (``lead_time`` ahead of the step), wherever the executor put the start;
+        None: no cancel."""
         if not self.action.wait_for_server(timeout_sec=15.0):
             raise StackCallError("the executor action /ff_executor/execute is not available")
         self.wait_for_streams()
@@ -256,15 +271,14 @@ class StackClient:
             self._stamps, self._applied = {}, {}
         t_goal = self.now()
         goal = ExecuteProfile.Goal(profile=profile_msg)
-        if start_time_ns:
-            goal.start_time = ns_to_time(start_time_ns)
         handle = self._wait(self.action.send_goal_async(
             goal, feedback_callback=lambda _m: fb_times.append(time.monotonic())), 15.0, "send goal")
         if not handle.accepted:
             raise StackCallError("the executor rejected the goal (see its log)")
         res_future = handle.get_result_async()
-        if cancel_after is not None:
-            time.sleep(cancel_after)
+        if cancel_into_move is not None:
+            start = self._first_stamp(15.0)
+            time.sleep(max(0.0, start + cancel_into_move - self.now()))
             self._wait(handle.cancel_goal_async(), 10.0, "cancel")
         res = self._wait(res_future, timeout, "execute")
         t_result = self.now()

@@ -27,10 +27,10 @@ pytestmark = pytest.mark.integration
 RUNS = 3
 #: A, |measured motor current| after the cancel (the EPOS4's current steps are 3 mA)
 ZERO_TOL = 0.05
-#: s, the move starts this long after the goal is sent (more than the executor's lead time)
-START_AFTER = 1.2
-#: the cancel falls in this fraction of the profile's powered part (step_times[-1])
-CANCEL_SPAN = (0.2, 0.8)
+#: the cancel falls in this fraction of the profile's powered part (step_times[-1], 0.95 s): at
+#: least 0.5 s before the move's end, so that a cancel the client or the executor handles late
+#: (0.42 s measured on a quiet machine) still lands in the move
+CANCEL_SPAN = (0.2, 0.5)
 
 
 def _stack(run_dir: str) -> Any:
@@ -41,11 +41,10 @@ def _stack(run_dir: str) -> Any:
 
 
 def cancel_once(client: Any, profile: Any, into_move: float) -> dict[str, Any]:
-    """Execute ``profile`` from rest, starting ``START_AFTER`` s after the goal is sent, and cancel
-    ``into_move`` s after its start; what the bridge measured."""
+    """Execute ``profile`` from rest and cancel ``into_move`` s after its start (step 0's stamp);
+    what the bridge measured."""
     client.reset_arm([0.0])
-    start_ns = int(round((client.now() + START_AFTER) * 1e9))
-    mv = client.execute(profile, start_time_ns=start_ns, cancel_after=START_AFTER + into_move)
+    mv = client.execute(profile, cancel_into_move=into_move)
     _, _, _, eff = mv.joints.arrays()
     tail = [float(x) for x in eff[-5:, 0]] if eff.size else []
     peak = float(np.max(np.abs(eff[:, 0]))) if eff.size else 0.0

@@ -25,6 +25,21 @@ from ff_planner.model.profile import CurrentProfile
 
 SW_MASK, SW_ENABLED = 0x6F, 0x27
 MOVE_A = 0.8                  # A for 1 s, then -0.8 A for 1 s: the arm is moving at the kill
+#: s after the bridge's watchdog runs out: its monitor, its quick stop and one 10 ms SYNC until
+#: the drive reports it
+REACTION_S = 0.2
+
+
+def stop_bound(stack: Stack) -> float:
+    """s from the kill to the drive leaving OPERATION ENABLED, at most: the bridge plays the
+    setpoints already sent, stamped at most the executor's ``lead_time`` after the kill; its
+    watchdog (``setpoint_timeout``; the executor repeats the present current more often) runs out
+    at most that long after the last of them; then ``REACTION_S``. Read from the stack's own
+    configuration, so the bound follows the config files."""
+    cfg = stack.effective_config()
+    lead = float(cfg["ff_executor"]["parameters"]["lead_time"])
+    timeout = float(cfg["ff_hwbridge"]["config"]["setpoint_timeout"])
+    return lead + timeout + REACTION_S
 
 
 class _HubListener(can.Listener):
@@ -95,7 +110,8 @@ def run(run_dir: Optional[str] = None, kill_after: float = 0.6) -> dict[str, Any
             time.sleep(0.05)
         reason = next((d for d in reversed(diag) if "watchdog" in d or "safe" in d), diag[-1] if diag else "")
         last_sw = listener.status[-1][1] if listener.status else None
-        return {"moving_at_kill": moving, "out_of_enabled_s": None if stop_t is None else stop_t - t_kill,
+        return {"moving_at_kill": moving, "stop_bound_s": stop_bound(stack),
+                "out_of_enabled_s": None if stop_t is None else stop_t - t_kill,
                 "zero_current_s": None if zero_t is None else zero_t - t_kill,
                 "statusword_after": None if last_sw is None else f"0x{last_sw:04X}",
                 "reason": reason, "bridge_alive": all(p.alive() for p in stack.procs
