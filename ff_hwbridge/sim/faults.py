@@ -69,6 +69,7 @@ class Outcome:
         return asdict(self)
 
 
+_SEEN = re.compile(r"seen at monotonic ([0-9.]+) s")
 _FIELD = re.compile(r"(\w+)=('[^']*'|\{[^}]*\}|\[[^\]]*\]|\S+)")
 
 
@@ -363,16 +364,20 @@ def hub_restart(down_s: float = 1.0) -> Outcome:
         b.enable_and_hold()
         t0 = _inject(hub.kill)
         hub.wait(5)
+        hub_reaped = time.monotonic() - t0
         out = _outcome("hub_restart", True, b.rig, t0, "")
         time.sleep(down_s)
         hub = start_hub()
         back = _wait(lambda: drive_info(b.rig)["nmt"] == "PRE-OPERATIONAL", 10.0)
         out.reason = _master_latch(b.master)
+        rig_log = [ln[ln.index("ff-sim-rig:"):] for ln in b.rig.stderr_text().splitlines()
+                   if "ff-sim-rig:" in ln]
+        seen = next((float(m.group(1)) for m in map(_SEEN.search, rig_log) if m), None)
+        # where the time went: the hub reaped by this process (an upper bound of its exit), the
+        # rig's bus watch seeing python-can's receive error (its own CLOCK_MONOTONIC, system-wide)
         out.notes.update(drive_back_on_bus=back, nmt_after=drive_info(b.rig)["nmt"],
-                         fault_after=drive_info(b.rig)["fault"],
-                         rig_log=[ln[ln.index("ff-sim-rig:"):]
-                                  for ln in b.rig.stderr_text().splitlines()
-                                  if "ff-sim-rig:" in ln])
+                         fault_after=drive_info(b.rig)["fault"], rig_log=rig_log,
+                         hub_reaped_s=hub_reaped, bus_loss_seen_s=None if seen is None else seen - t0)
         return out
     finally:
         if b is not None:

@@ -144,7 +144,7 @@ class SimRig:
                     d.bus_lost()
                 on_event(f"CAN bus lost ({type(exc).__name__}: {exc}); drives "
                          f"{[d.node_id for d in self.drives]} in Fault 0x81FD (CAN bus off), "
-                         "current 0; reconnecting")
+                         f"current 0; reconnecting (seen at monotonic {t_lost:.6f} s)")
                 try:
                     self.network.disconnect()
                 except Exception:  # noqa: BLE001 - the bus is gone already
