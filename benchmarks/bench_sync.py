@@ -42,7 +42,6 @@ import tempfile
 import time
 
 import numpy as np
-import yaml
 from _common import (busy_processes, enable_drive, feed_stream, match_stream, percentiles, release_rig, stop_drive,
                      stop_processes)
 
@@ -51,13 +50,12 @@ from ff_hwbridge.drive.gc_pauses import freeze_heap, hold_full_collections
 from ff_hwbridge.drive.player import PlayerConfig, SetpointPlayer
 from ff_hwbridge.drive.player_process import ProcessPlayer
 from ff_hwbridge.sim.rig_process import RigProcess, free_port, rig_master_config
-from ff_msgs_py.configs import config_dir
+from ff_msgs_py.configs import node_parameters
 
 
 #: ns: setpoints are submitted this long before their stamp: the simulated stack's executor
 #: lead_time (config/executor_sim.yaml)
-FEED_AHEAD_NS = int(round(float(yaml.safe_load((config_dir() / "executor_sim.yaml").read_text())
-                                ["ff_executor"]["ros__parameters"]["lead_time"]) * 1e9))
+FEED_AHEAD_NS = int(round(float(node_parameters("executor_sim.yaml", "ff_executor")["lead_time"]) * 1e9))
 
 
 def main() -> int:
