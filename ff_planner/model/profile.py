@@ -12,6 +12,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from ff_planner.core.errors import PlanningError
+from ff_planner.model.limits import Excursion, MotionLimits
 from ff_planner.model.params import ParameterError, Params, default_params, n_joints
 
 DEFAULT_COAST = 0.05  # s, zero-current coast at the end of every move (paper section 4.1.1)
@@ -113,6 +114,10 @@ class PlanRequest:
     box: Optional[dict[str, float]] = None   # ± fraction per uncertain parameter (default 0.2)
     coast_max: float = DEFAULT_COAST_MAX     # s, robust-box: coast chosen in [coast, coast_max]
     current_quantum: float = 0.0             # A, round the plan's currents to this grid (0 = none)
+    limits: Optional[MotionLimits] = None    # position range / speed limit along the whole motion
+    tolerance: Optional[float] = None        # rad, certified worst rest error wanted: the planner
+    #                                          searches the fastest tf <= move_time_max meeting it
+    move_time_max: Optional[float] = None    # s, longest tf a tolerance search may choose
 
     @property
     def auto_steps(self) -> bool:
@@ -199,6 +204,14 @@ class PlanRequest:
                                         f"got {f!r}")
         if self.time_budget <= 0:
             raise PlanningError(f"time_budget must be > 0 s, got {self.time_budget}")
+        if self.limits is not None:
+            self.limits.validate(nj, self.q0, self.qf)
+        if self.tolerance is not None and not (math.isfinite(float(self.tolerance))
+                                               and float(self.tolerance) > 0.0):
+            raise PlanningError(f"tolerance must be > 0 rad, got {self.tolerance}")
+        if self.move_time_max is not None and not 0.0 < float(self.move_time_max) <= MAX_TF:
+            raise PlanningError(f"move_time_max must be in (0, {MAX_TF:g}] s, got "
+                                f"{self.move_time_max}")
 
 
 @dataclass
@@ -228,6 +241,7 @@ class RobustnessCertificate:
     switch_timing_method: str = "central difference, ±10 us, nominal parameters"
     worst_per_joint: list[float] = field(default_factory=list)
     switch_timing_per_joint: list[list[float]] = field(default_factory=list)
+    excursion: Optional[Excursion] = None    # where the arm goes, nominal and over the box
 
     def to_dict(self) -> dict:
         """JSON-able form (the motion file's ``certificate``); the per-joint figures only for a
@@ -247,6 +261,8 @@ class RobustnessCertificate:
             d["switch_timing_per_joint_per_100us"] = [[float(x) for x in row]
                                                       for row in self.switch_timing_per_joint]
             units["switch_timing_per_joint_per_100us"] = "rad"
+        if self.excursion is not None:
+            d["excursion"] = self.excursion.to_dict()
         return d
 
 
