@@ -2,14 +2,16 @@
 
 A rosbag2/MCAP file carries, per topic, the definition of its type so that any reader can decode
 it: the type's own fields, then each type it uses, one section each, separated by a line of 80
-``=`` and headed ``MSG: pkg/sub/Type`` (the layout rosbag2 writes). ROS's standard types come from
+``=`` and headed ``MSG: pkg/Type`` (the layout rosbag2 writes: its local message definition
+source names each dependency as the ``.msg`` field names it, without the ``msg``/``action``
+folder; Foxglove's decoder and ``rosbags`` resolve fields against exactly these headers). ROS's standard types come from
 the ``rosbags`` package's Jazzy type store (the [record] extra); the ff_msgs texts from this
 package's interface files, split the way rosidl splits them (``.srv`` → ``_Request`` /
 ``_Response``, ``.action`` → ``_Goal`` / ``_Result`` / ``_Feedback`` and the feedback topic's
 ``_FeedbackMessage`` = goal id + feedback). ``rosbags`` cannot generate those itself: its
 generator accepts nested types only under ``pkg/msg/``, and the action feedback message nests
-``ff_msgs/action/ExecuteProfile_Feedback``. Fields name nested types in the short form
-``pkg/Type``, which readers (e.g. ``mcap_ros2``) resolve against the section headers.
+``ff_msgs/action/ExecuteProfile_Feedback``. Fields name nested message types in the short form
+``pkg/Type`` and the action's own types in full, each exactly as its section header names it.
 """
 from __future__ import annotations
 
@@ -58,7 +60,7 @@ def ff_definitions() -> dict[str, str]:
         out[f"{base}_Goal"], out[f"{base}_Result"], out[f"{base}_Feedback"] = goal, result, feedback
         # the feedback topic's message (rosidl's action wrapper): goal id + the feedback
         out[f"{base}_FeedbackMessage"] = ("unique_identifier_msgs/UUID goal_id\n"
-                                          f"{PACKAGE}/{f.stem}_Feedback feedback\n")
+                                          f"{base}_Feedback feedback\n")
     if not out:
         raise FileNotFoundError(f"no ff_msgs interface files under {root}")
     return out
@@ -131,4 +133,13 @@ def message_definition(name: str) -> str:
             else:
                 sections.update({k: v for k, v in _standard_sections(cur).items() if k not in sections})
     own = sections.pop(name)
-    return own + "".join(f"{SEPARATOR}\nMSG: {k}\n{v}" for k, v in sections.items())
+    return own + "".join(f"{SEPARATOR}\nMSG: {section_name(k)}\n{v}" for k, v in sections.items())
+
+
+def section_name(full: str) -> str:
+    """The header of a dependency's section: ``pkg/msg/Type`` -> ``pkg/Type``, as rosbag2 writes
+    it; an action's own message (``pkg/action/X_Feedback``, nested in the feedback topic's
+    message) keeps its full name, as the field that uses it names it: rosidl hashes the type
+    under that name, and a reader that checks the recorded type hash (``rosbags``) must see it."""
+    pkg, sub, typ = full.split("/")
+    return full if sub == "action" else f"{pkg}/{typ}"
