@@ -15,7 +15,12 @@ Measured in one run, same tasks and seeds:
   simulator), multistart from the same seeded starts until a start yields a plan that passes the
   same true-derivative verification, capped per seed.
 
+With ``--certificate`` only: the facade's answer (search, verification, rest position and the
+box certificate) per seed, median of 5 calls, beside the certificate alone and the search alone;
+the same for robust-box N = 12 (one call per seed).
+
 Usage: python benchmarks/bench_planner_1dof.py [--seeds 30] [--peer-seeds 5] [--peer-cap 20]
+       python benchmarks/bench_planner_1dof.py --certificate [--seeds 20]
 """
 from __future__ import annotations
 
@@ -189,12 +194,47 @@ def first_plan(cache_dir=None):
     return d
 
 
+def bench_with_certificate(seeds, objective="robust-derivative", repeats=5):
+    """The facade's answer (search, verification, rest position, box certificate) per seed:
+    median over ``repeats`` calls of the wall time, and the certificate alone
+    (``certify_1dof`` of the same plan), in-process, kernels loaded."""
+    from ff_planner.model.profile import PlanRequest
+    from ff_planner.optimize.certificate import certify_1dof
+    from ff_planner.optimize.planner import plan
+
+    total, cert, search, cpu = [], [], [], []
+    for seed in seeds:
+        req = PlanRequest(objective=objective, seed=seed,
+                          starts=5000 if objective == "robust-derivative" else 50,
+                          steps=None if objective == "robust-derivative" else 12)
+        per, per_c, per_cpu = [], [], []
+        for _ in range(repeats):
+            t0, c0 = time.perf_counter(), time.process_time()
+            r = plan(req)
+            per.append(time.perf_counter() - t0)
+            per_cpu.append(time.process_time() - c0)
+            t0 = time.perf_counter()
+            certify_1dof(r.params, r.profile, float(r.q0[0]), float(r.qf[0]),
+                         list(req.uncertain), req.box)
+            per_c.append(time.perf_counter() - t0)
+        total.append(float(np.median(per)))
+        cpu.append(float(np.median(per_cpu)))
+        cert.append(float(np.median(per_c)))
+        search.append(float(r.extra["search_time_s"]))
+    return {"objective": objective, "seeds": len(seeds), "repeats_per_seed": repeats,
+            "plan_with_certificate_wall_s": _stats(total), "plan_with_certificate_cpu_s":
+            _stats(cpu), "certificate_alone_s": _stats(cert), "search_s": _stats(search)}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=30)
     ap.add_argument("--peer-seeds", type=int, default=5)
     ap.add_argument("--peer-cap", type=float, default=20.0, help="s per seed for the peer")
     ap.add_argument("--no-fresh", action="store_true", help="skip the fresh-process runs")
+    ap.add_argument("--certificate", action="store_true",
+                    help="only: plan + certificate through the facade (robust-derivative, and "
+                         "robust-box N = 12), seeds 0..seeds-1")
     a = ap.parse_args()
     seeds = list(range(a.seeds))
     from ff_planner.model.profile import PlanRequest
@@ -202,6 +242,17 @@ def main() -> None:
 
     plan_robust_1dof(PlanRequest(objective="robust-derivative", starts=5000,
                                  seed=12345))    # load the compiled code
+    if a.certificate:
+        from ff_planner.optimize.planner import plan
+
+        plan(PlanRequest(objective="robust-derivative", seed=1))
+        plan(PlanRequest(steps=12, seed=1))
+        res = {"load_average_at_start": os.getloadavg(),
+               "robust_derivative": bench_with_certificate(seeds),
+               "robust_box_N12": bench_with_certificate(seeds, "robust-box", repeats=1),
+               "load_average_at_end": os.getloadavg()}
+        print(json.dumps(res, indent=1))
+        return
     out: dict = {"task": "arm1dof table2, 0 -> 1 rad, tf = 1 s, coast 0.05 s",
                  "machine_cores": os.cpu_count(), "load_average_at_start": os.getloadavg()}
     out["ours_k3_N5"] = bench_ours(seeds, ("pv", "pc", "pt"))

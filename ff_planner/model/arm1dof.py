@@ -182,6 +182,84 @@ def batch_core(J, c, friction, to_rest, times, cur, tf, q0):
     return qs, vs
 
 
+#: columns of ``track_core``'s output row: where the arm rests (rad), its velocity at tf
+#: (rad/s), the lowest and the highest position (rad) and the peak |speed| (rad/s) from t = 0
+#: until rest
+TRACK_COLS = 5
+TR_REST, TR_VTF, TR_MIN, TR_MAX, TR_SPEED = range(TRACK_COLS)
+
+
+@njit(cache=True, nogil=True)
+def track_capacity(n: int) -> int:
+    """Segment rows ``track_core`` needs for N steps: at most 3 per constant-current phase (a
+    slide to zero speed, a reversal, a stuck rest), N steps + the coast + the rest phase."""
+    return 3 * (n + 2) + 4
+
+
+@njit(cache=True, nogil=True)
+def track_core(J, c, pv, pc, pt, times, cur, tf, q0, seg, ev, out):
+    """Simulate to rest and write ``out`` (TRACK_COLS,): rest position, velocity at tf, lowest /
+    highest position and peak |speed| from t = 0 until the arm stops (nan if it never stops or
+    ``seg`` has too few rows, see ``track_capacity``).
+
+    Exact: within a recorded segment v' = a·v + b keeps v monotone (v' = (a·v0 + b)·e^{aτ} has
+    one sign) and of one sign (every zero crossing ends a segment), so q is monotone too, and
+    the extremes of q and |v| over the motion lie at segment ends — each one the start of the
+    next segment, the last one the rest position (v = 0)."""
+    q, v, nseg, _ = sim_core(J, c, pv, pc, pt, times, cur, tf, q0, 0.0, True, seg, ev)
+    if nseg > seg.shape[0] or not math.isfinite(q):
+        for k in range(TRACK_COLS):
+            out[k] = math.nan
+        out[TR_REST] = q
+        return
+    lo = q
+    hi = q
+    sp = 0.0
+    vtf = 0.0
+    seen_tf = False
+    for k in range(nseg):
+        qk = seg[k, 2]
+        vk = abs(seg[k, 3])
+        if qk < lo:
+            lo = qk
+        if qk > hi:
+            hi = qk
+        if vk > sp:
+            sp = vk
+        if not seen_tf and seg[k, 0] >= tf:
+            seen_tf = True
+            vtf = seg[k, 3] if seg[k, 6] != 0.0 else 0.0
+    out[TR_REST] = q
+    out[TR_VTF] = vtf
+    out[TR_MIN] = lo
+    out[TR_MAX] = hi
+    out[TR_SPEED] = sp
+
+
+@njit(cache=True, nogil=True)
+def track_batch(J, c, pvals, scales, times, cur, tf, q0, out):
+    """``track_core`` at each row of friction scale factors (S, 3) (parameters pvals·scale):
+    out (S, TRACK_COLS)."""
+    seg = np.empty((track_capacity(cur.shape[0]), _SEG_COLS))
+    ev = np.empty((0, 3))
+    for s in range(scales.shape[0]):
+        track_core(J, c, pvals[0] * scales[s, 0], pvals[1] * scales[s, 1],
+                   pvals[2] * scales[s, 2], times, cur, tf, q0, seg, ev, out[s])
+
+
+def track(params: Arm1DofParams, profile: CurrentProfile, q0: float,
+          scales: Optional[np.ndarray] = None) -> np.ndarray:
+    """``track_batch`` for a profile: (S, TRACK_COLS) at the friction scale factors ``scales``
+    (S, 3) of (pv, pc, pt) (default: the nominal friction only). rad, rad/s."""
+    sc = np.ones((1, 3)) if scales is None else np.ascontiguousarray(scales, dtype=float)
+    times, cur = _profile_arrays(profile)
+    out = np.empty((sc.shape[0], TRACK_COLS))
+    track_batch(float(params.J), float(params.n * params.kt),
+                np.array([params.pv, params.pc, params.pt], dtype=float), sc, times, cur,
+                float(profile.tf), float(q0), out)
+    return out
+
+
 @njit(cache=True, nogil=True)
 def advance_core(J, c, pv, pc, pt, q, v, current, dt):
     """State after ``dt`` s of constant ``current`` (A) from (q, v)."""

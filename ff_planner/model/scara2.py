@@ -606,6 +606,41 @@ def rest_position_scara2(params: Scara2Params, profile: CurrentProfile, q0: Sequ
     return sim.q_rest
 
 
+@dataclass
+class Scara2Track:
+    """Where a SCARA move takes the arm from t = 0 until both links rest (zero current after
+    tf): rest position (rad, None if it has not stopped ``settle_max`` s after tf), whether both
+    joints stick at tf, and per joint the lowest / highest position (rad) and the peak |speed|
+    (rad/s). Positions and speeds are taken at every RK4 substep and every stick/slip event
+    (position extremes sit at velocity zero crossings, which are events)."""
+
+    q_rest: Optional[np.ndarray]
+    stuck_tf: tuple[bool, bool]
+    q_min: np.ndarray
+    q_max: np.ndarray
+    speed: np.ndarray
+
+
+def track_scara2(params: Scara2Params, profile: CurrentProfile, q0: Sequence[float], *,
+                 h: float = DEFAULT_H, settle_max: float = 5.0) -> Scara2Track:
+    """Simulate to rest and report the excursion (``Scara2Track``); PlanningError when the
+    simulation chatters."""
+    q0a, qd0 = _check_inputs(params, profile, q0, None)
+    P = _pack(params)
+    (_, y_r, t_r, _, _, rec_y, _, nrec, stf, err) = _run(
+        P, profile, np.concatenate([q0a, qd0]), h, record=True, settle=True,
+        settle_max=settle_max)
+    if err == 1:
+        raise PlanningError(f"scara2 simulation chattered: more than {_MAX_EVENTS} stick/slip "
+                            "events; use smaller currents or a finer substep", "INTERNAL_ERROR")
+    ys = rec_y[:int(nrec)]
+    q_rest = y_r[:2].real.copy() if err == 0 else None
+    pos = np.vstack([ys[:, :2], y_r[:2].real.reshape(1, 2)])
+    return Scara2Track(q_rest=q_rest, stuck_tf=(bool(stf[0]), bool(stf[1])),
+                       q_min=pos.min(axis=0), q_max=pos.max(axis=0),
+                       speed=np.abs(ys[:, 2:]).max(axis=0))
+
+
 def advance(params: Scara2Params, q: Sequence[float], qd: Sequence[float],
             currents: Sequence[float], dt: float, *, h: float = DEFAULT_H) -> tuple[np.ndarray, np.ndarray]:
     """State (rad, rad/s) after dt s of constant motor currents (A) from (q, qd): the drive

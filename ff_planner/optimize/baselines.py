@@ -24,6 +24,7 @@ Choices, stated:
 """
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass
@@ -35,6 +36,9 @@ from scipy.optimize import brentq
 from ff_planner.model.params import Arm1DofParams, Params
 from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
 from ff_planner.model.simulate import rest_position, simulate
+from ff_planner.model.arm1dof import track
+from ff_planner.optimize.certificate import excursion_of
+from ff_planner.optimize.limits1d import Limits1D
 
 R_TERMINAL = 0.611   # Ω, maxon RE 30 60 W, 24 V winding (catalogue value), see module docstring
 DEFAULT_ENERGY_STEPS = 100
@@ -96,7 +100,21 @@ def reach_1dof(p: Arm1DofParams, duration: float) -> float:
     Bang-bang (accelerate at +I_max, brake at −I_max until rest exactly at ``duration``) is the
     farthest a monotone 1-DOF move can go; the bound ignores the zero-current coast (it lets the
     brake act through it), so it is sound, not tight. 0 if I_max cannot break the arm away.
+    Cached per (arm, duration): every request is checked against it.
     """
+    try:
+        return _reach_cached(p, float(duration))
+    except TypeError:       # an arm whose fields are not hashable
+        return _reach(p, float(duration))
+
+
+@functools.lru_cache(maxsize=256)
+def _reach_cached(p: Arm1DofParams, duration: float) -> float:
+    return _reach(p, duration)
+
+
+def _reach(p: Arm1DofParams, duration: float) -> float:
+    """``reach_1dof`` without the cache."""
     c_acc, _, _ = _accel_brake(p)
     if c_acc <= 0.0 or duration <= 0.0:
         return 0.0
@@ -262,6 +280,27 @@ def energy_optimal_1dof(p: Arm1DofParams, q0: float, qf: float, tf: float, coast
     return Baseline(prof, R * float(np.sum(cur ** 2)) * h, tf, R)
 
 
+def _check_limits(request: PlanRequest, p: Arm1DofParams, bl: Baseline, q0: float) -> None:
+    """Refuse a baseline that leaves the request's limits anywhere along its motion (until rest)
+    at any of the certificate's box points (``limits1d.Limits1D``): a baseline is fixed by its
+    definition (bang-bang, least copper loss at the nominal friction) and has no freedom left
+    to honour them. PlanningError (UNREACHABLE) saying what to change."""
+    lim = Limits1D.of(getattr(request, "limits", None), p, q0, float(request.tf),
+                      [u for u in ("pv", "pc", "pt") if u in request.uncertain], request.box)
+    if lim is None:
+        return
+    if lim.excess(bl.profile.step_times, bl.profile.currents[:, 0]) > 0.0:
+        tr = track(p, bl.profile, q0, np.vstack([np.ones((1, 3)), lim.design]))
+        bad = excursion_of(tr[1:], tr[0]).violations(request.limits)
+        nominal = lim.excess(bl.profile.step_times, bl.profile.currents[:, 0], np.ones((1, 3)))
+        where = "at the nominal friction" if nominal > 0.0 else "over the friction box"
+        raise PlanningError(
+            f"the {request.objective} baseline leaves the limits {where} ({'; '.join(bad)}, "
+            f"until rest); it is fixed by its definition and cannot honour them: widen the "
+            f"limits, give a longer move time, a smaller box, or use the robust-box objective",
+            code="UNREACHABLE")
+
+
 def plan_baseline(request: PlanRequest, progress: Progress = None, *,
                   R: float = R_TERMINAL) -> PlanResult:
     """Time-optimal or energy-optimal plan for a validated 1-DOF request, with its sensitivities.
@@ -284,6 +323,7 @@ def plan_baseline(request: PlanRequest, progress: Progress = None, *,
     else:
         raise PlanningError(f"plan_baseline serves time-optimal and energy-optimal, not "
                             f"{request.objective!r}", code="INVALID_REQUEST")
+    _check_limits(request, p, bl, q0)
     sim = simulate(p, bl.profile, [q0])
     names = list(request.uncertain) or list(p.friction_keys)
     fd = finite_differences(p, bl.profile, [q0], names)

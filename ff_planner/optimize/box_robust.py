@@ -68,6 +68,23 @@ and coasts; the RANDOM_TIMES_SCREEN of least worst at the corners get a short fr
 minimax, the RANDOM_TIMES_REFINE best of those a full one. The best verified plan among the LM
 plans, the equal-step and the free-time refinements is returned.
 
+Limits (``request.limits``: position range, speed limit; ``limits1d``). The search above runs
+without them; a verified plan is the answer only when its whole motion (until rest) keeps
+within them at every certificate box point (``Limits1D.ok``). When none does, the limits stage
+(``_limits_stage``) pulls the best verified plan inside by a homotopy (``_pull_inside``):
+LIMITS_STAGES free-time minimax solves whose limits move from the plan's excursion at the box
+corners to the request's, the limits as SLSQP constraints g_s ≥ 0 at the corners (exchange:
+the worst certificate points join), forward-difference Jacobians of the exact excursion. First
+keeping the robust set (only for a start within LIMITS_EQ_REACH of the limits; the answer is
+then truly robust), else without it: the plan of least worst rest error within the limits,
+labelled best effort (success False, NO_ROBUST_PLAN, NOT derivative-robust), and when that
+fails the same from the energy-optimal baseline (monotone). Nothing within the limits: no
+profile, and the message says what to change. ``extra["limits_answer"]`` says which.
+Measured (paper task, q in [−0.3, 1.05] rad, |q̇| ≤ 4 rad/s, N = 12, seeds 0-2, 1-minute load
+4 on 2 cores): least-worst plans of 13.9-26.6 mrad certified worst rest error (median 16.9;
+the best robust plans without limits: ~2 mrad, swinging to −1.1 rad at up to 8.7 rad/s), every
+certificate point within the limits, 0.79 s CPU median (``benchmarks/bench_limits.py``).
+
 With a ``grid`` the free times are rounded to it and the currents solved again. When no plan is
 derivative-robust, the LM end point of the shortest coast nearest the robust set (least |r|²)
 is the labelled best effort; when the time budget runs out before any refinement, the first
@@ -90,12 +107,16 @@ import numpy as np
 from scipy.optimize import minimize
 
 from ff_planner.core.errors import PlanningError
-from ff_planner.model.arm1dof import FRICTION
+from ff_planner.model.arm1dof import FRICTION, TR_MAX, TR_MIN, TR_SPEED, track
 from ff_planner.model.arm1dof_derivatives import NP, Q_, VC_, hd_sim, workspace
+from ff_planner.model.limits import MotionLimits
 from ff_planner.model.params import Arm1DofParams
 from ff_planner.model.profile import PlanRequest, PlanResult
 from ff_planner.optimize import box_kernels
 from ff_planner.optimize import lm1d as _lm1d
+from ff_planner.optimize.baselines import energy_optimal_1dof
+from ff_planner.optimize.certificate import certify_1dof
+from ff_planner.optimize.limits1d import LIMIT_SCALE, Limits1D
 from ff_planner.optimize.robust1d import (
     STOP_MARGIN,
     stop_speed_bound,
@@ -153,6 +174,22 @@ SPLIT_TARGET = 5e-3     # rad: the continuation stops once the box worst is with
 BEST_ITERATE = True     # SLSQP returns the iterate of least merit (worst + equality residuals)
 EQ_WEIGHT = 0.2         # merit weight of the scaled derivative residuals (rad per unit = box fraction)
 ERR_SCALE = 1e3         # the epigraph variable in mrad (SLSQP's tolerances suit O(1) values)
+LIMIT_MERIT = 10.0      # merit weight of a violated position / speed limit (per rad or rad/s)
+LIMITS_STAGES = 5       # limits stage: the limits move from the start plan's excursion to the
+#                         request's in this many steps (a homotopy), each a free-time minimax ...
+LIMITS_PATHS = (3, 5)   # ... the least-worst pass runs one homotopy per step count here and keeps
+#                         the best (measured, 5 limit cells x 3 seeds: the end basin depends on
+#                         the path; 5 steps alone ended worse on 9 of the 15 plans, up to 12x,
+#                         3 steps alone on 6, up to 16x)
+LIMITS_STAGE_ITER = 40  # ... of this many SLSQP iterations (the last one: FREE_ITER, exchanges)
+LIMITS_MARGIN = 1e-4    # rad, rad/s: the last stage holds limits this much inside the request's
+LIMITS_FINAL_ROUNDS = 3     # exchange rounds of the last stage (box points that break a limit
+#                             join the constraints)
+LIMITS_BUDGET_SHARE = 1.0   # the stage ends by this share of the request's time budget
+LIMITS_EQ_REACH = 0.25  # the pass that keeps the robust set runs only for a start within this
+#                         relative violation (of its swing, of its peak speed) of the limits
+LIMITS_RETRY_FACTOR = 3.0   # ... and also when the search's best plan within the limits is this
+#                             many times worse than its best plan outside them (and > 5 mrad)
 RANDOM_TIMES_MAX_STEPS = 6  # up to this N a global stage over the step durations runs too
 RANDOM_TIMES_DRAWS = 1000   # ... drawing this many duration vectors (Dirichlet(1.5) of tf − coast,
 #                             the coast uniform in [coast, coast_max], every step >= MIN_STEP)
@@ -338,10 +375,14 @@ class _FreeBox:
     t_N stays at ``prob.times[N]``."""
 
     def __init__(self, prob: _Problem, scales: np.ndarray,
-                 coast_range: Optional[tuple[float, float]] = None):
+                 coast_range: Optional[tuple[float, float]] = None,
+                 lim_scales: Optional[np.ndarray] = None):
         self.prob = prob
         self.scales = np.ascontiguousarray(scales)
         self.memo: dict = {}
+        self.lim_scales = _lim_start(prob, lim_scales)
+        self.lim_memo: tuple = (b"", None)
+        self.equalities = True      # False: the least-worst plan without the robust set
         n = prob.n
         self.free_end = coast_range is not None
         self.end = float(prob.times[n])
@@ -413,6 +454,27 @@ class _FreeBox:
             self.memo[key] = (e, Ge, g, Gg)
         return self.memo[key]
 
+    def limit_terms(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(g, ∂g/∂x) of the limits at ``lim_scales`` (``Limits1D.terms`` in the currents and
+        the free times), memoised."""
+        key = x.tobytes()
+        if self.lim_memo[0] != key or self.lim_memo[1][1] is None:
+            pr = self.prob
+            assert pr.limits is not None
+            self.lim_memo = (key, pr.limits.terms(self.times(x), x[:pr.n], self.lim_scales,
+                                                  self.nv - pr.n))
+        return self.lim_memo[1]
+
+    def limit_values(self, x: np.ndarray) -> np.ndarray:
+        """g of ``limit_terms`` (values only, for SLSQP's line search), memoised."""
+        key = x.tobytes()
+        if self.lim_memo[0] != key:
+            pr = self.prob
+            assert pr.limits is not None
+            self.lim_memo = (key, (pr.limits.values(self.times(x), x[:pr.n], self.lim_scales),
+                                   None))
+        return self.lim_memo[1][0]
+
     def values(self, x: np.ndarray):
         """(e, g) at x without the Jacobians (SLSQP's line search asks for values only)."""
         key = x.tobytes()
@@ -439,8 +501,14 @@ class _FreeBox:
         if not np.all(np.isfinite(e)):
             return math.inf
         coast = pr.tf - self.times(x)[pr.n]
+        over = 0.0
+        if pr.limits is not None:
+            over = max(0.0, -float(np.min(self.limit_values(x))) / LIMIT_SCALE)
+        if not self.equalities:
+            return float(np.max(np.abs(e)) + LIMIT_MERIT * over)
         return float(np.max(np.abs(e)) + abs(g[0]) + EQ_WEIGHT * np.sum(np.abs(g[self._rows]))
-                     + max(0.0, abs(g[4]) - self.stop_bound(x)[0]) * coast)
+                     + max(0.0, abs(g[4]) - self.stop_bound(x)[0]) * coast
+                     + LIMIT_MERIT * over)
 
     def start(self, I: np.ndarray, times: np.ndarray) -> np.ndarray:
         """The decision vector of currents ``I`` (A) at step ``times`` (s)."""
@@ -476,8 +544,9 @@ class _FreeBox:
             x = dec(y)
             e, _, g, _ = self.values(x)
             vb = self.stop_bound(x)[0]
+            stop = vb - abs(g[4]) if self.equalities else 1.0
             return np.concatenate([y[nv] - ERR_SCALE * e, y[nv] + ERR_SCALE * e,
-                                   [vb - abs(g[4])], gaps @ y + gap_rhs - MIN_STEP])
+                                   [stop], gaps @ y + gap_rhs - MIN_STEP])
 
         def ineq_jac(y):
             x = dec(y)
@@ -487,9 +556,10 @@ class _FreeBox:
             A[:m, :nv] = -ERR_SCALE * Ge * unit
             A[m:2 * m, :nv] = ERR_SCALE * Ge * unit
             A[:2 * m, nv] = 1.0
-            A[2 * m, :nv] = -np.sign(g[4]) * Gg[4] * unit
-            if self.free_end:
-                A[2 * m, nv - 1] += self.stop_bound(x)[1] * T_UNIT
+            if self.equalities:
+                A[2 * m, :nv] = -np.sign(g[4]) * Gg[4] * unit
+                if self.free_end:
+                    A[2 * m, nv - 1] += self.stop_bound(x)[1] * T_UNIT
             A[2 * m + 1:] = gaps
             return A
 
@@ -526,10 +596,17 @@ class _FreeBox:
         bounds = ([(-pr.i_max, pr.i_max)] * n + list(zip(self.lo / T_UNIT, self.hi / T_UNIT))
                   + ([(self.end_lo / T_UNIT, self.end_hi / T_UNIT)] if self.free_end else [])
                   + [(0.0, None)])
+        cons = [{"type": "eq", "fun": eq, "jac": eq_jac},
+                {"type": "ineq", "fun": ineq, "jac": ineq_jac}][0 if self.equalities else 1:]
+        if pr.limits is not None:
+            def lim_jac(y):
+                G = self.limit_terms(dec(y))[1] * unit
+                return np.hstack([G, np.zeros((G.shape[0], 1))])
+
+            cons.append({"type": "ineq", "fun": lambda y: self.limit_values(dec(y)),
+                         "jac": lim_jac})
         res = minimize(lambda y: y[nv], y0, jac=lambda y: grad_t, method="SLSQP", bounds=bounds,
-                       constraints=[{"type": "eq", "fun": eq, "jac": eq_jac},
-                                    {"type": "ineq", "fun": ineq, "jac": ineq_jac}],
-                       options={"maxiter": int(maxiter), "ftol": SOLVE_FTOL},
+                       constraints=cons, options={"maxiter": int(maxiter), "ftol": SOLVE_FTOL},
                        callback=stop_at_deadline)
         y = np.asarray(res.x, float)
         if BEST_ITERATE:
@@ -540,6 +617,26 @@ class _FreeBox:
         t = self.times(x)
         x[n:nv] = t[1:nv - n + 1]
         return x
+
+
+def _lim_start(prob: _Problem, lim_scales: Optional[np.ndarray]) -> np.ndarray:
+    """The box points the limits are held at in a solve: ``lim_scales``, else the corners and
+    the centre (an empty array without limits)."""
+    if prob.limits is None:
+        return np.zeros((0, 3))
+    return np.ascontiguousarray(prob.limits.corners if lim_scales is None else lim_scales)
+
+
+def _lim_add(prob: _Problem, times: np.ndarray, I: np.ndarray, lim_scales: np.ndarray
+             ) -> Optional[np.ndarray]:
+    """The limit points after an exchange: ``lim_scales`` and the EXCHANGE_ADD certificate points
+    of largest violation; None when the plan keeps within the limits there (or has none)."""
+    if prob.limits is None:
+        return None
+    add = prob.limits.worst_points(times, I, EXCHANGE_ADD)
+    if add.shape[0] == 0:
+        return None
+    return np.ascontiguousarray(np.vstack([lim_scales, add]))
 
 
 def _base_samples(fr: dict) -> np.ndarray:
@@ -757,22 +854,27 @@ def _refine_equal(prob: _Problem, I: np.ndarray, base: np.ndarray, check: np.nda
 
 def _refine(prob: _Problem, I: np.ndarray, base: np.ndarray, check: np.ndarray,
             deadline: float, coast_range: Optional[tuple[float, float]] = None,
-            maxiter: Optional[int] = None, rounds: Optional[int] = None
-            ) -> tuple[np.ndarray, np.ndarray]:
+            maxiter: Optional[int] = None, rounds: Optional[int] = None,
+            equalities: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Free-time minimax from currents ``I`` at ``prob.times`` on the base samples, with exchange
     from the check set; the coast a decision too within ``coast_range`` (s). Returns (currents
     (N,) A, step times (N + 1,) s)."""
     box = _FreeBox(prob, base, coast_range)
+    box.equalities = equalities
     x = box.start(I, prob.times)
     for _ in range(EXCHANGE_ROUNDS if rounds is None else rounds):
         x = box.solve(x, deadline, maxiter)
         e = box_kernels.rest_errors(
             prob.params.J, prob.params.n * prob.params.kt, prob.pvals, check, box.times(x),
             np.ascontiguousarray(x[:prob.n]), prob.tf, prob.q0, prob.goal)
-        if not np.all(np.isfinite(e)) or np.max(np.abs(e)) <= 1.02 * box.worst(x):
+        more = _lim_add(prob, box.times(x), x[:prob.n], box.lim_scales)
+        exceeds = np.all(np.isfinite(e)) and np.max(np.abs(e)) > 1.02 * box.worst(x)
+        if not exceeds and more is None:
             break
-        add = check[np.argsort(-np.abs(e))[:EXCHANGE_ADD]]
-        box = _FreeBox(prob, np.vstack([box.scales, add]), coast_range)
+        scales = (np.vstack([box.scales, check[np.argsort(-np.abs(e))[:EXCHANGE_ADD]]])
+                  if exceeds else box.scales)
+        box = _FreeBox(prob, scales, coast_range, box.lim_scales if more is None else more)
+        box.equalities = equalities
         if time.perf_counter() > deadline:
             break
     return x[:prob.n].copy(), box.times(x).copy()
@@ -849,6 +951,102 @@ def _continue_steps(request: PlanRequest, params: Arm1DofParams, start: tuple, b
     return best, levels
 
 
+def _pull_inside(I0: np.ndarray, prob0: _Problem, lim: Limits1D, base: np.ndarray,
+                 check: np.ndarray, coast_range: Optional[tuple[float, float]],
+                 grid: Optional[float], deadline: float, equalities: bool, stages: int
+                 ) -> tuple[np.ndarray, _Problem]:
+    """The homotopy of ``_limits_stage`` from currents I0 (A) at ``prob0.times``: ``stages``
+    free-time minimax solves whose limits move from the start's excursion at the box corners to
+    ``lim`` (LIMITS_MARGIN inside), each from the last. Returns (currents, problem at the final
+    times, its limits ``lim``)."""
+    tr = track(prob0.params, prob0.profile(I0), prob0.q0, lim.corners)
+    lo0, hi0, v0 = (float(tr[:, TR_MIN].min()), float(tr[:, TR_MAX].max()),
+                    float(tr[:, TR_SPEED].max()))
+    goal = dc_replace(lim, lo=lim.lo + LIMITS_MARGIN, hi=lim.hi - LIMITS_MARGIN,
+                      vmax=lim.vmax - LIMITS_MARGIN)
+    I, pk = I0.copy(), prob0
+    for k in range(1, stages + 1):
+        a = k / stages
+        pk = copy.copy(pk)
+        pk.limits = dc_replace(goal, lo=min(goal.lo, lo0 + (goal.lo - lo0) * a),
+                               hi=max(goal.hi, hi0 + (goal.hi - hi0) * a),
+                               vmax=max(goal.vmax, v0 + (goal.vmax - v0) * a))
+        last = k == stages
+        I, t = _refine(pk, I, base, check, deadline, coast_range,
+                       None if last else LIMITS_STAGE_ITER, LIMITS_FINAL_ROUNDS if last else 1,
+                       equalities)
+        pk = _with_times(pk, t, grid if last else None)
+    pk.limits = lim
+    return I, pk
+
+
+def _limits_stage(request: PlanRequest, start: tuple, lim: Limits1D, base: np.ndarray,
+                  check: np.ndarray, coast_range: Optional[tuple[float, float]],
+                  grid: Optional[float], deadline: float, params: Arm1DofParams, unc: list,
+                  robust_only: bool = False) -> dict:
+    """Pull the verified plan ``start`` = (worst (rad), I (A), problem) inside the limits
+    ``lim`` (``_pull_inside``): with the robust set's equalities when the start is within
+    LIMITS_EQ_REACH of the limits (the LM's minimum-norm steps put the end back on the set; the
+    answer is then truly robust), else or then without them: the least-worst plan within the
+    limits, not derivative-robust. When that fails too, the same from the energy-optimal
+    baseline at the same N (monotone, slow: inside tight limits from the start). Returns
+    {"plan": (worst on base + check (rad), I, problem) or None, "robust": bool, "stats": one
+    row per pass, "reach": the start's relative violation}. ``robust_only``: the pass that keeps
+    the robust set only."""
+    w0, I0, prob0 = start
+    tr = track(params, prob0.profile(I0), prob0.q0, lim.corners)
+    lo0, hi0, v0 = (float(tr[:, TR_MIN].min()), float(tr[:, TR_MAX].max()),
+                    float(tr[:, TR_SPEED].max()))
+    span = max(hi0 - lo0, 1e-9)
+    reach = max(0.0, (lim.lo - lo0) / span, (hi0 - lim.hi) / span,
+                (v0 - lim.vmax) / max(v0, 1e-9))
+    out: dict = {"plan": None, "robust": False, "stats": [], "reach": reach}
+    passes: list[tuple[str, bool, int]] = (
+        ([("robust plan", True, LIMITS_STAGES)] if reach <= LIMITS_EQ_REACH else [])
+        + ([] if robust_only else [("robust plan", False, k) for k in LIMITS_PATHS]
+           + [("energy-optimal", False, LIMITS_STAGES)]))
+    for origin, equalities, stages in passes:
+        if time.perf_counter() > deadline:
+            break
+        if origin == "energy-optimal" and out["plan"] is not None:
+            break       # the fallback runs only when no path from the robust plan got inside
+        row: dict = {"from": origin, "equalities": equalities, "stages": stages}
+        try:
+            if origin == "energy-optimal":
+                pe = _Problem(dc_replace(request, coast=float(coast_range[0]) if coast_range
+                                         else prob0.coast), params, prob0.n)
+                bl = energy_optimal_1dof(params, pe.q0, pe.goal, pe.tf, pe.coast, pe.n)
+                I_s, p_s = np.ascontiguousarray(bl.profile.currents[:, 0]), pe
+            else:
+                I_s, p_s = I0, prob0
+            I, pk = _pull_inside(I_s, p_s, lim, base, check, coast_range, grid, deadline,
+                                 equalities, stages)
+        except (ValueError, ArithmeticError, PlanningError):
+            out["stats"].append(dict(row, failed=True))
+            continue
+        if equalities:
+            I_p = _polish(pk, I)
+            ok = I_p is not None and lim.ok(pk.times, I_p) and verify(
+                params, pk.profile(I_p), pk.q0, pk.goal, unc, request.tol)["robust"]
+            row["robust_within"] = bool(ok)
+            if ok and I_p is not None:
+                w = max(_worst(pk, pk.times, I_p, base), _worst(pk, pk.times, I_p, check))
+                row["box_worst"] = w
+                out.update(plan=(w, I_p, pk), robust=True)
+                out["stats"].append(row)
+                return out
+        else:
+            inside = lim.ok(pk.times, I)
+            w = max(_worst(pk, pk.times, I, base), _worst(pk, pk.times, I, check))
+            row.update(within=bool(inside), box_worst=w)
+            out["stats"].append(row)
+            if inside and math.isfinite(w) and (out["plan"] is None or w < out["plan"][0]):
+                out["plan"] = (w, I, pk)
+            continue
+        out["stats"].append(row)
+    return out
+
+
 def plan_box_robust_1dof(request: PlanRequest, progress: Progress = None,
                          initial_currents: Optional[np.ndarray] = None,
                          grid: Optional[float] = None) -> PlanResult:
@@ -878,6 +1076,12 @@ def _plan_box(request: PlanRequest, progress: Progress = None,
         grid = getattr(request, "grid", None)
     unc = [u for u in FRICTION if u in request.uncertain]
     fr = box_fractions(unc, request.box)
+    # limits: the search below runs without them (its plans are checked against them in
+    # ``consider``); when none of its verified plans keeps within them, ``_limits_stage`` pulls
+    # the best of them inside
+    lim = Limits1D.of(request.limits, params, float(request.q0[0]), float(request.tf), unc,
+                      request.box)
+    request = dc_replace(request, limits=None)
     base_scales = np.ascontiguousarray(_base_samples(fr))
     check_scales = np.ascontiguousarray(box_check_samples(fr, FRICTION))
     lo = max(float(request.coast), 2.0 * STOP_MARGIN)
@@ -892,19 +1096,27 @@ def _plan_box(request: PlanRequest, progress: Progress = None,
     pool: list = []          # (worst after the short minimax, its I, prob, the LM plan I0)
     spare: list = []         # [I, prob]: the first derivative-robust LM plan (out of time: its answer)
     best = None     # (worst on samples + check set, I, prob with the final times)
+    free_best = None     # the same, ignoring the limits (the limits stage starts from it)
     refined = 0
     free_range = coast_range if FREE_COAST else None
 
     def consider(I: Optional[np.ndarray], prob_t: _Problem) -> None:
-        nonlocal best
+        nonlocal best, free_best
         if I is None:
             return
         w = max(_worst(prob_t, prob_t.times, I, base_scales),
                 _worst(prob_t, prob_t.times, I, check_scales))
-        if best is not None and not w < best[0]:
+        better_free = lim is not None and (free_best is None or w < free_best[0])
+        if not better_free and best is not None and not w < best[0]:
+            return
+        inside = lim is None or lim.ok(prob_t.times, I)
+        if not inside and not better_free:
             return
         if verify(params, prob_t.profile(I), prob_t.q0, prob_t.goal, unc, request.tol)["robust"]:
-            best = (w, I.copy(), prob_t)
+            if better_free:
+                free_best = (w, I.copy(), prob_t)
+            if inside and (best is None or w < best[0]):
+                best = (w, I.copy(), prob_t)
 
     dur_stats: dict = {}     # the structured duration stage: its parents' worst (rad)
     if n in DUR_STEPS:
@@ -1057,6 +1269,47 @@ def _plan_box(request: PlanRequest, progress: Progress = None,
         "refined": refined, "search_time_s": time.perf_counter() - t0}
     if dur_stats:
         stats["structured_durations"] = dict(dur_stats, answered=structured)
+    if lim is not None:
+        stats["limits"] = lim.describe()
+        if best is not None:
+            stats["limits_answer"] = "truly robust"
+        # a verified plan within the limits far worse than the best one outside them: try to
+        # pull the best one inside keeping the robust set (the robust pass only)
+        retry = (best is not None and free_best is not None and best[0] > BOX_EXTRA_TARGET
+                 and best[0] > LIMITS_RETRY_FACTOR * free_best[0])
+        if free_best is not None and (best is None or retry):
+            stage = _limits_stage(request, free_best, lim, base_scales, check_scales,
+                                  free_range, grid,
+                                  t0 + float(request.time_budget) * LIMITS_BUDGET_SHARE, params,
+                                  unc, robust_only=retry)
+            stats["limits_stage"] = stage["stats"]
+            stats["limits_reach"] = stage.get("reach")
+            if stage["plan"] is not None and stage["robust"]:
+                if best is None or stage["plan"][0] < best[0]:
+                    best = stage["plan"]
+                    stats["limits_answer"] = "truly robust, pulled inside the limits"
+            elif stage["plan"] is not None and best is None:
+                w, I, prob = stage["plan"]
+                stats.update(box_worst=w, coast=prob.coast, stop_speed_bound=prob.vb,
+                             step_durations=np.diff(prob.times).tolist())
+                res = _result(dc_replace(request, coast=prob.coast), prob, I, False, "", tried,
+                              iters, initial_currents is not None, t0, stats,
+                              code="NO_ROBUST_PLAN")
+                stats["limits_answer"] = "least worst within the limits"
+                res.message = (
+                    f"no truly robust plan keeps within {lim.describe()} at every box point "
+                    f"(the best robust one, {free_best[0] * 1e3:.3g} mrad, leaves them); the plan "
+                    f"of least worst rest error within them: {w * 1e3:.3g} mrad over the box "
+                    f"(NOT derivative-robust, best effort)")
+                return res
+        if best is None:
+            stats["limits_answer"] = "refused"
+            stats["robust_box_worst_without_limits"] = (None if free_best is None
+                                                        else float(free_best[0]))
+            return _no_plan(request, fallback if fallback is not None else
+                            _Problem(request, params, n), None, tried, iters, False, t0,
+                            dict(stats, limits_refused=lim.advice()),
+                            time.perf_counter() > deadline, lim)
     out_of_time = time.perf_counter() > deadline
     if best is None:
         assert fallback is not None     # the first coast always runs
@@ -1130,5 +1383,17 @@ def _continue(request: PlanRequest, result: PlanResult, n_max: int, target: floa
 
 
 def warmup() -> None:
-    """Compile (or load from numba's disk cache) the robust-box kernels: one small plan."""
-    plan_box_robust_1dof(PlanRequest(objective="robust-box", steps=5, starts=5, time_budget=60.0))
+    """Compile (or load from numba's disk cache) the robust-box kernels: one small plan, its
+    certificate, and the limit kernels (``limits1d``) on it."""
+    r = plan_box_robust_1dof(PlanRequest(objective="robust-box", steps=5, starts=5,
+                                         time_budget=60.0))
+    if r.profile is None or not isinstance(r.params, Arm1DofParams):
+        return
+    certify_1dof(r.params, r.profile, 0.0, 1.0, list(FRICTION))
+    lim = Limits1D.of(MotionLimits.of([-0.5], [1.5], [10.0]), r.params, 0.0, 1.0, FRICTION)
+    if lim is not None:
+        t, cur = r.profile.step_times, r.profile.currents[:, 0]
+        lim.excess(t, cur)
+        lim.worst_points(t, cur, 1)
+        lim.values(t, cur, lim.corners)
+        lim.terms(t, cur, lim.corners, r.profile.n_steps - 1)

@@ -9,7 +9,10 @@ simulation, at most ASCENT_EVALS simulations each) looks for a larger error betw
 Each parameter alone: LINE_POINTS points on its line (the others nominal) plus the same ascent
 from the worst. Switch timing: central differences (±10 µs) of the rest position in each switch
 time, per joint. A sample whose simulation fails (chatter) or that has not stopped 5 s after tf
-counts as an infinite error. Units: rad, s; scale factors dimensionless.
+counts as an infinite error (and an unbounded excursion). Excursion: per joint the lowest and
+highest position and the peak |speed| until rest (``scara2.track_scara2``: every RK4 substep and
+every event), at the nominal friction and the worst over every box point simulated. Units: rad,
+rad/s, s; scale factors dimensionless.
 """
 from __future__ import annotations
 
@@ -21,6 +24,7 @@ from scipy.optimize import minimize
 
 from ff_planner.core.errors import PlanningError
 from ff_planner.model import scara2
+from ff_planner.model.limits import Excursion
 from ff_planner.model.params import Scara2Params
 from ff_planner.model.profile import CurrentProfile, RobustnessCertificate
 from ff_planner.optimize.sample_box import box_corners, box_faces, box_fractions, box_uniform
@@ -48,6 +52,10 @@ class _Rest2:
         self.keys = list(keys)
         self.nominal = {k: float(getattr(params, k)) for k in self.keys}
         self.count = 0
+        # excursion over every point simulated: lowest, highest position, peak |speed|
+        self.lo = np.full(2, math.inf)
+        self.hi = np.full(2, -math.inf)
+        self.speed = np.zeros(2)
 
     def one(self, scale: np.ndarray, profile: Optional[CurrentProfile] = None
             ) -> tuple[np.ndarray, bool]:
@@ -56,13 +64,20 @@ class _Rest2:
         pp = self.p.replace(**{k: self.nominal[k] * float(s) for k, s in zip(self.keys, scale)})
         self.count += 1
         try:
-            sim = scara2.simulate_detail(pp, profile or self.profile, self.q0, settle=True,
-                                         h=CERT_H)
+            tr = scara2.track_scara2(pp, profile or self.profile, self.q0, h=CERT_H)
         except (PlanningError, ArithmeticError, ValueError):
+            tr = None
+        if tr is None or tr.q_rest is None:
+            if profile is None:     # never stops (or chatters): an unbounded excursion
+                self.lo[:] = -math.inf
+                self.hi[:] = math.inf
+                self.speed[:] = math.inf
             return np.full(2, math.inf), False
-        if sim.q_rest is None or sim.t_rest is None or not math.isfinite(sim.t_rest):
-            return np.full(2, math.inf), False
-        return sim.q_rest - self.qf, bool(sim.stuck_tf[0] and sim.stuck_tf[1])
+        if profile is None:
+            self.lo = np.minimum(self.lo, tr.q_min)
+            self.hi = np.maximum(self.hi, tr.q_max)
+            self.speed = np.maximum(self.speed, tr.speed)
+        return tr.q_rest - self.qf, bool(tr.stuck_tf[0] and tr.stuck_tf[1])
 
     def many(self, scales: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """|rest − qf| (S, 2) and at-rest-at-tf flags (S,) for the rows of ``scales``."""
@@ -172,4 +187,20 @@ def certify_scara2(params: Scara2Params, profile: CurrentProfile, q0: Sequence[f
     return RobustnessCertificate(
         box=fr, worst_rest_error=worst, worst_at={u: float(where[j]) for j, u in enumerate(unc)},
         per_parameter=per, moving_at_tf=moving, switch_timing=flat, samples=rest.count,
-        worst_per_joint=per_joint, switch_timing_per_joint=per_switch)
+        worst_per_joint=per_joint, switch_timing_per_joint=per_switch,
+        excursion=_excursion(params, profile, q0, rest))
+
+
+def _excursion(params: Scara2Params, profile: CurrentProfile, q0: Sequence[float],
+               rest: _Rest2) -> Optional[Excursion]:
+    """Nominal excursion (``scara2.track_scara2``) and the worst over the points ``rest``
+    simulated; None if the nominal simulation fails."""
+    try:
+        nom = scara2.track_scara2(params, profile, [float(x) for x in q0], h=CERT_H)
+    except (PlanningError, ArithmeticError, ValueError):
+        return None
+    f = lambda a: [float(x) for x in a]  # noqa: E731
+    return Excursion(nominal_min=f(nom.q_min), nominal_max=f(nom.q_max),
+                     nominal_speed=f(nom.speed), worst_min=f(np.minimum(rest.lo, nom.q_min)),
+                     worst_max=f(np.maximum(rest.hi, nom.q_max)),
+                     worst_speed=f(np.maximum(rest.speed, nom.speed)))

@@ -23,6 +23,11 @@ compiled solver for other planners (robust2d's joint 1).
   of the ±20 % box). When no derivative-robust plan is found it minimises that RMS subject to
   reaching qf at rest only.
 
+With ``request.limits`` (position range, speed limit) every robust end point is checked against
+them over the certificate's box points, the whole motion until rest (``limits1d.Limits1D``):
+the first one within them is the answer; when none is, the answer has no profile and says what
+to change (a plan outside the limits is never returned).
+
 When no plan meets the tolerances the best one is returned with success=False,
 best_effort=True and error_code NO_ROBUST_PLAN (or TIME_BUDGET_EXHAUSTED); the message says so.
 The result's ``extra`` carries the verification: central-difference derivatives (1e-6 relative),
@@ -48,6 +53,7 @@ from ff_planner.model.params import Arm1DofParams
 from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult
 from ff_planner.model.simulate import simulate
 from ff_planner.optimize import lm1d as _lm1d
+from ff_planner.optimize.limits1d import Limits1D
 from ff_planner.optimize.sample_box import FINITE_CHANGES, sample_scales
 
 Progress = Optional[Callable[[dict], None]]
@@ -211,6 +217,15 @@ class _Problem:
         self.settings = lm_settings(len(unc))
         self.phys = (float(params.J), float(params.n * params.kt), float(params.pv),
                      float(params.pc), float(params.pt))
+        # position / speed limits over the box (None: none given)
+        self.limits = Limits1D.of(getattr(request, "limits", None), params, self.q0, self.tf,
+                                  unc, request.box)
+
+    def within_limits(self, currents: np.ndarray, times: Optional[np.ndarray] = None) -> bool:
+        """True when the plan keeps within the request's limits at every certificate box point
+        (always, without limits)."""
+        return self.limits is None or self.limits.ok(self.times if times is None else times,
+                                                     currents)
 
     def args(self):
         p = self.params
@@ -372,7 +387,11 @@ def plan_robust_1dof(request: PlanRequest, progress: Progress = None,
     total = 0 if warm_only else max(0, int(request.starts) - n_warm)
     sampled = request.objective == "robust-sampled"
     want = SAMPLED_CANDIDATES if sampled else 1     # robust candidates to collect
-    stop_first = not sampled
+    lim = prob.limits
+    # with limits every robust end point of a chunk is checked against them, not the first only
+    stop_first = not sampled and lim is None
+    outside: list = []       # [largest violation, I]: the robust plan nearest the limits
+    rejected = 0
     found: list[np.ndarray] = []
     best_f, best_I = math.inf, None
     tried = iters = warm_ok = 0
@@ -406,10 +425,18 @@ def plan_robust_1dof(request: PlanRequest, progress: Progress = None,
             chunk += 1
         tried += done
         iters += int(it[:done].sum())
-        if verified:                     # robust-derivative: the first success, verified
+        if verified and stop_first:      # robust-derivative: the first success, verified
             break
+        verified = False
         for s in range(done):
             if st[s] == _lm1d.OK:
+                if lim is not None:
+                    over = lim.excess(prob.times, block[s])
+                    if over > 0.0:
+                        rejected += 1
+                        if not outside or over < outside[0]:
+                            outside[:] = [over, block[s].copy()]
+                        continue
                 found.append(block[s].copy())
             elif f[s] < best_f:
                 best_f, best_I = f[s], block[s].copy()
@@ -418,12 +445,15 @@ def plan_robust_1dof(request: PlanRequest, progress: Progress = None,
                       "best": float(min(best_f, 0.0 if found else best_f))})
         if len(found) >= want:
             break
-    stats = {"starts_ok": int(counts[_lm1d.OK]), "starts_abandoned": int(counts[_lm1d.ABANDONED]),
-             "starts_unconverged": int(counts[_lm1d.NO_CONVERGENCE]),
-             "starts_at_kink": int(counts[_lm1d.KINK]), "n_steps": n,
-             "stop_speed_bound": prob.vb, "search_time_s": time.perf_counter() - t0}
+    stats: dict = {"starts_ok": int(counts[_lm1d.OK]),
+                   "starts_abandoned": int(counts[_lm1d.ABANDONED]),
+                   "starts_unconverged": int(counts[_lm1d.NO_CONVERGENCE]),
+                   "starts_at_kink": int(counts[_lm1d.KINK]), "n_steps": n,
+                   "stop_speed_bound": prob.vb, "search_time_s": time.perf_counter() - t0}
     if warm:
         stats.update(warm_starts=n_warm, warm_starts_ok=warm_ok)
+    if lim is not None:
+        stats.update(limits=lim.describe(), robust_outside_limits=rejected)
     if verified:
         if progress is not None:
             progress({"starts_done": tried, "robust_found": 1, "best": 0.0})
@@ -434,6 +464,8 @@ def plan_robust_1dof(request: PlanRequest, progress: Progress = None,
                                out_of_time)
     if found:
         return _result(request, prob, found[0], True, "", tried, iters, warm, t0, stats)
+    if lim is not None and outside:
+        stats["least_violation"] = float(outside[0])     # rad or rad/s, of a robust plan
     return _no_plan(request, prob, best_I, tried, iters, warm, t0, stats, out_of_time)
 
 
@@ -461,7 +493,22 @@ def chunk_spread(settings: dict, chunk: int) -> tuple[float, bool, tuple[float, 
     return float(c), False, (0.0, 0.0)
 
 
-def _no_plan(request, prob, best_I, tried, iters, warm, t0, stats, out_of_time) -> PlanResult:
+def _no_plan(request, prob, best_I, tried, iters, warm, t0, stats, out_of_time,
+             limits: Optional[Limits1D] = None) -> PlanResult:
+    """The answer without a robust plan: the best effort ``best_I`` labelled, or no profile at
+    all. With ``limits`` (or the problem's) a best effort outside them is dropped: the answer
+    then has no profile and says what to change."""
+    limits = limits if limits is not None else getattr(prob, "limits", None)
+    if limits is not None and best_I is not None and not limits.ok(prob.times, best_I):
+        best_I = None
+    if limits is not None and best_I is None:
+        res = PlanResult(False, f"{limits.advice()} (N = {prob.n}, {tried} start(s))", None,
+                         "arm1dof", prob.params, np.array([prob.q0]), np.array([prob.goal]),
+                         list(request.uncertain), request.objective,
+                         error_code="TIME_BUDGET_EXHAUSTED" if out_of_time else "NO_ROBUST_PLAN",
+                         starts_tried=tried, iterations=iters,
+                         solve_time=time.perf_counter() - t0, warm_start=warm, extra=stats)
+        return res
     code = "TIME_BUDGET_EXHAUSTED" if out_of_time else "NO_ROBUST_PLAN"
     k = len(request.uncertain)
     why = (f"no truly robust plan with N = {prob.n} steps for k = {k} uncertain parameter(s) "
@@ -611,7 +658,8 @@ def _finish_sampled(request, prob, found, best_I, tried, iters, warm, t0, stats,
             continue
         ok = verify(prob.params, prob.profile(I1), prob.q0, prob.goal, request.uncertain,
                     request.tol)
-        if ok["robust"] if with_derivs else (ok["at_goal"] and ok["at_rest"]):
+        if (ok["robust"] if with_derivs else (ok["at_goal"] and ok["at_rest"])) \
+                and prob.within_limits(I1):
             best, best_rms = I1, rms1
     extra = {"sampled_rms": best_rms, "sampled_rms_before_refine": rms_before,
              "sampled_points": scales.tolist(), "sampled_worst": float(
