@@ -12,10 +12,13 @@ N trials on ONE simulated ROS stack (``ff_executor.bringup.identify.identificati
 setpoints latched at SYNC, timing from the CAN bus; the arm's true friction set at runtime per
 trial, the arm put back at 0 rad): an excitation whose envelope holds with a switch 20 ms late
 (≤ 3 A, 18.8 s of motion); per trial the truth, estimates, errors, 95 % intervals, adequacy,
-stack faults and the simulated arm's late current changes, and the same "checks" (a trial the
-stack could not complete is listed under "failed" with its one-line reason and counts against
-the coverage check); ``--stack-mismatch N`` N more trials per kind of friction that is not Eq. 9
-on the stack's arm (``friction.*`` of the sim driver), slow (~32 s a trial). ``--stack-plan N``:
+stack faults and the simulated arm's late current changes, the same runs fitted with the bridge's
+joint states placed by their stamps instead of the drive's answers read off the bus
+("bridge_stamps", for comparison), the count of fits that called these true-Eq. 9 arms a
+mismatch ("false_mismatch"), and the same "checks" (a trial the stack could not complete is
+listed under "failed" with its one-line reason and counts against the coverage check);
+``--stack-mismatch N`` N more trials per kind of friction that is not Eq. 9 on the stack's arm
+(``friction.*`` of the sim driver), slow (~32 s a trial). ``--stack-plan N``:
 identify once on a stack with the planner (true friction pv −15 %, pc +20 %, pt −15 % of
 table 2), plan robust-box over the identified box and execute it N times: how many landed within
 the certificate (+ the switch timing the bus showed; ``ff_executor.bringup.loop``).
@@ -176,6 +179,32 @@ def _stack_row(fit, true, wall, meta):
     return row
 
 
+def _bridge_stamps_fit(outcomes, bus, q_res, base, true):
+    """The same runs fitted with the bridge's joint states placed by their stamps (the
+    path before the samples were read off the bus), for comparison."""
+    from ff_executor.bringup.identify import StackFault, bus_timing
+    from ff_planner.identify.records import RunRecord
+
+    recs = []
+    for mv, prof in outcomes:
+        t, q, _, eff = mv.joints.arrays()
+        try:
+            tt, applied, keep = bus_timing(bus, t, prof, float(mv.profile_start))
+        except StackFault:
+            continue
+        order = np.argsort(tt, kind="stable")
+        tt, qq, ee = tt[order], q[keep, 0][order], eff[keep, 0][order]
+        new = np.concatenate([[True], np.diff(tt) > 0.0])
+        recs.append(RunRecord(tt[new], qq[new], ee[new], applied, q_res))
+    if not recs:
+        return None
+    fit = fit_friction(recs, base)
+    return {"adequate": fit.adequate, "rms_over_sigma": fit.rms / fit.sigma, "runs": len(recs),
+            "err": {k: fit.estimates[k] / getattr(true, k) - 1.0 for k in KEYS},
+            "cover": {k: fit.interval95[k][0] <= getattr(true, k) <= fit.interval95[k][1] for k in KEYS},
+            "message": fit.message}
+
+
 def _stack(rng, base, n, n_mismatch, seed):
     """Identification on ONE simulated stack (sync setpoints, bus timing), the arm's true
     friction set at runtime per trial; per trial estimates, errors and intervals."""
@@ -208,14 +237,19 @@ def _stack(rng, base, n, n_mismatch, seed):
                 stack.set_sim_friction(friction or {"stribeck": 0.0, "coulomb_ripple": 0.0})
                 client.reset_arm([0.0])
                 t1 = time.perf_counter()
+                outcomes: list = []
                 try:
-                    recs, meta = identify_runs(client, ex, q_res, env, bus=bus, probe=probe, log=lambda s: None)
+                    recs, meta = identify_runs(client, ex, q_res, env, bus=bus, probe=probe, log=lambda s: None,
+                                               outcomes=outcomes)
                 except RuntimeError:
                     # the trial counts as failed; a latched safe state must not fail the next ones
                     probe.fault_reset()
                     raise
                 wall = time.perf_counter() - t1
-                return _stack_row(fit_friction(recs, base), true, wall, meta)
+                row = _stack_row(fit_friction(recs, base), true, wall, meta)
+                row["bridge_stamps"] = _bridge_stamps_fit(outcomes, bus, q_res, base, true)
+                return row
+
 
             rows, failed = [], []
             for i in range(n):
@@ -228,12 +262,21 @@ def _stack(rng, base, n, n_mismatch, seed):
             if n:
                 out["eq9"] = _summarise(rows, KEYS) if rows else {"trials": 0}
                 out["eq9"].update({"failed": failed, "runs": rows,
-                                   "coverage_count": {k: int(sum(r["cover"][k] for r in rows)) for k in KEYS}})
+                                   "coverage_count": {k: int(sum(r["cover"][k] for r in rows)) for k in KEYS},
+                                   "false_mismatch": int(sum(not r["adequate"] for r in rows)),
+                                   "rms_over_sigma_max": max((r["rms_rad"] / r["sigma_rad"] for r in rows),
+                                                             default=None)})
+                bridge = [r["bridge_stamps"] for r in rows if r.get("bridge_stamps")]
+                out["eq9"]["bridge_stamps"] = {
+                    "trials": len(bridge), "false_mismatch": int(sum(not b["adequate"] for b in bridge)),
+                    "rms_over_sigma": sorted(round(b["rms_over_sigma"], 2) for b in bridge)}
                 out["checks"] = _checks(None, rows) if rows else {}
                 if out["checks"]:       # a trial the stack did not complete counts against coverage
                     c = out["checks"]
                     c.update(failed_trials=len(failed), trials_attempted=n,
-                             coverage_at_least_18_of_20=min(c["coverage_count"].values()) >= 0.9 * n)
+                             coverage_at_least_18_of_20=min(c["coverage_count"].values()) >= 0.9 * n,
+                             false_mismatch=out["eq9"]["false_mismatch"],
+                             false_mismatch_at_most_1_in_20=out["eq9"]["false_mismatch"] <= max(1, n // 20))
             if n_mismatch:
                 out["mismatch"] = {}
                 for name, mm in MISMATCHES.items():

@@ -11,12 +11,16 @@ at SYNC, executor; no planner) and hands it to :func:`identify_runs`, which work
 stack: before the first run the executor and the bridge must answer and no drive may be in fault
 (``StackProbe.check_stack``: ``StackNotRunning``, ``DriveFault``), before each run the arm must be
 at rest (``ArmNotAtRest``); each run's profile goes from the measured position to the executor
-action (``StackClient.execute``) and the bridge's joint states (rad; effort = measured current A,
-``~/motor_currents``) become a RunRecord. The timing comes from the CAN bus
-(``ff_executor.bringup.bus_monitor``): each sample at the SYNC its TPDO answered, each current
-change at the SYNC that latched its RPDO, the currents as the drive decoded them (its 3 mA
-quantum); without a bus monitor, from the bridge's stamps and reported switch delays (less exact:
-a TPDO is stamped 0.2–1.1 ms after its SYNC, measured). Units: rad, rad/s, A, s.
+action (``StackClient.execute``) and its samples become a RunRecord. The timing comes from the
+CAN bus (``ff_executor.bringup.bus_monitor``): each current change at the SYNC that latched its
+RPDO, the currents as the drive decoded them (its 3 mA quantum); with the monitor of
+``bus_monitor`` (a ``StackBus``) the samples too are read off the bus
+(``ff_executor.bringup.bus_feedback``): each TPDO1's position at the SYNC it certainly answered,
+not the bridge's joint state, whose stamp is the latest SYNC the bridge saw — one SYNC (10 ms)
+late for an answer that came more than a period after its SYNC (on a loaded host one such
+sample, 12.7 encoder counts off, made a true-Eq. 9 fit say "MODEL MISMATCH"). With a plain
+BusMonitor the bridge's joint states placed by their stamps; without a bus monitor, the bridge's
+stamps and reported switch delays (less exact). Units: rad, rad/s, A, s.
 """
 from __future__ import annotations
 
@@ -30,6 +34,7 @@ from typing import Any, Callable, Mapping, Optional, Sequence
 
 import numpy as np
 
+from ff_executor.bringup.bus_feedback import BusFeedback, StackBus
 from ff_executor.bringup.bus_monitor import BusMonitor
 from ff_planner.cli import identify as cli
 from ff_planner.identify.excitation import Envelope, Excitation
@@ -226,12 +231,14 @@ def applied_profile(profile: CurrentProfile, delays: Sequence[float]) -> Current
 
 def record_of(outcome: Any, profile: CurrentProfile, q_res: float, measure: str = "joints",
               bus: Optional[BusMonitor] = None) -> RunRecord:
-    """RunRecord from a MoveOutcome: ``measure`` "joints" = the bridge's joint states (the
-    encoder as the bridge reports it), "truth" = the simulated arm's ground truth rounded to the
-    encoder quantum (stamped when sampled). With ``bus`` (joints only) the timing is the bus's
-    (``bus_timing``): each sample at its SYNC instant, the profile as the drive applied it;
-    otherwise time 0 is the profile's first stamp, samples at the bridge's stamps and each switch
-    moved by the delay the bridge reports."""
+    """RunRecord from a MoveOutcome: ``measure`` "joints" = the drive's encoder, "truth" = the
+    simulated arm's ground truth rounded to the encoder quantum (stamped when sampled). With
+    ``bus`` (joints only) the timing is the bus's, the profile as the drive applied it
+    (``bus_profile``), and with a ``StackBus`` the samples are the drive's TPDO1 answers read off
+    the bus over the span of the run's joint states (``bus_samples``: each at the SYNC it
+    answered, ``q_res`` rad per increment); with a plain BusMonitor the bridge's joint states
+    placed by their stamps (``bus_timing``); without a bus, time 0 is the profile's first stamp,
+    samples at the bridge's stamps and each switch moved by the delay the bridge reports."""
     if measure not in MEASURES:
         raise ValueError(f"measure must be one of {MEASURES}, got {measure!r}")
     t, q, _, eff = (outcome.joints if measure == "joints" else outcome.truth).arrays()
@@ -241,8 +248,12 @@ def record_of(outcome: Any, profile: CurrentProfile, q_res: float, measure: str 
         raise RuntimeError(f"the run recorded {t.size} joint states; too few to fit")
     q, eff = q[:, 0], eff[:, 0]
     applied = None
-    if bus is not None and measure == "joints":
-        # StackFault when the drive did not apply the profile as sent: no data
+    if isinstance(bus, StackBus) and measure == "joints":
+        # StackFault when the drive did not apply the profile as sent, or too few answers: no data
+        t0, applied = bus_profile(bus, profile, float(outcome.profile_start))
+        t, q, eff = bus_samples(bus.feedback, float(t.min()), float(t.max()), t0, q_res)
+        eff = np.where(np.isfinite(eff), eff, [applied.current_at(x)[0] for x in t])
+    elif bus is not None and measure == "joints":
         t, applied, keep = bus_timing(bus, t, profile, float(outcome.profile_start))
         q, eff = q[keep], eff[keep]
     if applied is None:
@@ -254,16 +265,14 @@ def record_of(outcome: Any, profile: CurrentProfile, q_res: float, measure: str 
     return RunRecord(t[keep], q[keep], eff[keep], applied, q_res)
 
 
-def bus_timing(bus: BusMonitor, stamps: np.ndarray, profile: CurrentProfile, start: float, tol: float = 0.01,
-               latched: Optional[bool] = None) -> tuple[np.ndarray, CurrentProfile, np.ndarray]:
-    """(sample times s, applied profile, mask of the stamps kept) on the bus's clock, time 0 at
-    the RPDO that started the profile: the drive's current changes between ``start`` − 0.1 s
-    and the profile's end + 0.2 s (the bus time of each RPDO that changed it; the currents as
-    the drive decoded them, each within ``tol`` A of a commanded one, in order), and each joint
-    state at the SYNC its TPDO1 answered. StackFault (saying which) when the bus did not show
-    the profile's changes in order ending at zero, or too few samples could be placed. ``latched`` (None:
-    the monitor's): the drive latches setpoints at SYNC (``setpoint_timing: sync``), each change
-    at the first SYNC after its RPDO."""
+def bus_profile(bus: BusMonitor, profile: CurrentProfile, start: float, tol: float = 0.01,
+                latched: Optional[bool] = None) -> tuple[float, CurrentProfile]:
+    """(t0 bus s, applied profile with time 0 at t0): the drive's current changes between
+    ``start`` − 0.1 s and the profile's end + 0.2 s (the bus time of each RPDO that changed it,
+    or with ``latched`` — None: the monitor's — of the first SYNC after it; the currents as the
+    drive decoded them, each within ``tol`` A of a commanded one, in order), t0 the first.
+    StackFault (saying which) when the bus did not show the profile's changes in order ending at
+    zero."""
     changes = bus.current_changes(start - 0.1, start + (profile.tf - profile.coast) + 0.2, latched)
     while changes and changes[0][1] == 0.0:
         changes.pop(0)
@@ -283,11 +292,36 @@ def bus_timing(bus: BusMonitor, stamps: np.ndarray, profile: CurrentProfile, sta
         j += 1
     t0 = changes[0][0]
     st = np.array([c[0] - t0 for c in changes])          # the steps' starts and the last one's end
-    applied = CurrentProfile(st, amps.reshape(-1, 1), float(st[-1]) + profile.coast, profile.coast)
+    return t0, CurrentProfile(st, amps.reshape(-1, 1), float(st[-1]) + profile.coast, profile.coast)
+
+
+def bus_samples(feedback: BusFeedback, t_from: float, t_to: float, t0: float,
+                q_res: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(t s from ``t0``, q rad, current A — NaN where not placed) of the drive's TPDO answers
+    placed at SYNCs in [t_from, t_to] bus s (``BusFeedback.samples``; ``q_res`` rad per encoder
+    increment, signed: negative for a joint that counts against the motor). StackFault when
+    fewer than half the SYNCs there (or fewer than 20) have a placed answer: the drive process
+    stalled through the run."""
+    t, counts, amps = feedback.samples(t_from, t_to)
+    syncs = feedback.sync_count(t_from, t_to)
+    if t.size < max(20, 0.5 * syncs):
+        raise StackFault(f"only {t.size} of the {syncs} SYNCs of the run have a drive answer placed on the bus "
+                         f"({feedback.unplaced} answers not placed so far): the run gave no data")
+    return t - t0, counts * q_res, amps
+
+
+def bus_timing(bus: BusMonitor, stamps: np.ndarray, profile: CurrentProfile, start: float, tol: float = 0.01,
+               latched: Optional[bool] = None) -> tuple[np.ndarray, CurrentProfile, np.ndarray]:
+    """(sample times s, applied profile, mask of the stamps kept) on the bus's clock, time 0 at
+    the RPDO that started the profile (``bus_profile``), each joint state placed by its stamp
+    (``BusMonitor.sample_instants``: the bridge's stamp — a TPDO1's bus time or the SYNC the
+    bridge paired it with — trusted as it is). StackFault (saying which) when the bus did not
+    show the profile's changes, or too few samples could be placed."""
+    t0, applied = bus_profile(bus, profile, start, tol, latched)
     inst = bus.sample_instants(stamps)
     keep = np.isfinite(inst)
-    # a joint state that cannot be placed (its TPDO came more than the pairing allows after its
-    # SYNC: a stalled simulated drive) is left out; the placed ones are exact, so half will do
+    # a joint state that cannot be placed (neither a paired TPDO's bus time nor a SYNC instant)
+    # is left out; half will do
     if keep.sum() < max(20, 0.5 * stamps.size):
         raise StackFault(f"only {int(keep.sum())} of the run's {stamps.size} joint states could be placed at the "
                          f"SYNC they were sampled at ({bus.unpaired} drive answers not paired so far): the run "
@@ -297,8 +331,10 @@ def bus_timing(bus: BusMonitor, stamps: np.ndarray, profile: CurrentProfile, sta
 
 def execute_run(client: Any, probe: StackProbe, run: Any, q_res: float, envelope: Envelope, *,
                 log: Callable[[str], None] = print, measure: str = "joints",
-                bus: Optional[BusMonitor] = None) -> tuple[RunRecord, list[float]]:
-    """Execute one run from rest and check it. Every completed run counts, however late its
+                bus: Optional[BusMonitor] = None,
+                outcomes: Optional[list] = None) -> tuple[RunRecord, list[float]]:
+    """Execute one run from rest and check it (``outcomes``: a list the run's (MoveOutcome,
+    profile) is appended to when it gave data). Every completed run counts, however late its
     switches (no timing gate): the fit uses the switch times as the drive applied them (``bus``)
     or as the bridge reports them, so a late switch is data, not noise. A run that left
     ``envelope`` stops the identification (RuntimeError); one that did not complete, or whose
@@ -332,13 +368,15 @@ def execute_run(client: Any, probe: StackProbe, run: Any, q_res: float, envelope
     rec = record_of(mv, run.profile, q_res, measure, bus)
     if float(np.ptp(rec.q)) < 100.0 * q_res:         # every run moves the arm by tenths of a rad
         raise StackFault(f"the arm moved {float(np.ptp(rec.q)):.3g} rad in a run: the drive did not apply it")
+    if outcomes is not None:
+        outcomes.append((mv, run.profile))
     return rec, [float(x) for x in mv.switch_delays]
 
 
 def identify_runs(client: Any, ex: Excitation, q_res: float, envelope: Envelope, *,
                   probe: Optional[StackProbe] = None, bus: Optional[BusMonitor] = None,
                   log: Callable[[str], None] = print, measure: str = "joints",
-                  retries: int = 2) -> tuple[list[RunRecord], dict]:
+                  retries: int = 2, outcomes: Optional[list] = None) -> tuple[list[RunRecord], dict]:
     """Run every profile of ``ex`` through a running stack's executor (``client``: a
     ``StackClient``), return (records, meta). Before the first run: the stack must answer
     (``StackProbe.check_stack``) and the drive must not be in fault; before each run the arm must
@@ -347,7 +385,7 @@ def identify_runs(client: Any, ex: Excitation, q_res: float, envelope: Envelope,
     after a fault reset, at most ``retries`` times, and named in ``meta["stack_faults"]``; one
     that gave no data but moved the arm is not repeated (the next run starts where it ended, as
     designed) but left out, at most ``retries`` of them (``meta["lost_runs"]``, 1-based); a run
-    that completed always counts."""
+    that completed always counts. ``outcomes``: as in ``execute_run``."""
     probe = probe or StackProbe(client)
     probe.check_stack()
     late0 = probe.sim_late_switches(fresh=2.0)
@@ -360,7 +398,8 @@ def identify_runs(client: Any, ex: Excitation, q_res: float, envelope: Envelope,
         rec = None
         for attempt in range(1, retries + 2):
             try:
-                rec, dl = execute_run(client, probe, run, q_res, envelope, log=log, measure=measure, bus=bus)
+                rec, dl = execute_run(client, probe, run, q_res, envelope, log=log, measure=measure, bus=bus,
+                                      outcomes=outcomes)
                 break
             except StackFault as exc:      # no data: reset the bridge, run it again
                 q_before = probe.last_rest
@@ -387,11 +426,17 @@ def identify_runs(client: Any, ex: Excitation, q_res: float, envelope: Envelope,
         log(f"  run {k + 1}/{len(ex.runs)}: {run.direction * run.level:+.3g} A, "
             f"{rec.t.size} samples, switch delays {np.round(dl, 4).tolist()} s")
     timing = "bus (SYNC instants, RPDO bus times)" if bus is not None else "bridge stamps"
-    meta = {"source": f"simulated stack ({measure}; timing: {timing})", "wall_s": time.monotonic() - t0,
-            "switch_delays": delays, "stack_faults": faults, "lost_runs": lost, "q_resolution": q_res,
-            "timing": "bus" if bus is not None else "bridge"}
+    on_bus = isinstance(bus, StackBus) and measure == "joints"
+    meta: dict[str, Any] = {
+        "source": f"simulated stack ({measure}; timing: {timing})", "wall_s": time.monotonic() - t0,
+        "switch_delays": delays, "stack_faults": faults, "lost_runs": lost, "q_resolution": q_res,
+        "timing": "bus" if bus is not None else "bridge",
+        "samples": "bus (TPDO1 answers at their SYNC)" if on_bus else measure}
     if bus is not None:
-        meta["bus"] = {"syncs": bus.syncs, "tpdo_unpaired": bus.unpaired}
+        seen: dict[str, int] = {"syncs": bus.syncs, "tpdo_unpaired": bus.unpaired}
+        if isinstance(bus, StackBus):
+            seen["tpdo_unplaced"] = bus.feedback.unplaced
+        meta["bus"] = seen
     late1 = probe.sim_late_switches(fresh=1.0) if late0 is not None else None
     if late0 is not None and late1 is not None:
         meta["sim_late_switches"] = late1 - late0
@@ -447,12 +492,13 @@ def identification_options(true_params: Mapping[str, float] = {}, *, q_start: fl
                         joint_envelope=guard_envelope(envelope) if envelope is not None else None, **more)
 
 
-def bus_monitor(stack: Any) -> BusMonitor:
-    """A BusMonitor on ``stack``'s CAN hub for its first drive (latched setpoints in sync mode)."""
+def bus_monitor(stack: Any) -> StackBus:
+    """A StackBus (BusMonitor + the drive's samples off the bus) on ``stack``'s CAN hub for its
+    first drive (latched setpoints in sync mode)."""
     from ff_executor.bringup.stack import NOMINAL_CURRENT
 
-    return BusMonitor(stack.hub_url, nominal_current=NOMINAL_CURRENT,
-                      latched=stack.options.setpoint_timing == "sync")
+    return StackBus(stack.hub_url, nominal_current=NOMINAL_CURRENT,
+                    latched=stack.options.setpoint_timing == "sync")
 
 
 def run_on_stack(ex: Excitation, base: Arm1DofParams, true_params: Mapping[str, float], q_start: float,

@@ -13,7 +13,11 @@ model's ``advance`` is exact over any interval (the 1-DOF arm's Eq. 9; ``advance
 that fell behind, or replays a late change, then catches up in microseconds. ``start_clock(period)``
 runs the plant on its own thread, advancing it to a little before now every ``period`` s, so that
 a caller (a CAN callback) only ever integrates the last few ms, however long the rig was idle.
-Thread-safe (one lock). Units: rad, rad/s, A, s.
+A state asked for at an instant the plant has already passed (a drive process that handles a
+SYNC later than the clock's lag samples at that SYNC's bus instant) is computed from the plant's
+history — the latest kept state at or before it, then forward through the current changes since
+— without moving the plant: a sample is the state at its instant however late it is taken, as a
+real drive latches its encoder at the SYNC. Thread-safe (one lock). Units: rad, rad/s, A, s.
 
 ``set_friction(FrictionMismatch(...))`` (1-DOF arm only) gives the arm friction that is not
 Eq. 9 — a Stribeck rise of the Coulomb level at low speed, a Coulomb level that varies with
@@ -131,6 +135,7 @@ class SimArm:
         self.late_max_ns = 0       # ... the largest such lateness (ns)
         self.rewound_changes = 0   # current changes the plant had passed, put in their place
         self.rewound_max_ns = 0    # ... the largest rewind (ns)
+        self.stale_reads = 0       # states asked for before the history: the oldest one given
         self._snaps: deque[_Snapshot] = deque()              # plant states, oldest first
         self._changes: deque[tuple[int, int, float]] = deque()   # (t ns, joint, A) since the oldest
         self._snapshot()
@@ -179,12 +184,20 @@ class SimArm:
         return a
 
     def _integrate(self, dt: float) -> None:
+        self._q, self._qd = self._integrate_from(self._q, self._qd, self._i, dt)
+
+    def _integrate_from(self, q: np.ndarray, qd: np.ndarray, i: np.ndarray,
+                        dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """(q rad, qd rad/s) after ``dt`` s of currents ``i`` (A) from (q, qd); the inputs are
+        not changed."""
         p = self.params
+        q, qd = np.array(q, dtype=float), np.array(qd, dtype=float)
         while dt > 0.0:
             h = dt if self._any_dt else min(self.step, dt)
-            q, qd = self._advance(p, self._q.copy(), self._qd.copy(), self._i.copy(), h)
-            self._q[:], self._qd[:] = q, qd
+            q1, qd1 = self._advance(p, q.copy(), qd.copy(), i.copy(), h)
+            q[:], qd[:] = q1, qd1
             dt -= h
+        return q, qd
 
     def _snapshot(self) -> None:
         """Keep the state at the plant's time; forget what is older than ``REWIND_NS``."""
@@ -263,13 +276,42 @@ class SimArm:
             self._snapshot()
 
     def state(self, t_ns: Optional[int] = None) -> ArmState:
-        """Ground truth at ``t_ns`` (default: the ``horizon()``, so that reading the state never
-        moves the plant past a current change still in flight; never earlier than the last
-        event). ``ArmState.t_ns`` says which instant it is."""
+        """Ground truth at ``t_ns``. Default: the ``horizon()``, or the plant's time where that is
+        later (reading the state never moves the plant past a current change still in flight).
+        A given instant the plant has passed is read from its history (``_past_state``; the
+        plant does not move); one older than the history gives the oldest state kept and is
+        counted in ``stale_reads``. ``ArmState.t_ns`` says which instant it is."""
         with self._lock:
-            self._advance_to(self.horizon() if t_ns is None else t_ns)
+            t = max(self.horizon(), self._t_ns) if t_ns is None else int(t_ns)
+            if t < self._t_ns:
+                return self._past_state(t)
+            self._advance_to(t)
             return ArmState(self._t_ns, tuple(map(float, self._q)), tuple(map(float, self._qd)),
                             tuple(map(float, self._i)))
+
+    def _past_state(self, t_ns: int) -> ArmState:
+        """The state at ``t_ns`` < the plant's time: from the latest snapshot at or before it,
+        forward through the changes after that snapshot up to ``t_ns`` (a change at ``t_ns``
+        itself included: it sets the current, not the position); the plant is left as it is."""
+        k = bisect.bisect_right(self._snaps, t_ns, key=lambda sn: sn.t_ns) - 1
+        if k < 0:
+            self.stale_reads += 1
+            k, t_ns = 0, self._snaps[0].t_ns
+        snap = self._snaps[k]
+        between = []                  # the changes in (snapshot, t_ns], newest first
+        for change in reversed(self._changes):
+            if change[0] <= snap.t_ns:
+                break
+            if change[0] <= t_ns:
+                between.append(change)
+        q, qd, i = snap.q.copy(), snap.qd.copy(), snap.i.copy()
+        t = snap.t_ns
+        for tc, j, c in reversed(between):
+            q, qd = self._integrate_from(q, qd, i, (tc - t) * 1e-9)
+            t = tc
+            i[j] = c
+        q, qd = self._integrate_from(q, qd, i, (t_ns - t) * 1e-9)
+        return ArmState(int(t_ns), tuple(map(float, q)), tuple(map(float, qd)), tuple(map(float, i)))
 
     def joint(self, joint: int, t_ns: Optional[int] = None) -> tuple[float, float, float]:
         """(q rad, qd rad/s, current A) of one joint at ``t_ns``."""

@@ -6,7 +6,8 @@
     ff-identify --update params.yaml --executions runs.json -o updated.yaml --json   # learn from use
 
 ``--sim`` starts the simulated stack with those true parameters, runs the excitation through the
-executor action and records the bridge's joint states (``ff_executor.bringup.identify``, the
+executor action and records the drive's encoder answers off the CAN bus, each at the SYNC it
+answered (``ff_executor.bringup.identify``, the
 runner the ``ff-identify`` console script hands in; this module loads no ROS, so the offline modes
 run anywhere). Exit codes: 0 the friction law fits the runs; 1 it does not (model mismatch:
 outputs are written, labelled) or the run failed; 2 bad input (one error line).
@@ -89,8 +90,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "coulomb_ripple=F (Coulomb level varying with position), coulomb_period=RAD "
                         "(default 0.25)")
     p.add_argument("--sim-measure", choices=("joints", "truth"), default="joints",
-                   help="--sim records: the bridge's joint states (default) or the simulated arm's ground "
-                        "truth rounded to the encoder (exact sample times)")
+                   help="--sim records: the drive's encoder (its TPDO answers read off the CAN bus, each at "
+                        "the SYNC it answered; default) or the simulated arm's ground truth rounded to the "
+                        "encoder (exact sample times)")
     p.add_argument("--params", metavar="YAML", default=None,
                    help="the guess: load_params YAML (default table 2); J, kt, n, i_max stay as given")
     p.add_argument("--fit-inertia", action="store_true", help="fit J too")

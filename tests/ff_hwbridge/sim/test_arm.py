@@ -69,9 +69,53 @@ def test_a_change_handled_late_lands_where_it_belongs_and_one_older_than_the_his
     assert got.q[0] == pytest.approx(ref.q[0], abs=1e-12) and got.qd[0] == pytest.approx(ref.qd[0], abs=1e-12)
     assert late.rewound_changes == 2 and late.rewound_max_ns == 170 * MS and late.late_changes == 0
     # beyond the history: the change starts at the plant's time and is counted as late
-    late.state(t0 + 600 * MS + REWIND_NS + 10 * MS)
+    t_end = t0 + 600 * MS + REWIND_NS + 10 * MS
+    late.state(t_end)
     late.set_current(0, 1.0, t0 + 590 * MS)
     assert late.late_changes == 1 and late.state().current == (1.0,)
+
+
+@pytest.mark.parametrize("mismatch", [False, True])
+def test_a_state_read_after_the_plant_passed_its_instant_is_the_state_at_that_instant(mismatch):
+    """A drive that handles a SYNC after the plant's clock passed the SYNC's instant samples the
+    arm at that instant (from the history), not where the plant is now; the read moves nothing."""
+    from ff_hwbridge.sim.arm import REWIND_NS
+    from ff_planner.identify.measure import FrictionMismatch
+
+    p = preset("table2")
+    clk = FakeClock()
+    t0 = clk.t
+    steps = [(t0, 3.0), (t0 + 150 * MS, -3.0), (t0 + 300 * MS, 0.0)]
+    reads = [t0 + 40 * MS, t0 + 150 * MS, t0 + 151_234_567, t0 + 299 * MS, t0 + 420 * MS]
+    arms = [SimArm(p, 0.1, clock=clk), SimArm(p, 0.1, clock=clk)]
+    if mismatch:
+        for arm in arms:
+            arm.set_friction(FrictionMismatch(stribeck=0.3, stribeck_speed=0.1))
+    on_time, ahead = arms
+    ref = []
+    events = sorted([(t, 0, c) for t, c in steps] + [(t, 1, None) for t in reads])
+    for t, kind, c in events:                       # each sample taken at its instant
+        if kind == 0:
+            on_time.set_current(0, c, t)
+        else:
+            ref.append(on_time.state(t))
+    for t, c in steps:                              # the plant ran on 0.5 s before anyone looked
+        ahead.set_current(0, c, t)
+    ahead.state(t0 + 500 * MS)
+    moving = ahead.state(t0 + 500 * MS)
+    got = [ahead.state(t) for t in reads]
+    tol = 1e-8 if mismatch else 1e-12               # sub-steps from another start: their grid differs
+    for g, r in zip(got, ref):
+        assert g.t_ns == r.t_ns
+        assert g.q[0] == pytest.approx(r.q[0], abs=tol) and g.qd[0] == pytest.approx(r.qd[0], abs=tol)
+        assert g.current == r.current
+    assert len({round(g.q[0], 9) for g in got}) == len(reads)     # five different positions
+    assert ahead.port(0).sample(reads[2]) == (got[2].q[0], got[2].qd[0], got[2].current[0])   # the drive's read
+    assert ahead.state(t0 + 500 * MS) == moving and ahead.stale_reads == 0
+    # older than the history: the oldest state kept, counted
+    ahead.set_current(0, 0.0, t0 + 500 * MS + REWIND_NS + 100 * MS)
+    old = ahead.state(t0 + 10 * MS)
+    assert old.t_ns > t0 + 10 * MS and ahead.stale_reads == 1
 
 
 def test_true_friction_differs_from_planner():
@@ -90,10 +134,12 @@ def test_stiction_and_no_time_travel():
     arm = SimArm(p, 0.5, clock=clk)
     arm.set_current(0, 0.1, clk.t)                   # below breakaway (≈0.169 A)
     assert arm.state(clk.t + 100 * MS).q[0] == 0.5
-    before = arm.state(clk.t + 200 * MS)
+    arm.state(clk.t + 200 * MS)
     arm.set_current(0, 5.0, clk.t + 150 * MS)        # stamped in the past: the plant rewinds
-    after = arm.state(clk.t + 150 * MS)              # never earlier than the plant's time
-    assert after.t_ns == before.t_ns and after.q[0] > 0.5 and arm.rewound_changes == 1
+    at = arm.state(clk.t + 150 * MS)                 # an instant the plant has passed: its history
+    assert at.t_ns == clk.t + 150 * MS and at.q[0] == 0.5 and at.current == (5.0,)
+    after = arm.state(clk.t + 200 * MS)
+    assert after.t_ns == clk.t + 200 * MS and after.q[0] > 0.5 and arm.rewound_changes == 1
     arm.reset(1.0)
     s = arm.state()
     assert s.q == (1.0,) and s.qd == (0.0,) and s.current == (0.0,)
