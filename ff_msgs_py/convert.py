@@ -8,17 +8,20 @@ from __future__ import annotations
 
 import hashlib
 import json
-from typing import Any, Sequence
+import math
+from typing import Any, Optional, Sequence
 
 import numpy as np
 from builtin_interfaces.msg import Time
 
 from ff_msgs.msg import CurrentProfile as CurrentProfileMsg
 from ff_msgs.msg import CurrentSetpoint
+from ff_msgs.msg import RobustnessCertificate as CertificateMsg
 from ff_msgs.srv import PlanTrajectory
 from ff_planner.core.errors import ERROR_NAMES
+from ff_planner.model.limits import Excursion, MotionLimits
 from ff_planner.model.params import ParameterError, default_params, n_joints
-from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult
+from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult, RobustnessCertificate
 
 
 # --- joint names ------------------------------------------------------------------------------
@@ -119,9 +122,14 @@ def request_from_msg(req: Any, defaults: PlanRequest | None = None, params=None)
     """PlanTrajectory.Request -> PlanRequest. Zero/empty fields take values from ``defaults``.
 
     Parameter overrides are applied to ``params`` (or the model's preset); a ParameterError names
-    an unknown key. Nothing here plans: call ``request.validate()`` next.
+    an unknown key. The box, coast_max, limits (empty = ``defaults.limits``) and a tolerance (> 0:
+    tf = move_time_max, default 3 s) are carried. Nothing here plans: call ``request.validate()``
+    next.
     """
     d = defaults or PlanRequest()
+    if len(req.box_names) != len(req.box_fractions):
+        raise ParameterError(f"{len(req.box_names)} box names but {len(req.box_fractions)} "
+                             f"fractions")
     if len(req.override_names) != len(req.override_values):
         raise ParameterError(f"{len(req.override_names)} override names but "
                              f"{len(req.override_values)} values")
@@ -129,11 +137,27 @@ def request_from_msg(req: Any, defaults: PlanRequest | None = None, params=None)
     base = params if params is not None and params.model == model else default_params(model)
     if req.override_names:
         base = base.replace(**dict(zip(req.override_names, req.override_values)))
+    limits = limits_from_msg(req)
+    tolerance = float(req.tolerance) or None
+    tf_max = float(req.move_time_max) or None
     return PlanRequest(
-        model=model, q0=list(req.q0), qf=list(req.qf), tf=float(req.move_time),
+        model=model, q0=list(req.q0), qf=list(req.qf),
+        tf=float(req.move_time) if tolerance is None else float(tf_max or 3.0),
         uncertain=list(req.uncertain), objective=req.objective or d.objective,
         steps=int(req.steps) or None, starts=int(req.starts) or d.starts, seed=int(req.seed),
-        time_budget=float(req.time_budget) or d.time_budget, coast=d.coast, params=base, tol=d.tol)
+        time_budget=float(req.time_budget) or d.time_budget, coast=d.coast, params=base, tol=d.tol,
+        box=dict(zip(req.box_names, map(float, req.box_fractions))) or d.box,
+        coast_max=float(req.coast_max) or d.coast_max, limits=limits if limits is not None else d.limits,
+        tolerance=tolerance, move_time_max=tf_max if tolerance is not None else None)
+
+
+def limits_from_msg(req: Any) -> Optional[MotionLimits]:
+    """The request's ``position_min`` / ``position_max`` / ``velocity_max`` (rad, rad/s); None when
+    all are empty. Not validated here (``MotionLimits.validate``)."""
+    limits = MotionLimits.of(list(getattr(req, "position_min", [])),
+                             list(getattr(req, "position_max", [])),
+                             list(getattr(req, "velocity_max", [])))
+    return None if limits.empty else limits
 
 
 def request_to_msg(request: PlanRequest):
@@ -141,12 +165,21 @@ def request_to_msg(request: PlanRequest):
     p = request.resolved_params()
     ref = default_params(request.model).to_dict()
     over = {k: v for k, v in p.to_dict().items() if v != ref[k]}
+    limits = request.limits or MotionLimits()
+    box = dict(request.box or {})
     return PlanTrajectory.Request(
         model=request.model, q0=[float(x) for x in request.q0], qf=[float(x) for x in request.qf],
         move_time=float(request.tf), uncertain=list(request.uncertain), objective=request.objective,
         steps=int(request.steps or 0), starts=int(request.starts), seed=int(request.seed),
         time_budget=float(request.time_budget), override_names=list(over),
-        override_values=list(over.values()))
+        override_values=list(over.values()), box_names=list(box),
+        box_fractions=[float(v) for v in box.values()],
+        coast_max=float(request.coast_max) if request.coast_max != PlanRequest().coast_max else 0.0,
+        position_min=[float(x) for x in limits.position_min],
+        position_max=[float(x) for x in limits.position_max],
+        velocity_max=[float(x) for x in limits.velocity_max],
+        tolerance=float(request.tolerance or 0.0),
+        move_time_max=float(request.move_time_max or 0.0) if request.tolerance else 0.0)
 
 
 #: PlanTrajectory error name -> the interface constant of that name (PlanTrajectory.Response).
@@ -170,7 +203,57 @@ def result_to_response(result: PlanResult, response: Any, joint_names: Sequence[
     response.starts_tried = int(result.starts_tried)
     response.iterations = int(result.iterations)
     response.solve_time = float(result.solve_time)
+    response.certificate = certificate_to_msg(result.certificate)
     return response
+
+
+def certificate_to_msg(cert: Optional[RobustnessCertificate]) -> CertificateMsg:
+    """RobustnessCertificate -> ff_msgs/RobustnessCertificate (``certified = false`` for None;
+    the excursion arrays empty when it has none)."""
+    if cert is None:
+        return CertificateMsg(certified=False)
+    names = list(cert.box)
+    msg = CertificateMsg(
+        certified=True, box_names=names, box_fractions=[float(cert.box[n]) for n in names],
+        worst_rest_error=float(cert.worst_rest_error),
+        worst_at=[float(cert.worst_at.get(n, 1.0)) for n in names],
+        per_parameter=[float(cert.per_parameter.get(n, math.nan)) for n in names],
+        moving_at_tf=float(cert.moving_at_tf), switch_timing=[float(x) for x in cert.switch_timing],
+        worst_per_joint=[float(x) for x in (cert.worst_per_joint or [])],
+        switch_timing_per_joint=[float(x) for row in (cert.switch_timing_per_joint or []) for x in row],
+        samples=int(cert.samples))
+    ex = cert.excursion
+    if ex is not None:
+        for name in _EXCURSION_FIELDS:
+            setattr(msg, f"excursion_{name}", [float(x) for x in getattr(ex, name)])
+    return msg
+
+
+_EXCURSION_FIELDS = ("nominal_min", "nominal_max", "nominal_speed", "worst_min", "worst_max",
+                     "worst_speed")
+
+
+def certificate_from_msg(msg: Any) -> Optional[RobustnessCertificate]:
+    """ff_msgs/RobustnessCertificate -> RobustnessCertificate (None when ``certified`` is false).
+    The inverse of :func:`certificate_to_msg`; ``switch_timing_per_joint`` comes back as rows of
+    one value per joint (the joint count from ``worst_per_joint``)."""
+    if not bool(msg.certified):
+        return None
+    names = list(msg.box_names)
+    nj = len(msg.worst_per_joint)
+    flat = [float(x) for x in msg.switch_timing_per_joint]
+    rows = [flat[i:i + nj] for i in range(0, len(flat), nj)] if nj else []
+    arrays = {name: [float(x) for x in getattr(msg, f"excursion_{name}", [])]
+              for name in _EXCURSION_FIELDS}
+    excursion = Excursion(**arrays) if any(arrays.values()) else None
+    return RobustnessCertificate(
+        box=dict(zip(names, map(float, msg.box_fractions))),
+        worst_rest_error=float(msg.worst_rest_error),
+        worst_at=dict(zip(names, map(float, msg.worst_at))),
+        per_parameter=dict(zip(names, map(float, msg.per_parameter))),
+        moving_at_tf=float(msg.moving_at_tf), switch_timing=[float(x) for x in msg.switch_timing],
+        samples=int(msg.samples), worst_per_joint=[float(x) for x in msg.worst_per_joint],
+        switch_timing_per_joint=rows, excursion=excursion)
 
 
 def error_response(response: Any, code: str, message: str):
@@ -185,7 +268,8 @@ def response_to_result(response: Any, request: PlanRequest) -> PlanResult:
     """PlanTrajectory.Response (+ the request it answers) -> PlanResult, e.g. to write a motion file.
 
     The inverse of :func:`result_to_response`; ``params`` and ``coast`` come from ``request`` (the
-    response carries the profile's coast), the error name from the interface constant.
+    response carries the profile's coast and move time), the error name from the interface
+    constant, the certificate (and its excursion) from the response's.
     """
     names = {code: name for name, code in ERROR_CODES.items()}
     prof = msg_to_profile(response.profile) if int(response.profile.n_steps) > 0 else None
@@ -201,4 +285,5 @@ def response_to_result(response: Any, request: PlanRequest) -> PlanResult:
         starts_tried=int(response.starts_tried), iterations=int(response.iterations),
         solve_time=float(response.solve_time), warm_start=bool(response.warm_start),
         extra=({"predicted_rest": predicted_rest_of(response.profile)}
-               if prof is not None and predicted_rest_of(response.profile) else {}))
+               if prof is not None and predicted_rest_of(response.profile) else {}),
+        certificate=certificate_from_msg(response.certificate))

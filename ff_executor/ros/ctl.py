@@ -288,7 +288,8 @@ def param(s: Session, a: argparse.Namespace) -> int:
 
 # --- plan / execute ---------------------------------------------------------------------------
 _PLAN_OPTIONS = ("q0", "qf", "tf", "uncertain", "objective", "steps", "starts", "seed", "time_budget",
-                 "model", "preset", "params", "config")
+                 "model", "preset", "params", "config", "box", "coast_max", "q_min", "q_max", "qd_max",
+                 "tolerance", "tf_max")
 
 
 def _plan_request(a: argparse.Namespace) -> PlanRequest:
@@ -336,12 +337,29 @@ def _plan(s: Session, a: argparse.Namespace, request: PlanRequest) -> tuple[Any,
         if resp.sensitivity_names:
             print("  dq(tf)/dp: " + ", ".join(f"{k} {v:+.2e}" for k, v in
                                               list(zip(resp.sensitivity_names, resp.sensitivity_values))[:8]))
+        _print_certificate(result)
     print(f"  {'warm start, ' if resp.warm_start else ''}{resp.starts_tried} starts, solve "
           f"{resp.solve_time * 1e3:.1f} ms, call {wall * 1e3:.0f} ms")
     for what, path in (("motion file", a.output), ("plot", a.plot)):
         if path and result.profile is not None:
             print(f"  wrote {what} {path}")
     return resp, code
+
+
+def _print_certificate(result: Any) -> None:
+    """The certificate the service sent: worst rest error over the box and the excursion."""
+    c = result.certificate
+    if c is None:
+        return
+    box = ", ".join(f"{k} ±{v * 100:g} %" for k, v in c.box.items())
+    print(f"  box ({box}): worst rest error {c.worst_rest_error * 1e3:.3g} mrad "
+          f"({c.samples} points), moving at tf: {c.moving_at_tf * 100:.0f} % of the box")
+    ex = c.excursion
+    if ex is not None:
+        print(f"  excursion until rest (per joint): nominal {_fmt(ex.nominal_min, 4)} … "
+              f"{_fmt(ex.nominal_max, 4)} rad, peak speed {_fmt(ex.nominal_speed, 4)} rad/s; over "
+              f"the box {_fmt(ex.worst_min, 4)} … {_fmt(ex.worst_max, 4)} rad, peak speed "
+              f"{_fmt(ex.worst_speed, 4)} rad/s")
 
 
 def plan(s: Session, a: argparse.Namespace) -> int:
@@ -494,8 +512,8 @@ def _send_goal(s: Session, a: argparse.Namespace, profile_msg: Any) -> int:
     if not (res.status == GoalStatus.STATUS_SUCCEEDED and res.result.success):
         return 1
     err = max((abs(e) for e in res.result.position_error), default=math.inf)
-    if a.tolerance > 0 and not err <= a.tolerance:
-        print(f"{PROG}: the arm settled {err:.4g} rad from the goal, beyond --tolerance {a.tolerance:g} rad "
+    if a.land_tolerance > 0 and not err <= a.land_tolerance:
+        print(f"{PROG}: the arm settled {err:.4g} rad from the goal, beyond --tolerance {a.land_tolerance:g} rad "
               "(ff-ctl diag: is the bridge in a safe state?)", file=sys.stderr)
         return 1
     return 0
@@ -538,9 +556,10 @@ def _add_common(p: argparse.ArgumentParser) -> None:
                    help="s to wait for a service or action server (default 10)")
 
 
-def _plan_parent() -> Any:
-    """ff-plan's parser: its options become those of ``plan`` and ``execute``."""
-    return plan_cli.build_parser()
+def _plan_parent(tolerance_search: bool = True) -> Any:
+    """ff-plan's parser: its options become those of ``plan`` and ``execute`` (execute: without
+    --tolerance / --tf-max, its --tolerance is the landing check; plan with --tolerance first)."""
+    return plan_cli.build_parser(tolerance_search=tolerance_search, tradeoff=False)
 
 
 def _add_plan_target(p: argparse.ArgumentParser) -> None:
@@ -613,7 +632,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_plan_target(pl)
     pl.set_defaults(func=plan)
 
-    ex = sub.add_parser("execute", parents=[_plan_parent()], add_help=False,
+    ex = sub.add_parser("execute", parents=[_plan_parent(tolerance_search=False)], add_help=False,
                         formatter_class=argparse.RawDescriptionHelpFormatter,
                         help="send a motion file (or a fresh plan) to the executor; live feedback",
                         description="ff-ctl execute MOTION.json | ff-ctl execute [ff-plan options]. The arm must "
@@ -626,7 +645,7 @@ def build_parser() -> argparse.ArgumentParser:
                     help="joint names of the profile (default joint1..N, as the executor's config)")
     ex.add_argument("--feedback-hz", type=float, default=10.0, help="feedback lines per second at most")
     ex.add_argument("--best-effort", action="store_true", help="run a plan that misses its tolerances too")
-    ex.add_argument("--tolerance", type=float, default=0.05, metavar="RAD",
+    ex.add_argument("--tolerance", type=float, default=0.05, metavar="RAD", dest="land_tolerance",
                     help="exit 1 if the arm settles farther than this from the goal (default 0.05; 0 = off)")
     ex.set_defaults(func=execute)
 

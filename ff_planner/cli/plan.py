@@ -16,8 +16,11 @@ from typing import NoReturn, Optional, Sequence
 
 import numpy as np
 
+from ff_planner.export.motion_file import jsonable
+from ff_planner.model.limits import MotionLimits
 from ff_planner.model.params import DEFAULT_PRESET, MODELS, PRESETS, ParameterError, load_params, n_joints, preset
-from ff_planner.model.profile import DEFAULT_COAST, DEFAULT_COAST_MAX, MAX_TF, OBJECTIVES, PlanningError, PlanRequest
+from ff_planner.model.profile import (BOX_DEFAULT_STEPS, DEFAULT_COAST, DEFAULT_COAST_MAX, MAX_TF, OBJECTIVES,
+                                      PlanningError, PlanRequest)
 
 PROG = "ff-plan"
 
@@ -53,7 +56,10 @@ def _names(values: Optional[Sequence[str]]) -> Optional[list[str]]:
     return [p for v in values for p in str(v).replace(",", " ").split()]
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(tolerance_search: bool = True, tradeoff: bool = True) -> argparse.ArgumentParser:
+    """ff-plan's parser; ``tolerance_search=False`` leaves out --tolerance and --tf-max (for a
+    command whose own --tolerance means something else), ``tradeoff=False`` --tradeoff (for a
+    command that plans through a service)."""
     p = _Parser(
         prog=PROG,
         description="Plan a rest-to-rest feedforward current profile whose final position is "
@@ -64,6 +70,8 @@ def build_parser() -> argparse.ArgumentParser:
                "  ff-plan --preset table1 --uncertain pc --steps 3 -o coulomb.json\n"
                "  ff-plan --model scara2 --q0 -0.5 0 --qf 0.5 0 --uncertain pv1 pc1 pt1 pv2 pc2 pt2\n"
                "  ff-plan --objective energy-optimal --qf 1 -o energy.json\n"
+               "  ff-plan --qf 1 --tf 1 --q-min -0.3 --q-max 1.05 --qd-max 4   # limits, whole box\n"
+               "  ff-plan --qf 1 --tolerance 0.002 --tf-max 3   # the fastest tf certified within 2 mrad\n"
                "exit codes: 0 plan meets its tolerances; 1 best-effort plan only (still written)\n"
                "or internal error; 2 bad input or unreachable goal.",
         formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -75,8 +83,10 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--params", metavar="YAML", default=None,
                    help="parameter file {model:, preset:, params: {key: value}} (SI units)")
     m.add_argument("--config", metavar="YAML", default=None,
-                   help="plan file: model/preset/params plus task: {q0, qf, tf, coast} and "
-                        "plan: {uncertain, objective, steps, starts, seed, time_budget, tol}; "
+                   help="plan file: model/preset/params plus task: {q0, qf, tf, coast, q_min, "
+                        "q_max, qd_max, tolerance, tf_max} and "
+                        "plan: {uncertain, objective, steps, starts, seed, time_budget, tol, "
+                        "box, coast_max, current_quantum}; "
                         "command-line flags override it (examples in config/plan_*.yaml)")
     m.add_argument("--set", metavar="KEY=VALUE", action="append", default=[],
                    help="override one model parameter, e.g. --set pc=0.22 (repeatable)")
@@ -85,9 +95,24 @@ def build_parser() -> argparse.ArgumentParser:
                    help="start position per joint (default 0, or -0.5 0 for scara2)")
     t.add_argument("--qf", nargs="+", default=None, metavar="RAD",
                    help="goal position per joint (default 1, or 0.5 0 for scara2)")
-    t.add_argument("--tf", type=float, default=None, metavar="S", help="move time (default 1 s)")
+    t.add_argument("--tf", type=float, default=None, metavar="S",
+                   help="move time (default 1 s; with --tolerance the planner chooses it)")
     t.add_argument("--coast", type=float, default=None, metavar="S",
                    help=f"zero-current coast at the end (default {DEFAULT_COAST} s)")
+    t.add_argument("--q-min", nargs="+", default=None, metavar="RAD",
+                   help="lowest position per joint, held along the whole motion (until rest) at "
+                        "every point of the friction box (default: none)")
+    t.add_argument("--q-max", nargs="+", default=None, metavar="RAD",
+                   help="highest position per joint, likewise (default: none)")
+    t.add_argument("--qd-max", nargs="+", default=None, metavar="RAD/S",
+                   help="speed limit |qd| per joint, likewise (default: none)")
+    if tolerance_search:
+        t.add_argument("--tolerance", type=float, default=None, metavar="RAD",
+                       help="certified worst rest error wanted over the friction box: plan the "
+                            "fastest tf <= --tf-max that meets it (instead of --tf)")
+        t.add_argument("--tf-max", type=float, default=None, metavar="S",
+                       help="with --tolerance or --tradeoff: the longest move time to "
+                            "consider (default 3 s)")
     o = p.add_argument_group("optimisation")
     o.add_argument("--uncertain", nargs="+", default=None, metavar="NAME",
                    help="friction parameters to be robust to (default: all of the model's)")
@@ -96,10 +121,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "among plans with zero exact derivatives), robust-derivative (the paper's "
                         "zero derivatives alone), robust-sampled, time-optimal, energy-optimal")
     o.add_argument("--steps", type=int, default=None, metavar="N",
-                   help="current steps per joint (default: robust-box 8, raised to 10, 12 while "
-                        "no truly robust plan is found; others 2 + number of uncertain "
-                        "parameters; 0: the robust 1-DOF planner chooses the smallest N up to 12, "
-                        "robust-box until the box worst is <= 5 mrad)")
+                   help=f"current steps per joint (default: robust-box {BOX_DEFAULT_STEPS}, "
+                        f"and only while no truly robust plan is found there the others from 2 + "
+                        f"number of uncertain parameters up to 12; other objectives 2 + number of "
+                        f"uncertain parameters; 0: the robust 1-DOF planner chooses the smallest "
+                        f"N up to 12, robust-box until the box worst is <= 5 mrad)")
     o.add_argument("--starts", type=int, default=None,
                    help="multistart count (default 50; 0: escalated 50 -> 200 -> 1000)")
     o.add_argument("--seed", type=int, default=None, help="random seed (default 0)")
@@ -113,7 +139,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "(EPOS4: nominal current / 1000, e.g. 0.003); rest position and "
                         "certificate are for the rounded profile (default 0 = none)")
     o.add_argument("--time-budget", type=float, default=None, metavar="S",
-                   help="wall-clock budget (default 30 s); the best plan so far is returned")
+                   help="wall-clock budget for the whole plan, every N tried (and with "
+                        "--tolerance every tf tried) included (default 30 s); the best plan so far "
+                        "is returned")
     o.add_argument("--tol", type=float, default=None,
                    help="robustness tolerance on |dq(tf)/dp| and |q(tf)-qf| (default 1e-6)")
     out = p.add_argument_group("output")
@@ -121,6 +149,14 @@ def build_parser() -> argparse.ArgumentParser:
     out.add_argument("--plot", metavar="PNG", default=None,
                      help="write a figure: current, position at nominal and ±40 %% friction, "
                           "final position vs parameter change")
+    if tradeoff:
+        out.add_argument("--tradeoff", metavar="PNG", default=None,
+                         help="instead of one plan: plan the move at --tradeoff-points move times "
+                              "up to --tf-max (default 3 s), without limits and under the given "
+                              "ones; print certified worst rest error and excursion per tf and "
+                              "plot them")
+        out.add_argument("--tradeoff-points", type=int, default=8, metavar="N",
+                         help="move times in the trade-off (default 8)")
     out.add_argument("--json", action="store_true", help="print the summary as JSON")
     out.add_argument("--debug", action="store_true", help="show tracebacks of internal errors")
     out.add_argument("--quiet", action="store_true",
@@ -158,7 +194,8 @@ class ProgressPrinter:
 DEFAULTS = {"tf": 1.0, "coast": DEFAULT_COAST, "objective": PlanRequest().objective, "starts": 50,
             "seed": 0, "time_budget": 30.0, "tol": 1e-6, "coast_max": DEFAULT_COAST_MAX,
             "current_quantum": 0.0}
-_TASK_KEYS = ("q0", "qf", "tf", "coast")
+_TASK_KEYS = ("q0", "qf", "tf", "coast", "q_min", "q_max", "qd_max", "tolerance", "tf_max")
+DEFAULT_TF_MAX = 3.0    # s, longest move time a --tolerance search considers
 _PLAN_KEYS = ("uncertain", "objective", "steps", "starts", "seed", "time_budget", "tol", "box",
               "coast_max", "current_quantum")
 
@@ -224,7 +261,7 @@ def _resolve_params(args: argparse.Namespace, cfg: dict):
 
 def _pick(args: argparse.Namespace, cfg: dict, key: str):
     """Flag value, else the plan file's, else the built-in default."""
-    v = getattr(args, key)
+    v = getattr(args, key, None)
     if v is not None:
         return v
     for sect in ("task", "plan"):
@@ -276,21 +313,23 @@ def make_request(args: argparse.Namespace) -> PlanRequest:
         v = _pick(args, cfg, key)
         if v is None:
             return default
-        return _floats([str(x) for x in (v if isinstance(v, (list, tuple)) else [v])], f"--{key}")
+        return _floats([str(x) for x in (v if isinstance(v, (list, tuple)) else [v])],
+                       f"--{key.replace('_', '-')}")
 
     q0 = vec("q0", [0.0] if nj == 1 else [-0.5, 0.0])
     qf = vec("qf", [1.0] if nj == 1 else [0.5, 0.0])
     for name, v in (("--q0", q0), ("--qf", qf)):
         if len(v) != nj:
             raise UsageError(f"{name} needs {nj} value(s) for model '{model}', got {len(v)}")
-    tf = _number(_pick(args, cfg, "tf"), "--tf")
+    tolerance, tf_max = _tolerance(args, cfg)
+    tf = _number(_pick(args, cfg, "tf"), "--tf") if tolerance is None else tf_max
     coast = _number(_pick(args, cfg, "coast"), "--coast")
     time_budget = _number(_pick(args, cfg, "time_budget"), "--time-budget")
     tol = _number(_pick(args, cfg, "tol"), "--tol")
-    for name, v in (("--tf", tf), ("--coast", coast), ("--time-budget", time_budget),
+    for name, x in (("--tf", tf), ("--coast", coast), ("--time-budget", time_budget),
                     ("--tol", tol)):
-        if not math.isfinite(v):
-            raise UsageError(f"{name} must be a finite number, got {v}")
+        if not math.isfinite(x):
+            raise UsageError(f"{name} must be a finite number, got {x}")
     if tf <= coast:
         raise UsageError(f"--tf {tf:g} s must exceed the coast of {coast:g} s")
     if tf > MAX_TF:
@@ -313,12 +352,48 @@ def make_request(args: argparse.Namespace) -> PlanRequest:
     quantum = _number(_pick(args, cfg, "current_quantum"), "--current-quantum")
     if not (math.isfinite(quantum) and 0.0 <= quantum < 1.0):
         raise UsageError(f"--current-quantum must be a number in [0, 1) A (0 = none), got {quantum}")
+    limits = MotionLimits.of(*(vec(k, []) or None for k in ("q_min", "q_max", "qd_max")))
+    try:
+        limits.validate(nj, q0, qf)
+    except PlanningError as exc:
+        raise UsageError(_flag_names(str(exc))) from None
     return PlanRequest(model=model, q0=tuple(q0), qf=tuple(qf), tf=tf, box=box,
+                       limits=None if limits.empty else limits, tolerance=tolerance,
+                       move_time_max=tf_max if tolerance is not None else None,
                        coast_max=coast_max, current_quantum=quantum,
                        uncertain=tuple(uncertain), objective=objective, steps=steps,
                        starts=_number(_pick(args, cfg, "starts"), "--starts", int),
                        seed=_number(_pick(args, cfg, "seed"), "--seed", int),
                        time_budget=time_budget, coast=coast, params=params, tol=tol)
+
+
+def _flag_names(text: str) -> str:
+    """A MotionLimits message in the flags' names."""
+    for field_name, flag in (("position_min", "--q-min"), ("position_max", "--q-max"),
+                             ("velocity_max", "--qd-max")):
+        text = text.replace(field_name, flag)
+    return text
+
+
+def _tolerance(args: argparse.Namespace, cfg: dict) -> tuple[Optional[float], float]:
+    """(tolerance rad or None, tf_max s) of a request; UsageError for bad values or --tf with
+    --tolerance."""
+    tol = _pick(args, cfg, "tolerance")
+    tf_max_given = _pick(args, cfg, "tf_max")
+    tf_max = DEFAULT_TF_MAX if tf_max_given is None else _number(tf_max_given, "--tf-max")
+    if tol is None:
+        if tf_max_given is not None and not getattr(args, "tradeoff", None):
+            raise UsageError("--tf-max bounds a --tolerance search; give --tolerance too (or --tf)")
+        return None, tf_max
+    tolerance = _number(tol, "--tolerance")
+    if not tolerance > 0.0:
+        raise UsageError(f"--tolerance must be > 0 rad, got {tolerance:g}")
+    if getattr(args, "tf", None) is not None or "tf" in (cfg.get("task") or {}):
+        raise UsageError("give --tf or --tolerance, not both: with --tolerance the planner chooses "
+                         "tf (bound it with --tf-max)")
+    if not 0.0 < tf_max <= MAX_TF:
+        raise UsageError(f"--tf-max must be in (0, {MAX_TF:g}] s, got {tf_max:g}")
+    return tolerance, tf_max
 
 
 def summary(result, output: Optional[str] = None, plot: Optional[str] = None) -> dict:
@@ -339,6 +414,9 @@ def summary(result, output: Optional[str] = None, plot: Optional[str] = None) ->
     cert = getattr(result, "certificate", None)
     if cert is not None:
         d["certificate"] = cert.to_dict()
+    for key in ("limits_checked", "limit_violations", "tolerance_search"):
+        if key in (result.extra or {}):
+            d[key] = result.extra[key]
     if output:
         d["output"] = output
     if plot:
@@ -347,9 +425,15 @@ def summary(result, output: Optional[str] = None, plot: Optional[str] = None) ->
 
 
 def _print_summary(d: dict, result) -> None:
-    state = ("robust plan" if d["robust"] else "plan (meets the goal)" if d["success"]
+    state = ("BEST-EFFORT plan (leaves the limits)" if d.get("limit_violations")
+             else "robust plan" if d["robust"] and d["success"]
+             else "plan (meets the goal)" if d["success"]
+             else f"NO PLAN [{d['error_code']}]" if result.profile is None
              else "BEST-EFFORT plan (does not meet the tolerances)")
     print(f"{PROG}: {d['objective']}: {state} — {d['message']}")
+    if result.profile is None:
+        print(f"  starts: {d['starts_tried']}, time: {d['solve_time_s'] * 1e3:.1f} ms")
+        return
     if result.profile is not None:
         cur = np.round(result.profile.currents, 4).tolist()
         print(f"  steps: {d['steps']}, currents (A): {cur}")
@@ -373,10 +457,123 @@ def _print_summary(d: dict, result) -> None:
         print(f"  box ({box}): worst rest error {c['worst_rest_error'] * 1e3:.3g} mrad at {at}; "
               f"alone (mrad): {alone}; moving at tf: {c['moving_at_tf'] * 100:.0f} % of the box; "
               f"switch timing: max {sw * 1e3:.3g} mrad per 100 us delay")
+        _print_excursion(c.get("excursion"), getattr(result, "extra", None) or {})
+    search = (getattr(result, "extra", None) or {}).get("tolerance_search")
+    if search:
+        _print_search(search)
     print(f"  starts: {d['starts_tried']}, time: {d['solve_time_s'] * 1e3:.1f} ms")
     for k in ("output", "plot"):
         if k in d:
             print(f"  wrote {d[k]}")
+
+
+def _fmt(values, scale: float = 1.0) -> str:
+    return "[" + ", ".join("-" if v is None or not math.isfinite(float(v)) else f"{float(v) * scale:.4g}"
+                           for v in values) + "]"
+
+
+def _print_excursion(ex: Optional[dict], extra: dict) -> None:
+    """Where the plan takes the arm until rest: nominal and the worst over the box's points."""
+    if not ex:
+        return
+    print(f"  excursion until rest (per joint): nominal {_fmt(ex['nominal_min'])} … "
+          f"{_fmt(ex['nominal_max'])} rad, peak speed {_fmt(ex['nominal_speed'])} rad/s; over the "
+          f"box {_fmt(ex['worst_min'])} … {_fmt(ex['worst_max'])} rad, peak speed "
+          f"{_fmt(ex['worst_speed'])} rad/s")
+    broken = extra.get("limit_violations")
+    if broken:
+        print(f"  LIMITS BROKEN over the box: {'; '.join(broken)}")
+    elif "limits_checked" in extra:
+        print("  within the limits over the box" if extra["limits_checked"]
+              else "  limits NOT checked (no excursion)")
+
+
+def _print_search(search: dict) -> None:
+    """The tolerance search: every tf tried with its certified worst rest error and time."""
+    print(f"  tolerance search ({search['tolerance'] * 1e3:.3g} mrad, tf <= "
+          f"{search['move_time_max']:g} s): {len(search['trials'])} move times in "
+          f"{search['time_s']:.1f} s{'' if search['complete'] else ' (stopped by the time budget)'}")
+    seed0 = search["trials"][0].get("seed") if search["trials"] else None
+    for t in search["trials"]:
+        w = t["worst_rest_error"]
+        what = "no certified plan" if w is None else f"certified {w * 1e3:.3g} mrad"
+        again = "" if t.get("seed") == seed0 else f" (again, seed {t.get('seed')})"
+        print(f"    tf {t['tf']:.3f} s{again}: {what}, {'meets' if t['meets'] else 'fails'} "
+              f"({t['time_s']:.2f} s)" + ("" if t["meets"] or not t["note"] or w is not None
+                                          else f": {t['note']}"))
+
+
+def _tradeoff(args: argparse.Namespace, request: PlanRequest, progress) -> int:
+    """--tradeoff: certified rest error and excursion against move time; table, JSON, PNG."""
+    from ff_planner.optimize.fastest import tradeoff
+
+    if not 2 <= int(args.tradeoff_points) <= 100:
+        raise UsageError(f"--tradeoff-points must be in [2, 100], got {args.tradeoff_points}")
+    given = request.move_time_max if request.tolerance is not None else getattr(args, "tf_max", None)
+    tf_max = DEFAULT_TF_MAX if given is None else float(_number(given, "--tf-max"))
+    if not 0.0 < tf_max <= MAX_TF:
+        raise UsageError(f"--tf-max must be in (0, {MAX_TF:g}] s, got {tf_max:g}")
+    pts = tradeoff(request, int(args.tradeoff_points), tf_max, progress=progress)
+    _plot_tradeoff(pts, request, args.tradeoff)
+    rows = [p.to_dict() for p in pts]
+    if args.json:
+        print(json.dumps(jsonable({"tradeoff": rows, "plot": args.tradeoff,
+                                   "tolerance": request.tolerance,
+                                   "limits": request.limits.to_dict() if request.limits else None}),
+                         allow_nan=False))
+        return 0
+    print(f"{PROG}: trade-off, {np.round(request.q0, 4).tolist()} -> "
+          f"{np.round(request.qf, 4).tolist()} rad, {request.objective}: certified worst rest error "
+          f"over the box and the worst excursion until rest")
+    for r in rows:
+        w = r["worst_rest_error"]
+        print(f"  {r['label']:>9}  tf {r['tf']:6.3f} s: "
+              + ("no certified plan" if w is None else f"{w * 1e3:9.3g} mrad")
+              + ("" if r["success"] else f" [{r['error_code']}]")
+              + (f"; position {_fmt(r['worst_min'])} … {_fmt(r['worst_max'])} rad, speed "
+                 f"{_fmt(r['worst_speed'])} rad/s" if r["worst_speed"] else ""))
+    print(f"  wrote {args.tradeoff}")
+    return 0
+
+
+def _plot_tradeoff(pts, request: PlanRequest, path: str) -> None:
+    """Two panels: certified worst rest error (mrad, log) and worst peak speed (rad/s) against tf;
+    one line per set of limits, hollow markers where the plan is not a success."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(10, 4.2))
+    FigureCanvasAgg(fig)
+    ax_err, ax_speed = fig.subplots(1, 2)
+    for label in dict.fromkeys(p.label for p in pts):
+        rows = [p for p in pts if p.label == label and p.worst_rest_error is not None
+                and math.isfinite(p.worst_rest_error)]
+        if not rows:
+            continue
+        tf = [p.tf for p in rows]
+        line, = ax_err.plot(tf, [p.worst_rest_error * 1e3 for p in rows], "-", label=label)
+        for p in rows:
+            ax_err.plot(p.tf, p.worst_rest_error * 1e3, "o", color=line.get_color(),
+                        fillstyle="full" if p.success else "none")
+        sp = [(p.tf, max(p.worst_speed)) for p in rows if p.worst_speed]
+        if sp:
+            ax_speed.plot(*zip(*sp), "o-", color=line.get_color(), label=label)
+    if request.tolerance is not None:
+        ax_err.axhline(request.tolerance * 1e3, color="k", ls="--", lw=0.8, label="tolerance")
+    lim = request.limits
+    if lim is not None and lim.velocity_max:
+        ax_speed.axhline(max(lim.velocity_max), color="k", ls="--", lw=0.8, label="velocity_max")
+    ax_err.set_yscale("log")
+    ax_err.set_xlabel("move time tf (s)")
+    ax_err.set_ylabel("certified worst rest error (mrad)")
+    ax_err.set_title("rest error over the friction box (hollow: not a success)", fontsize=9)
+    ax_speed.set_xlabel("move time tf (s)")
+    ax_speed.set_ylabel("worst peak speed over the box (rad/s)")
+    for ax in (ax_err, ax_speed):
+        ax.grid(True, alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
 
 
 def _one_line(e: BaseException) -> str:
@@ -415,10 +612,17 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         args = parser.parse_args(_protect_numbers(raw))
         _check_writable(args.output, "-o")
         _check_writable(args.plot, "--plot")
+        _check_writable(getattr(args, "tradeoff", None), "--tradeoff")
         request = make_request(args)
-        from ff_planner.optimize.planner import plan  # after argument checks: keeps --help and errors fast
+        # after argument checks: keeps --help and errors fast
+        from ff_planner.optimize.fastest import plan_fastest
+        from ff_planner.optimize.planner import plan
 
-        result = plan(request, None if args.quiet else ProgressPrinter())
+        progress = None if args.quiet else ProgressPrinter()
+        if getattr(args, "tradeoff", None):
+            return _tradeoff(args, request, progress)
+        result = (plan_fastest(request, progress) if request.tolerance is not None
+                  else plan(request, progress))
         if args.output and result.profile is not None:
             from ff_planner.export.motion_file import write_motion
 
@@ -430,11 +634,11 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                         np.asarray(result.qf).tolist(), result.uncertain,
                         args.plot, title=f"{result.objective}: {result.model}, "
                                          f"{np.round(result.q0, 4).tolist()} → {np.round(result.qf, 4).tolist()} rad "
-                                         f"in {request.tf:g} s")
+                                         f"in {result.profile.tf:g} s")
         d = summary(result, args.output if result.profile is not None else None,
                     args.plot if result.profile is not None else None)
         if args.json:
-            print(json.dumps(d))
+            print(json.dumps(jsonable(d), allow_nan=False))
         else:
             _print_summary(d, result)
         return 0 if result.success else 1

@@ -12,6 +12,13 @@ robust-sampled -> ``robust1d.plan_robust_1dof`` (arm1dof) or ``robust2d.plan_rob
 objective) with steps unset, steps = 0 or starts = 0 goes through ``plan_auto_1dof`` (N and
 starts along ``auto_ladders``); ``request.current_quantum`` > 0 rounds the answer's currents to
 the drive's setpoint grid before its rest position and certificate are computed.
+
+Beyond the request's own validation, ``check`` refuses positions beyond ±MAX_POSITION rad, a
+torque-dependent friction ``pt`` ≥ 1 (it would take all of the motor torque) and a negative viscous
+friction that Coulomb friction cannot stop (the arm would never come to rest). ``plan`` checks the
+certificate's excursion against ``request.limits``: a plan that leaves them is labelled (not a
+success, error NO_ROBUST_PLAN, ``extra["limit_violations"]``). A request with a ``tolerance`` is a
+search over the move time: ``ff_planner.optimize.fastest.plan_fastest``.
 """
 from __future__ import annotations
 
@@ -25,7 +32,7 @@ import numpy as np
 
 from ff_planner.core.errors import ParameterError, PlanningError, WarmStartUnavailable, error_code_of
 from ff_planner.model.params import Arm1DofParams, Params, Scara2Params
-from ff_planner.model.profile import DEFAULT_STARTS, PlanRequest, PlanResult
+from ff_planner.model.profile import DEFAULT_STARTS, MAX_TF, PlanRequest, PlanResult
 from ff_planner.model.simulate import rest_position
 from ff_planner.optimize.baselines import plan_baseline, reach_1dof
 from ff_planner.optimize.box_robust import plan_box_robust_1dof
@@ -96,10 +103,50 @@ def _unreachable(request: PlanRequest, p: Params, bound: np.ndarray) -> None:
         if d > r:
             joint = "" if len(dist) == 1 else f" joint {j + 1}"
             lim = p.i_max if isinstance(p, Arm1DofParams) else getattr(p, f"i_max{j + 1}")
+            longer = ("raise tf, " if float(request.tf) < MAX_TF else
+                      f"(tf is at its maximum of {MAX_TF:g} s) ")
             raise PlanningError(
                 f"goal unreachable:{joint} distance {d:.4g} rad, but with I_max = {lim:g} A no "
                 f"profile moves it more than {r:.4g} rad and back to rest in tf = {request.tf:g} s; "
-                f"raise tf, raise the current limit, or plan a shorter move", code="UNREACHABLE")
+                f"{longer}raise the current limit, or plan a shorter move", code="UNREACHABLE")
+
+
+MAX_POSITION = 1.0e4         # rad, largest |q0|, |qf| accepted (far beyond any joint's travel)
+MIN_ESCAPE_SPEED = 1.0e-2    # rad/s: with negative viscous friction pv, an arm faster than
+#                              pc / |pv| never stops; below this speed no plan can come to rest
+_FRICTION_PAIRS = {"arm1dof": (("pv", "pc", "pt", ""),),
+                   "scara2": (("pv1", "pc1", "pt1", " joint 1"), ("pv2", "pc2", "pt2", " joint 2"))}
+
+
+def _check_physics(request: PlanRequest, p: Params) -> None:
+    """Refuse positions and friction values no plan can serve (INVALID_REQUEST, what to change)."""
+    for name, v in (("q0", request.q0), ("qf", request.qf)):
+        for x in v:
+            if abs(float(x)) > MAX_POSITION:
+                raise PlanningError(f"{name} = {float(x):g} rad is beyond ±{MAX_POSITION:g} rad; "
+                                    f"give joint positions in rad", code="INVALID_REQUEST")
+    box = request.box or {}
+    for pv_key, pc_key, pt_key, joint in _FRICTION_PAIRS.get(request.model, ()):
+        pv, pc, pt = (float(getattr(p, k)) for k in (pv_key, pc_key, pt_key))
+        f_pt = float(box.get(pt_key, 0.2)) if pt_key in request.uncertain else 0.0
+        if pt * (1.0 + f_pt) >= 1.0:
+            raise PlanningError(
+                f"{pt_key} = {pt:g}{'' if f_pt == 0.0 else f' (+{f_pt * 100:g} % in the box)'}: "
+                f"torque-dependent friction {pt_key} * |n * kt * I| would take all of the motor "
+                f"torque{joint}, so no current moves the arm; {pt_key} must be < 1"
+                + ("" if f_pt == 0.0 else f" also at the box's edge (< {1.0 / (1.0 + f_pt):.4g})"),
+                code="INVALID_REQUEST")
+        if pv < 0.0:
+            f_pv = float(box.get(pv_key, 0.2)) if pv_key in request.uncertain else 0.0
+            f_pc = float(box.get(pc_key, 0.2)) if pc_key in request.uncertain else 0.0
+            escape = pc * (1.0 - f_pc) / (-pv * (1.0 + f_pv))
+            if escape < MIN_ESCAPE_SPEED:
+                raise PlanningError(
+                    f"{pc_key} = {pc:g} N*m is too small against the negative viscous friction "
+                    f"{pv_key} = {pv:g} N*m*s/rad{joint}: an arm faster than {pc_key}/|{pv_key}| = "
+                    f"{escape:.3g} rad/s (over the box) never comes to rest; raise {pc_key} above "
+                    f"{MIN_ESCAPE_SPEED * -pv * (1.0 + f_pv) / (1.0 - f_pc):.3g} N*m or check "
+                    f"{pv_key}'s sign", code="INVALID_REQUEST")
 
 
 # --- dispatch --------------------------------------------------------------------------------
@@ -180,6 +227,10 @@ def _tried_text(tried: list[dict]) -> str:
     return "; ".join(parts)
 
 
+#: robust-box answers under limits after which the ladder stops (optimize/box_robust.py)
+LIMITS_FINAL = ("least worst within the limits", "refused")
+
+
 def plan_auto_1dof(req: PlanRequest, route: Route, progress: Progress = None,
                    initial_currents: Optional[np.ndarray] = None) -> PlanResult:
     """Choose N and the starts along ``auto_ladders(req)``, starts escalated before N: the first
@@ -212,18 +263,27 @@ def plan_auto_1dof(req: PlanRequest, route: Route, progress: Progress = None,
             if "box_worst" in r.extra:
                 row["box_worst"] = float(r.extra["box_worst"])
             tried.append(row)
-            last = r
+            if last is None or last.profile is None or (
+                    r.profile is not None and "box_worst" in r.extra and "box_worst" in last.extra
+                    and float(r.extra["box_worst"]) < float(last.extra["box_worst"])):
+                last = r         # with nothing robust: the best effort with the least box worst
             if r.success and r.robust and (best is None or float(
                     r.extra.get("box_worst", 0.0)) < float(best.extra.get("box_worst", 0.0))):
                 best = r
             if r.success and r.robust:
                 break            # robust at this N: more starts will not change N
+            if r.extra.get("limits_answer") in LIMITS_FINAL:
+                break            # the limits decided it: more starts only repeat the homotopy
         if best is not None and _good(best, box_target):
             break
+        if last is not None and last.extra.get("limits_answer") in LIMITS_FINAL:
+            break                # more steps do not free a plan the limits hold back
         if time.perf_counter() - t0 > req.time_budget:
             break
     result = best if best is not None else last
-    assert result is not None
+    if result is None:
+        raise PlanningError(f"the time budget of {req.time_budget:.3g} s ran out before any plan "
+                            f"was tried; raise the time budget", code="TIME_BUDGET_EXHAUSTED")
     result.extra = dict(result.extra or {})
     result.extra["auto"] = {"tried": tried, "steps_chosen": result.profile.n_steps
                             if result.profile is not None else None,
@@ -235,6 +295,7 @@ def plan_auto_1dof(req: PlanRequest, route: Route, progress: Progress = None,
     if len(tried) > 1 or req.auto_steps or req.auto_starts:
         result.message = f"{result.message} [tried {_tried_text(tried)}]"
     result.starts_tried = sum(row["starts_tried"] for row in tried)
+    result.solve_time = time.perf_counter() - t0     # every N and starts tried, not the last one
     return result
 
 
@@ -269,6 +330,7 @@ def check(request: PlanRequest) -> CheckedRequest:
                             f"{', '.join(sorted({m for m, o in ROUTES if o == request.objective}))} "
                             f"only; for model '{request.model}' use one of {served}",
                             code="INVALID_REQUEST")
+    _check_physics(request, params)
     bound = reach(params, float(request.tf), float(request.coast))
     _unreachable(request, params, bound)
     return CheckedRequest(request, params, tuple(float(r) for r in bound))
@@ -309,6 +371,41 @@ def _quantize(result: PlanResult, req: PlanRequest, checked: CheckedRequest) -> 
                                            "error": str(exc)}
 
 
+def _never_at_rest(result: PlanResult) -> None:
+    """Label a plan after which the nominal arm never comes to rest (rest position not finite)."""
+    rest = (result.extra or {}).get("rest_position")
+    if result.profile is None or rest is None:
+        return
+    if all(math.isfinite(float(x)) for x in rest):
+        return
+    result.extra["rest_position"] = None
+    result.success = False
+    result.message = (f"{result.message}; with this plan the arm never comes to rest after tf "
+                      f"(negative viscous friction outruns Coulomb friction at its speed)")
+
+
+def _check_limits(result: PlanResult, req: PlanRequest) -> None:
+    """Compare the certificate's excursion with ``req.limits``: a plan that leaves them is not a
+    success (NO_ROBUST_PLAN, ``extra["limit_violations"]``); ``extra["limits_checked"]`` says
+    whether an excursion was there to check."""
+    limits = req.limits
+    if limits is None or limits.empty or result.profile is None:
+        return
+    exc = result.certificate.excursion if result.certificate is not None else None
+    result.extra["limits_checked"] = exc is not None
+    if exc is None:
+        result.message = (f"{result.message}; the limits were not checked: this plan has no "
+                          f"excursion in its certificate")
+        return
+    broken = exc.violations(limits)
+    if not broken:
+        return
+    result.extra["limit_violations"] = broken
+    result.success = False
+    result.message = (f"{result.message}; the plan leaves the limits over the box: "
+                      f"{'; '.join(broken)} (widen the limits or allow a longer move time)")
+
+
 def apply_current_quantum(result: PlanResult, checked: CheckedRequest) -> PlanResult:
     """A plan from elsewhere (e.g. a motion-library row) as ``plan`` would answer it under
     ``checked.request.current_quantum``: currents rounded, rest position and certificate
@@ -343,6 +440,9 @@ def plan(request: Union[PlanRequest, CheckedRequest], progress: Progress = None,
     t0 = time.perf_counter()
     checked = request if isinstance(request, CheckedRequest) else check(request)
     req = checked.request
+    if req.tolerance is not None:
+        raise PlanningError("a request with a tolerance is a search over the move time: plan it "
+                            "with ff_planner.optimize.fastest.plan_fastest", code="INVALID_REQUEST")
     route = ROUTES[(req.model, req.objective)]
     auto = req.auto_steps or req.auto_starts or (req.objective == "robust-box"
                                                  and req.steps is None)
@@ -375,6 +475,11 @@ def plan(request: Union[PlanRequest, CheckedRequest], progress: Progress = None,
         except (ValueError, ArithmeticError):
             pass
     _certify(result, req, checked)
+    _never_at_rest(result)
+    _check_limits(result, req)
+    if float(req.tf) >= MAX_TF and "a longer move time" in result.message:
+        result.message = result.message.replace(
+            "or a longer move time", f"(the move time is at its maximum of {MAX_TF:g} s)")
     if not result.success:
         result.best_effort = result.profile is not None
         if result.error_code == "OK":

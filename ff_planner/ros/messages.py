@@ -12,7 +12,7 @@ import math
 from typing import Any, Mapping, Optional
 
 from ff_msgs.msg import RobustnessCertificate as CertificateMsg
-from ff_msgs_py.convert import result_to_response
+from ff_msgs_py.convert import certificate_to_msg, result_to_response
 from ff_planner.model.profile import PlanResult, RobustnessCertificate
 from ff_planner.service.planner_service import RequestFields
 
@@ -24,23 +24,16 @@ def fields_from_msg(msg: Any) -> RequestFields:
         uncertain=list(msg.uncertain), objective=msg.objective, steps=msg.steps, starts=msg.starts,
         seed=msg.seed, time_budget=msg.time_budget, override_names=list(msg.override_names),
         override_values=list(msg.override_values), box_names=list(msg.box_names),
-        box_fractions=list(msg.box_fractions), coast_max=msg.coast_max, switch_grid=msg.switch_grid)
+        box_fractions=list(msg.box_fractions), coast_max=msg.coast_max, switch_grid=msg.switch_grid,
+        position_min=list(msg.position_min), position_max=list(msg.position_max),
+        velocity_max=list(msg.velocity_max), tolerance=msg.tolerance,
+        move_time_max=msg.move_time_max)
 
 
 def certificate_msg(cert: Optional[RobustnessCertificate]) -> CertificateMsg:
-    """RobustnessCertificate -> ff_msgs/RobustnessCertificate (``certified = false`` for None)."""
-    if cert is None:
-        return CertificateMsg(certified=False)
-    names = list(cert.box)
-    return CertificateMsg(
-        certified=True, box_names=names, box_fractions=[float(cert.box[n]) for n in names],
-        worst_rest_error=float(cert.worst_rest_error),
-        worst_at=[float(cert.worst_at.get(n, 1.0)) for n in names],
-        per_parameter=[float(cert.per_parameter.get(n, math.nan)) for n in names],
-        moving_at_tf=float(cert.moving_at_tf), switch_timing=[float(x) for x in cert.switch_timing],
-        worst_per_joint=[float(x) for x in (cert.worst_per_joint or [])],
-        switch_timing_per_joint=[float(x) for row in (cert.switch_timing_per_joint or []) for x in row],
-        samples=int(cert.samples))
+    """RobustnessCertificate -> ff_msgs/RobustnessCertificate (``certified = false`` for None),
+    excursion included (``ff_msgs_py.convert.certificate_to_msg``)."""
+    return certificate_to_msg(cert)
 
 
 def fill_response(result: PlanResult, response: Any) -> Any:

@@ -35,7 +35,8 @@ from ff_msgs_py.threads import in_thread
 from ff_planner.library.warm import PlanFn
 from ff_planner.optimize.planner import plan
 from ff_planner.ros.messages import feedback_from_progress, fields_from_msg, fill_response
-from ff_planner.service.planner_service import CANCELED, PlannerService, ServiceConfigError, config_from_mapping
+from ff_planner.service.planner_service import (CANCELED, LIMIT_NAMES, PlannerService, ServiceConfigError,
+                                                config_from_mapping)
 
 FEEDBACK_PERIOD = 0.2   # s between PlanMotion feedback messages
 
@@ -86,6 +87,10 @@ def descriptor(name: str, value: Any = None) -> ParameterDescriptor:
     parts = name.split(".")
     if not text and len(parts) == 2 and parts[1] == "preset":
         text = f"paper parameter set of model {parts[0]} (table1 | table2 | table3)"
+    elif not text and len(parts) == 2 and parts[1] in LIMIT_NAMES:
+        text = (f"{'rad/s' if parts[1] == 'velocity_max' else 'rad'} per joint: the cell's "
+                f"{parts[1]} for {parts[0]} requests that give none (held along the whole motion "
+                f"at every point of the friction box)")
     elif not text and len(parts) == 3 and parts[1] == "params":
         text = f"SI units: override of model {parts[0]}'s parameter {parts[2]} (ff_planner/model/params.py)"
     d = ParameterDescriptor(name=name, description=(text + " (read at start)").lstrip(), read_only=True,
@@ -95,6 +100,11 @@ def descriptor(name: str, value: Any = None) -> ParameterDescriptor:
     elif rng is not None and isinstance(value, float):
         d.floating_point_range = [FloatingPointRange(from_value=float(rng[0]), to_value=float(rng[1]), step=0.0)]
     return d
+
+
+def _tf_of(result: Any) -> str:
+    """The move time (s) a plan chose, for logs."""
+    return f"{result.profile.tf:g} s" if result.profile is not None else "none"
 
 
 class PlannerNode(Node):
@@ -162,7 +172,9 @@ class PlannerNode(Node):
     def _log_result(self, what: str, req: Any, result: Any) -> None:
         extra = result.extra or {}
         self.get_logger().info(
-            f"{what} {req.model or '-'} {list(req.q0)} -> {list(req.qf)} tf={req.move_time:g}: "
+            f"{what} {req.model or '-'} {list(req.q0)} -> {list(req.qf)} "
+            + (f"tf={req.move_time:g}" if not req.tolerance else
+               f"tolerance={req.tolerance:g} rad, tf chosen {_tf_of(result)}") + ": "
             f"{result.error_code} ({extra.get('source', '?')}, {1e3 * extra.get('latency', 0.0):.1f} ms)"
             + ("" if result.success else f": {result.message}"))
 

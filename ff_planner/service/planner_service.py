@@ -15,6 +15,9 @@ it again. Order of work for a valid request:
    without multistart (worker process); if that fails and time is left, a cold solve follows;
 4. otherwise a cold multistart solve in a worker process.
 
+Requests with a ``tolerance`` (a search over tf: ``ff_planner.optimize.fastest.plan_fastest``
+in the worker) or with limits skip the motion library (neither looked up nor stored).
+
 Request fields beyond the facade's: ``box_names``/``box_fractions`` (± fraction per uncertain
 parameter, for robust-box and the certificate), ``coast_max`` (s, robust-box) and ``switch_grid``
 (s: switch times on the drive's SYNC grid; 0 = the node's ``switch_grid``, negative = none). A
@@ -51,6 +54,7 @@ import traceback
 from collections import Counter, deque
 from concurrent.futures import TimeoutError as FutureTimeout
 from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 from typing import Any, Callable, Mapping, Optional, Sequence
 
@@ -63,9 +67,11 @@ from ff_planner.library.gridded import GridPlanRequest, applies, on_grid
 from ff_planner.library.refusal import as_vector, failure
 from ff_planner.library.store import LibraryError, MotionLibrary, MotionRecord, record_from_result, task_key
 from ff_planner.library.warm import PlanFn, warm_plan
-from ff_planner.model.params import MODELS, Params, check_model, default_params, preset
+from ff_planner.model.limits import MotionLimits
+from ff_planner.model.params import MODELS, Params, check_model, default_params, n_joints, preset
 from ff_planner.model.profile import OBJECTIVES, PlanRequest, PlanResult, RobustnessCertificate
 from ff_planner.model.simulate import rest_position
+from ff_planner.optimize.fastest import DEFAULT_MOVE_TIME_MAX, plan_fastest
 from ff_planner.optimize.planner import CheckedRequest, apply_current_quantum, check, plan
 from ff_planner.optimize.sample_box import box_fractions
 
@@ -75,6 +81,7 @@ PROGRESS_PERIOD = 0.05    # s: a worker reports progress at most this often
 CANCEL_POLL = 0.05        # s: how often a running plan looks at its cancel event
 REST_SPEED = 1e-6         # rad/s: a 2-DOF plan with |qd(tf)| below this is at rest at tf
 CANCELED = "canceled"     # extra["canceled"] of an answer stopped by its caller
+LIMIT_NAMES = ("position_min", "position_max", "velocity_max")   # <model>.<name>: a cell's limits
 
 
 class ServiceConfigError(ValueError):
@@ -110,6 +117,8 @@ class ServiceConfig:
     default_objective: str = PlanRequest().objective   # when a request leaves `objective` empty
     current_quantum: float = 0.0         # A, round every plan's currents to this grid (the drive's
     #                                      setpoint unit, e.g. an EPOS4's nominal current / 1000); 0 = none
+    limits: dict[str, MotionLimits] = field(default_factory=dict)   # model -> the cell's limits,
+    #                                      for requests that give none (<model>.position_min ...)
 
     def validate(self) -> None:
         """Raise ServiceConfigError naming the first setting that cannot be used."""
@@ -124,6 +133,14 @@ class ServiceConfig:
         for model in self.overrides:
             if model not in MODELS:
                 raise ServiceConfigError(f"overrides given for unknown model {model!r}")
+        for model, lim in self.limits.items():
+            if model not in MODELS:
+                raise ServiceConfigError(f"limits given for unknown model {model!r}")
+            nj = n_joints(model)
+            try:
+                lim.validate(nj, [], [])
+            except PlanningError as exc:
+                raise ServiceConfigError(f"{model} limits: {exc}") from None
         for name in ("default_starts", "max_steps", "max_starts", "workers", "max_pending"):
             if int(getattr(self, name)) < 1:
                 raise ServiceConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
@@ -321,6 +338,11 @@ class RequestFields:
     box_fractions: Sequence[float] = ()  # ± fraction of the nominal value, one per box_names entry
     coast_max: float = 0.0               # s, robust-box; 0 = the planner's default
     switch_grid: float = 0.0             # s; 0 = the node's switch_grid, negative = no grid
+    position_min: Sequence[float] = ()   # rad per joint; empty = the node's <model>.position_min
+    position_max: Sequence[float] = ()   # rad per joint; empty = the node's <model>.position_max
+    velocity_max: Sequence[float] = ()   # rad/s per joint; empty = the node's <model>.velocity_max
+    tolerance: float = 0.0               # rad, > 0: the fastest tf certified within it; 0 = none
+    move_time_max: float = 0.0           # s, longest tf of a tolerance search; 0 = 3 s
 
 
 class PlannerService:
@@ -404,11 +426,13 @@ class PlannerService:
             params = params.replace(**dict(zip(names, values)))   # unknown names: UNKNOWN_PARAMETER
         c = self.config
         objective = f.objective or c.default_objective
-        tf = float(f.move_time)
+        tolerance, tf_max = self._tolerance(f)
+        tf = float(f.move_time) if tolerance is None else tf_max
         if not math.isfinite(tf) or tf <= 0:
             raise PlanningError(f"move_time must be a finite number > 0 s, got {tf}")
         if tf > c.max_move_time:
-            raise PlanningError(f"move_time {tf} s exceeds this planner's limit of {c.max_move_time} s; "
+            what = "move_time" if tolerance is None else "move_time_max"
+            raise PlanningError(f"{what} {tf} s exceeds this planner's limit of {c.max_move_time} s; "
                                 f"split the move or raise max_move_time")
         budget = float(f.time_budget) if f.time_budget else c.default_time_budget
         if not math.isfinite(budget) or budget <= 0:
@@ -428,16 +452,18 @@ class PlannerService:
         coast_max = float(f.coast_max)
         if not (math.isfinite(coast_max) and coast_max >= 0.0):
             raise PlanningError(f"coast_max must be a finite number >= 0 s (0 = default), got {coast_max}")
-        grid = self._grid(f, objective, model)
+        grid = self._grid(f, objective, model, tf)
         chosen = None       # the baseline's own step count (it is not limited by max_steps)
-        if steps is None and objective == "energy-optimal" and model == "arm1dof":
+        if steps is None and objective == "energy-optimal" and model == "arm1dof" and tolerance is None:
             chosen = steps = _energy_steps_on_grid(tf - c.coast,
                                                    float(f.switch_grid) or float(self.config.switch_grid))
         kw: dict[str, Any] = dict(model=model, q0=[float(x) for x in f.q0], qf=[float(x) for x in f.qf],
                                   tf=tf, uncertain=uncertain, objective=objective, steps=steps,
                                   starts=starts, seed=int(f.seed), time_budget=budget, coast=c.coast,
                                   params=params, tol=c.tol, box=box,
-                                  current_quantum=float(c.current_quantum))
+                                  current_quantum=float(c.current_quantum),
+                                  limits=self._limits(f, model), tolerance=tolerance,
+                                  move_time_max=tf_max if tolerance is not None else None)
         if coast_max > 0.0:
             kw["coast_max"] = coast_max
         req = GridPlanRequest(grid=grid, **kw) if grid is not None else PlanRequest(**kw)
@@ -452,6 +478,30 @@ class PlannerService:
                                     f"tf - coast = {tf - c.coast:g} s; ask for fewer steps, a longer "
                                     f"move, or a finer switch_grid")
         return checked
+
+    def _limits(self, f: RequestFields, model: str) -> Optional[MotionLimits]:
+        """The request's limits; each list left empty takes the node's for ``model`` (if set).
+        Not validated here (PlanRequest.validate, through ``check``)."""
+        own = MotionLimits.of(*(list(getattr(f, k) or []) or None
+                                for k in ("position_min", "position_max", "velocity_max")))
+        cell = self.config.limits.get(model) or MotionLimits()
+        merged = MotionLimits(own.position_min or cell.position_min,
+                              own.position_max or cell.position_max,
+                              own.velocity_max or cell.velocity_max)
+        return None if merged.empty else merged
+
+    def _tolerance(self, f: RequestFields) -> tuple[Optional[float], float]:
+        """(tolerance rad or None, longest move time s) of a request."""
+        tol = float(f.tolerance)
+        tf_max = float(f.move_time_max)
+        if not (math.isfinite(tol) and tol >= 0.0):
+            raise PlanningError(f"tolerance must be a finite number >= 0 rad (0 = none), got {tol}")
+        if not (math.isfinite(tf_max) and tf_max >= 0.0):
+            raise PlanningError(f"move_time_max must be a finite number >= 0 s (0 = "
+                                f"{DEFAULT_MOVE_TIME_MAX:g} s), got {tf_max}")
+        if tol == 0.0:
+            return None, tf_max
+        return tol, tf_max or DEFAULT_MOVE_TIME_MAX
 
     @staticmethod
     def _box(f: RequestFields, uncertain: Sequence[str]) -> Optional[dict[str, float]]:
@@ -474,9 +524,10 @@ class PlannerService:
                                     f"(0.2 = ±20 %), got {x}")
         return dict(zip(names, fracs))
 
-    def _grid(self, f: RequestFields, objective: str, model: str) -> Optional[float]:
+    def _grid(self, f: RequestFields, objective: str, model: str, tf: float) -> Optional[float]:
         """The switch-time grid (s) of a request, or None: 0 = the node's switch_grid, negative =
-        none; only the 1-DOF planners of ``gridded.GRID_OBJECTIVES`` place switches on a grid."""
+        none; only the 1-DOF planners of ``gridded.GRID_OBJECTIVES`` place switches on a grid.
+        ``tf``: the move time (s; a tolerance search's longest)."""
         g = float(f.switch_grid)
         if not math.isfinite(g):
             raise PlanningError(f"switch_grid must be a finite number of seconds (0 = node default, "
@@ -485,8 +536,8 @@ class PlannerService:
             g = float(self.config.switch_grid)
         if g <= 0.0 or not applies(model, objective):
             return None
-        if g >= float(f.move_time):
-            raise PlanningError(f"switch_grid {g:g} s must be shorter than the move time {f.move_time:g} s")
+        if g >= tf:
+            raise PlanningError(f"switch_grid {g:g} s must be shorter than the move time {tf:g} s")
         return g
 
     def handle_fields(self, f: RequestFields, progress: Optional[Callable[[dict], None]] = None,
@@ -548,7 +599,8 @@ class PlannerService:
                progress: Optional[Callable[[dict], None]] = None,
                cancel: Optional[threading.Event] = None) -> tuple[PlanResult, str]:
         request = checked.request
-        lib = self.library
+        plain = _library_task(request)
+        lib = self.library if plain else None
         tell = progress or (lambda d: None)
         warm_from: Optional[tuple[float, MotionRecord]] = None
         if lib is not None:
@@ -594,7 +646,8 @@ class PlannerService:
         result.warm_start = False
         if result.extra.get(CANCELED):
             return result, "canceled"
-        self._store(request, result, "cold", None)
+        if plain:
+            self._store(request, result, "cold", None)
         return result, ("refused" if result.extra.get("refused") else "cold")
 
     def _usable(self, rec: MotionRecord, request: PlanRequest) -> bool:
@@ -657,7 +710,9 @@ class PlannerService:
                 if progress is not None and channel is not None:
                     report_to = channel.register(progress)
                     tag = report_to[1]
-                fut = pool.schedule(_solve, args=(checked, deadline, initial, self.plan_fn, report_to),
+                plan_fn = (partial(plan_fastest, plan_fn=self.plan_fn)
+                           if request.tolerance is not None else self.plan_fn)
+                fut = pool.schedule(_solve, args=(checked, deadline, initial, plan_fn, report_to),
                                     timeout=max(0.0, deadline - time.monotonic()) + 2 * self.config.grace)
                 try:
                     end = deadline + self.config.grace
@@ -743,6 +798,12 @@ class PlannerService:
             except Exception:  # noqa: BLE001
                 pass
         return out
+
+
+def _library_task(request: PlanRequest) -> bool:
+    """May the motion library answer (and store) this request? Not a tolerance search (its tf is
+    chosen) nor a request with limits (the library's task key does not hold them)."""
+    return request.tolerance is None and (request.limits is None or request.limits.empty)
 
 
 def _canceled(request: PlanRequest) -> PlanResult:
@@ -865,9 +926,10 @@ def config_from_mapping(values: Mapping[str, Any]) -> ServiceConfig:
     Model parameter overrides use ``<model>.params.<key>``, presets ``<model>.preset``.
     """
     cfg = ServiceConfig()
-    plain = {f for f in cfg.__dataclass_fields__ if f not in ("presets", "overrides")}
+    plain = {f for f in cfg.__dataclass_fields__ if f not in ("presets", "overrides", "limits")}
     presets = dict(cfg.presets)
     overrides: dict[str, dict[str, float]] = {}
+    limits: dict[str, dict[str, list[float]]] = {}
     unknown = []
     for name, v in values.items():
         if name in plain:
@@ -880,6 +942,13 @@ def config_from_mapping(values: Mapping[str, Any]) -> ServiceConfig:
         parts = name.split(".")
         if len(parts) == 2 and parts[0] in MODELS and parts[1] == "preset":
             presets[parts[0]] = str(v)
+        elif len(parts) == 2 and parts[0] in MODELS and parts[1] in LIMIT_NAMES:
+            items = list(v) if hasattr(v, "__iter__") and not isinstance(v, str) else [v]
+            try:
+                limits.setdefault(parts[0], {})[parts[1]] = [float(x) for x in items]
+            except (TypeError, ValueError):
+                raise ServiceConfigError(f"parameter {name!r} must be numbers, one per joint, got "
+                                         f"{v!r}") from None
         elif len(parts) == 3 and parts[0] in MODELS and parts[1] == "params":
             keys = default_params(parts[0]).keys()
             if parts[2] not in keys:
@@ -890,9 +959,12 @@ def config_from_mapping(values: Mapping[str, Any]) -> ServiceConfig:
             unknown.append(name)
     if unknown:
         raise ServiceConfigError(f"unknown planner parameter(s) {unknown}; valid: {sorted(plain)}, "
-                                 f"<model>.preset, <model>.params.<key> (and for the node: "
+                                 f"<model>.preset, <model>.params.<key>, <model>.position_min, "
+                                 f"<model>.position_max, <model>.velocity_max (and for the node: "
                                  f"diagnostics_period, executor_threads)")
     cfg.presets, cfg.overrides = presets, overrides
+    cfg.limits = {m: MotionLimits.of(d.get("position_min"), d.get("position_max"),
+                                     d.get("velocity_max")) for m, d in limits.items()}
     cfg.validate()
     for m in MODELS:
         cfg.model_params(m)

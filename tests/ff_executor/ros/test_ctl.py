@@ -109,3 +109,35 @@ def test_timing_notes_say_when_the_simulator_was_late_or_the_bridge_latched():
     assert "started 3 current change(s) late" in note and "228.1 ms" in note and "simulation" in note
     latched = [_status("ff_hwbridge: drive group", 2, "safe state: setpoint missed its SYNC cycle"), quiet[1]]
     assert ctl.timing_notes(quiet, latched) == ["ff_hwbridge: drive group: safe state: setpoint missed its SYNC cycle"]
+
+
+def test_plan_takes_a_tolerance_search_and_execute_keeps_its_landing_tolerance():
+    p = ctl.build_parser()
+    a = p.parse_args(["plan", "--tolerance", "0.002", "--tf-max", "2", "--q-min", "-0.3",
+                      "--qd-max", "4"])
+    req = ctl._plan_request(a)
+    assert req.tolerance == 0.002 and req.move_time_max == 2.0
+    assert req.limits.position_min == (-0.3,) and req.limits.velocity_max == (4.0,)
+    msg = ctl.request_to_msg(req)
+    assert msg.tolerance == 0.002 and list(msg.velocity_max) == [4.0]
+    e = p.parse_args(["execute", "move.json", "--tolerance", "0"])
+    assert e.land_tolerance == 0.0 and not hasattr(e, "tolerance")
+    plain = ctl._plan_request(p.parse_args(["execute", "--qf", "1", "--tolerance", "0.1"]))
+    assert plain.tolerance is None and plain.tf == 1.0       # the landing check, not a search
+    with pytest.raises(ctl.UsageError, match="--tradeoff"):
+        p.parse_args(["plan", "--tradeoff", "x.png"])             # ff-plan only
+
+
+def test_certificate_and_excursion_are_printed(capsys):
+    from ff_planner.model.limits import Excursion
+    from ff_planner.model.profile import RobustnessCertificate
+
+    class R:
+        certificate = RobustnessCertificate(
+            box={"pc": 0.2}, worst_rest_error=2e-3, worst_at={"pc": 1.2}, per_parameter={"pc": 2e-3},
+            moving_at_tf=0.5, switch_timing=[0.0], samples=300,
+            excursion=Excursion([-0.9], [1.1], [8.3], [-1.07], [1.13], [8.65]))
+
+    ctl._print_certificate(R())
+    out = capsys.readouterr().out
+    assert "worst rest error 2 mrad" in out and "excursion until rest" in out and "8.6500" in out

@@ -37,6 +37,20 @@ from ff_planner.export.motion_file import read_motion
     (["--preset", "table3", "--model", "arm1dof"], "for model 'scara2'"),
     (["-o", "/nonexistent-dir/x.json"], "does not exist"),
     (["--bogus"], "unrecognized arguments"),
+    (["--time-budget", "1e-9"], "ran out before any plan was tried"),
+    (["--set", "pc=1e-300"], "never comes to rest"),
+    (["--q0", "1e308", "--qf", "1e308"], "beyond ±10000 rad"),
+    (["--set", "pt=1.5"], "pt must be < 1"),
+    (["--tolerance", "0.002", "--tf", "1"], "not both"),
+    (["--tf-max", "2"], "--tf-max bounds a --tolerance search"),
+    (["--tolerance", "-1"], "--tolerance must be > 0"),
+    (["--tolerance", "0.002", "--tf-max", "100"], "--tf-max must be in"),
+    (["--q-min", "0.5"], "below --q-min"),
+    (["--q-max", "0.5"], "above --q-max"),
+    (["--q-min", "0", "0"], "one per joint"),
+    (["--qd-max", "0"], "--qd-max must be > 0"),
+    (["--q-min", "1", "--q-max", "0.5"], "must be below --q-max"),
+    (["--qd-max", "x"], "not a number"),
 ])
 def test_bad_input_one_line_exit_2(argv, needle, capsys):
     assert main(argv) == 2
@@ -152,3 +166,105 @@ def test_certificate_printed_and_written(tmp_path, capsys):
     assert cert["worst_rest_error"] > 0.1      # the energy-optimal plan is not robust
     assert set(cert["per_parameter"]) == {"pv", "pc", "pt"}
     assert len(cert["switch_timing_per_100us"]) == len(json.loads(out.read_text())["currents"])
+
+
+def test_help_states_the_default_steps_and_the_new_options(capsys):
+    from ff_planner.model.profile import BOX_DEFAULT_STEPS
+
+    assert main(["--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert f"robust-box {BOX_DEFAULT_STEPS}," in text
+    for flag in ("--q-min", "--q-max", "--qd-max", "--tolerance", "--tf-max"):
+        assert flag in text
+
+
+def test_json_stays_json_when_the_arm_never_rests(capsys):
+    """A best-effort plan whose rest position and certificate are not finite: strict JSON."""
+    rc = main(["--tf", "60", "--qf", "1000", "--objective", "robust-derivative", "--json",
+               "--quiet"])
+    out = capsys.readouterr().out
+
+    def refuse(name):
+        raise AssertionError(f"{name} in the JSON output")
+
+    d = json.loads(out, parse_constant=refuse)
+    assert rc == 1 and not d["success"]
+    assert "a longer move time" not in d["message"] and "at its maximum of 60 s" in d["message"]
+
+
+def test_limits_reach_the_request_and_a_broken_limit_is_labelled(monkeypatch, capsys):
+    from dataclasses import replace
+
+    import ff_planner.optimize.planner as planner
+    from ff_planner.cli.plan import build_parser, make_request
+    from ff_planner.optimize.baselines import plan_baseline
+
+    req = make_request(build_parser().parse_args(
+        ["--q-min", "-0.3", "--q-max", "1.05", "--qd-max", "4"]))
+    assert req.limits.position_min == (-0.3,) and req.limits.position_max == (1.05,)
+    assert req.limits.velocity_max == (4.0,)
+    assert make_request(build_parser().parse_args([])).limits is None
+    # a planner that ignores the limits: its plan (certified by the facade) is labelled, exit 1,
+    # the swing printed; a 0.5 rad/s speed limit cannot hold for 1 rad in 1 s
+    monkeypatch.setitem(planner.ROUTES, ("arm1dof", "energy-optimal"), planner.Route(
+        lambda req, progress: plan_baseline(replace(req, limits=None), progress), False))
+    rc = main(["--objective", "energy-optimal", "--qd-max", "0.5", "--quiet"])
+    text = capsys.readouterr().out
+    assert rc == 1
+    assert "excursion until rest" in text and "LIMITS BROKEN" in text and "velocity_max 0.5" in text
+
+
+def test_tolerance_search_request_and_answer(monkeypatch, capsys):
+    """--tolerance plans through the tf search and prints every tf it tried."""
+    from ff_planner.cli.plan import build_parser, make_request
+
+    req = make_request(build_parser().parse_args(["--tolerance", "0.002", "--tf-max", "2"]))
+    assert req.tolerance == 0.002 and req.move_time_max == 2.0 and req.tf == 2.0
+    rc = main(["--tolerance", "0.7", "--tf-max", "1.5", "--objective", "energy-optimal",
+               "--json", "--quiet"])
+    d = json.loads(capsys.readouterr().out)
+    search = d["tolerance_search"]
+    assert rc == 0 and d["success"] and search["met"]
+    assert d["certificate"]["worst_rest_error"] <= 0.7
+    tfs = [t["tf"] for t in search["trials"]]
+    assert len(tfs) >= 3 and tfs[0] == 1.5
+    passed = [t["tf"] for t in search["trials"] if t["meets"]]
+    failed = [t["tf"] for t in search["trials"] if not t["meets"]]
+    assert d["steps"] and min(passed) == search["bracket"][1]
+    assert search["bracket"][1] - search["bracket"][0] <= 0.01 * search["bracket"][1] + 1e-3
+    assert max(failed) == 1.5                 # the energy-optimal plan strays more when slower
+    assert "fastest tf certified within 700 mrad" in d["message"]
+    assert main(["--tolerance", "0.7", "--tf-max", "1.5", "--objective", "energy-optimal",
+                 "--quiet"]) == 0
+    text = capsys.readouterr().out
+    assert "tolerance search (700 mrad, tf <= 1.5 s)" in text and "tf 1.500 s: certified" in text
+
+
+def test_tradeoff_table_json_and_plot(tmp_path, capsys):
+    png = tmp_path / "t.png"
+    rc = main(["--objective", "energy-optimal", "--qd-max", "1.5", "--tradeoff", str(png),
+               "--tradeoff-points", "3", "--tf-max", "1.5", "--json", "--quiet"])
+    d = json.loads(capsys.readouterr().out)
+    assert rc == 0 and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    rows = d["tradeoff"]
+    assert [r["label"] for r in rows] == ["no limits"] * 3 + ["limits"] * 3
+    assert rows[2]["tf"] == 1.5 and rows[0]["tf"] < rows[1]["tf"] < 1.5
+    planned = [r for r in rows if r["worst_rest_error"] is not None]
+    assert len(planned) >= 3          # at the reach bound (and under the limits) maybe none
+    assert all(r["worst_rest_error"] > 0 and len(r["worst_speed"]) == 1 for r in planned)
+    free = {r["tf"]: r for r in rows if r["label"] == "no limits"}
+    limited = {r["tf"]: r for r in rows if r["label"] == "limits"}
+    for r in limited.values():        # over the speed limit: never a success
+        if r["worst_speed"]:
+            assert r["success"] == (r["worst_speed"][0] <= 1.5 + 1e-9)
+    mid = sorted(free)[1]
+    assert free[mid]["worst_speed"][0] > 1.5 and not limited[mid]["success"]
+    assert main(["--tradeoff", str(png), "--tradeoff-points", "1"]) == 2
+
+
+def test_no_time_for_a_single_start_is_a_clear_no_plan(capsys):
+    rc = main(["--objective", "robust-derivative", "--time-budget", "1e-9", "--quiet"])
+    out, err = capsys.readouterr()
+    assert rc == 1 and err == ""
+    lines = out.strip().splitlines()
+    assert len(lines) == 2 and "NO PLAN [TIME_BUDGET_EXHAUSTED]" in lines[0]

@@ -77,7 +77,7 @@ def test_dispatches_baselines():
 
 
 def _fake_result(request, success):
-    prof = CurrentProfile.uniform([[1.0]] * 3, request.tf)
+    prof = CurrentProfile.uniform([[0.0]] * 3, request.tf)       # at rest: a plan that ends
     return PlanResult(success=success, message="fake", profile=prof, model=request.model,
                       params=request.resolved_params(), q0=np.zeros(1), qf=np.ones(1),
                       uncertain=list(request.uncertain), objective=request.objective)
@@ -172,3 +172,90 @@ def test_warm_starts_follow_the_dispatch_table(monkeypatch):
         plan(PlanRequest(steps=5), initial_currents=init)
     with pytest.raises(WarmStartUnavailable):
         plan(PlanRequest(objective="time-optimal"), initial_currents=init)
+
+
+# --- issue-33 checks: input the planner cannot serve, time accounting, limits ---------------------
+@pytest.mark.parametrize("kw, needle", [
+    (dict(q0=(1e308,), qf=(1e308,)), "beyond ±10000 rad"),
+    (dict(qf=(-2e4,)), "beyond ±10000 rad"),
+    (dict(params=PRESETS["table2"].replace(pt=1.5)), "pt must be < 1"),
+    (dict(params=PRESETS["table2"].replace(pt=0.9)), "also at the box's edge"),
+    (dict(params=PRESETS["table2"].replace(pc=1e-300)), "never comes to rest"),
+    (dict(model="scara2", q0=(0.0, 0.0), qf=(0.5, 0.0), uncertain=("pc1",),
+          params=PRESETS["table3"].replace(pt2=1.2)), "pt2 must be < 1"),
+])
+def test_requests_no_plan_can_serve_are_refused_at_once(kw, needle):
+    t0 = time.perf_counter()
+    with pytest.raises(PlanningError) as ei:
+        check(PlanRequest(**kw))
+    assert ei.value.code == "INVALID_REQUEST" and needle in str(ei.value)
+    assert time.perf_counter() - t0 < 1.0
+
+
+def test_pt_below_one_without_the_box_is_accepted():
+    check(PlanRequest(uncertain=("pv", "pc"), params=PRESETS["table2"].replace(pt=0.9)))
+
+
+def test_a_time_budget_too_short_for_any_plan_is_one_clear_error():
+    with pytest.raises(PlanningError) as ei:
+        plan(PlanRequest(time_budget=1e-9))
+    assert ei.value.code == "TIME_BUDGET_EXHAUSTED" and "before any plan" in str(ei.value)
+
+
+def test_escalation_counts_its_whole_time_and_keeps_the_budget(monkeypatch):
+    calls = []
+
+    def slow_no_plan(req, progress):
+        time.sleep(0.03)
+        calls.append(req.steps)
+        r = _fake_result(req, False)
+        r.solve_time = 0.03
+        return r
+
+    _route_to(monkeypatch, slow_no_plan)
+    t0 = time.perf_counter()
+    r = plan(PlanRequest(time_budget=0.5))
+    wall = time.perf_counter() - t0
+    assert len(calls) >= 3 and len(r.extra["auto"]["tried"]) == len(calls)
+    assert r.solve_time >= 0.03 * len(calls) and r.solve_time <= wall
+    assert wall < 0.5 + 0.3          # one try past the budget at most, on a loaded machine
+
+
+def test_move_time_at_its_maximum_is_not_advised_longer(monkeypatch):
+    def fn(req, progress):
+        r = _fake_result(req, False)
+        r.message = "no truly robust plan; try more steps or a longer move time"
+        return r
+
+    _route_to(monkeypatch, fn)
+    r = plan(PlanRequest(tf=60.0, steps=5))
+    assert "a longer move time" not in r.message and "maximum of 60 s" in r.message
+    r = plan(PlanRequest(tf=10.0, steps=5))
+    assert "a longer move time" in r.message
+
+
+def test_a_plan_that_leaves_the_limits_is_labelled(monkeypatch):
+    from ff_planner.model.limits import Excursion, MotionLimits
+    from ff_planner.model.profile import RobustnessCertificate
+
+    def fn(req, progress):
+        r = _fake_result(req, True)
+        r.certificate = RobustnessCertificate(
+            box={"pv": 0.2}, worst_rest_error=1e-3, worst_at={"pv": 1.2},
+            per_parameter={"pv": 1e-3}, moving_at_tf=0.0, switch_timing=[0.0] * 3, samples=1,
+            excursion=Excursion([-0.5], [1.1], [6.0], [-0.7], [1.2], [7.0]))
+        return r
+
+    _route_to(monkeypatch, fn)
+    limits = MotionLimits.of([-1.0], [1.5], [8.0])
+    assert plan(PlanRequest(steps=5, limits=limits)).success       # within: unchanged
+    r = plan(PlanRequest(steps=5, limits=MotionLimits.of([-0.3], [1.5], [4.0])))
+    assert not r.success and r.best_effort and r.error_code == "NO_ROBUST_PLAN"
+    assert len(r.extra["limit_violations"]) == 2 and "velocity_max" in r.message
+    assert r.extra["limits_checked"]
+
+
+def test_a_tolerance_request_is_not_planned_at_its_tf():
+    with pytest.raises(PlanningError) as ei:
+        plan(PlanRequest(tolerance=1e-3))
+    assert "plan_fastest" in str(ei.value)

@@ -70,3 +70,78 @@ def test_a_scara_certificate_carries_its_per_joint_figures():
     assert list(c.worst_per_joint) == [2e-3, 5e-4]
     assert list(c.switch_timing_per_joint) == [1e-4, 2e-5, -3e-4, 0.0]     # row-major switches x joints
     assert list(certificate_msg(CERT).worst_per_joint) == []
+
+
+def test_new_request_fields_are_read_from_the_request_and_the_goal():
+    common = dict(model="arm1dof", q0=[0.0], qf=[1.0], move_time=0.0, position_min=[-0.3],
+                  position_max=[1.05], velocity_max=[4.0], tolerance=2e-3, move_time_max=2.5)
+    a = fields_from_msg(PlanTrajectory.Request(**common))
+    assert a == fields_from_msg(PlanMotion.Goal(**common))
+    assert (list(a.position_min), list(a.position_max), list(a.velocity_max)) == ([-0.3], [1.05], [4.0])
+    assert (a.tolerance, a.move_time_max) == (2e-3, 2.5)
+
+
+def _cert_with_excursion():
+    from dataclasses import replace
+
+    from ff_planner.model.limits import Excursion
+
+    return replace(CERT, excursion=Excursion([-0.9], [1.1], [8.3], [-1.07], [1.13], [8.65]),
+                   worst_per_joint=[2e-3, 1e-3], switch_timing_per_joint=[[1e-4, 2e-4], [3e-4, 4e-4]])
+
+
+def test_the_certificate_and_its_excursion_round_trip_through_the_message():
+    from ff_msgs_py.convert import certificate_from_msg, certificate_to_msg
+
+    cert = _cert_with_excursion()
+    msg = certificate_to_msg(cert)
+    assert list(msg.excursion_worst_min) == [-1.07] and list(msg.excursion_nominal_speed) == [8.3]
+    back = certificate_from_msg(msg)
+    assert back == cert
+    assert certificate_from_msg(certificate_to_msg(None)) is None
+    plain = certificate_to_msg(CERT)
+    assert list(plain.excursion_worst_max) == [] and certificate_from_msg(plain).excursion is None
+
+
+def test_response_to_result_carries_the_certificate_into_the_motion_file(tmp_path):
+    """ff-ctl plan -o: the motion file written from the service's answer has its certificate."""
+    from ff_msgs_py.convert import response_to_result
+    from ff_planner.export.motion_file import write_motion
+    from ff_planner.model.profile import PlanRequest
+
+    res = fill_response(_result(certificate=_cert_with_excursion(), q_final=np.ones(1),
+                                qd_final=np.zeros(1)), PlanTrajectory.Response())
+    back = response_to_result(res, PlanRequest(uncertain=("pv", "pc")))
+    assert back.certificate == _cert_with_excursion()
+    path = tmp_path / "m.json"
+    write_motion(path, back)
+    import json
+
+    cert = json.loads(path.read_text())["certificate"]
+    assert cert["worst_rest_error"] == 2e-3 and cert["excursion"]["worst_speed"] == [8.65]
+
+
+def test_request_to_msg_and_back_carries_limits_tolerance_box_and_coast_max():
+    from ff_msgs_py.convert import request_from_msg, request_to_msg
+    from ff_planner.model.limits import MotionLimits
+    from ff_planner.model.profile import PlanRequest
+
+    req = PlanRequest(qf=(1.0,), tf=2.0, box={"pc": 0.3}, coast_max=0.2,
+                      limits=MotionLimits.of([-0.3], [1.05], [4.0]), tolerance=2e-3,
+                      move_time_max=2.0)
+    msg = request_to_msg(req)
+    assert list(msg.position_min) == [-0.3] and msg.tolerance == 2e-3 and msg.move_time_max == 2.0
+    assert list(msg.box_names) == ["pc"] and msg.coast_max == 0.2
+    back = request_from_msg(msg)
+    assert (back.limits, back.tolerance, back.move_time_max, back.tf) == (req.limits, 2e-3, 2.0, 2.0)
+    assert back.box == {"pc": 0.3} and back.coast_max == 0.2
+    plain = request_to_msg(PlanRequest())
+    assert (list(plain.position_min), plain.tolerance, plain.move_time_max, plain.coast_max) == \
+        ([], 0.0, 0.0, 0.0)
+    assert request_from_msg(plain).limits is None and request_from_msg(plain).tolerance is None
+
+
+def test_limit_parameters_have_descriptions():
+    d = descriptor("arm1dof.velocity_max", [4.0])
+    assert "rad/s per joint" in d.description and d.read_only
+    assert "rad per joint" in descriptor("scara2.position_min", [0.0, 0.0]).description

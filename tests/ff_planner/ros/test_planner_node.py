@@ -271,3 +271,30 @@ def test_box_grid_certificate_and_predicted_rest_over_the_service(client):
     assert "not uncertain" in bad.message and not bad.certificate.certified
     baseline = _call(client, **dict(ONE_DOF, qf=[0.45]))
     assert baseline.success and "switch_grid" in baseline.message     # said, not silently ignored
+
+
+def test_limits_tolerance_and_the_excursion_over_the_service(client):
+    """The request's limits reach the plan (a broken one labelled, with the excursion in the
+    certificate); a tolerance request answers the fastest tf certified within it."""
+    from ff_msgs.srv import PlanTrajectory
+
+    base = dict(model="arm1dof", q0=[0.0], qf=[1.0], uncertain=["pv", "pc", "pt"],
+                objective="energy-optimal")
+    free = _call(client, **dict(base, move_time=1.0))
+    assert free.success, free.message
+    cert = free.certificate
+    assert cert.certified and len(cert.excursion_worst_speed) == 1
+    assert cert.excursion_worst_speed[0] >= cert.excursion_nominal_speed[0] > 0.5
+    assert cert.excursion_nominal_min[0] <= 0.0 and cert.excursion_worst_max[0] >= 1.0
+    res = _call(client, **dict(base, move_time=1.0, velocity_max=[0.5]))
+    assert not res.success and res.error_code in (PlanTrajectory.Response.NO_ROBUST_PLAN,
+                                                  PlanTrajectory.Response.UNREACHABLE)
+    assert "velocity_max 0.5" in res.message
+    bad = _call(client, **dict(base, move_time=1.0, position_min=[0.5]))
+    assert not bad.success and bad.error_code == PlanTrajectory.Response.INVALID_REQUEST
+    assert "position_min" in bad.message
+    tol = _call(client, **dict(base, move_time=0.0, tolerance=0.7, move_time_max=1.5,
+                               time_budget=60.0))
+    assert tol.success, tol.message
+    assert tol.certificate.worst_rest_error <= 0.7 and tol.profile.move_time < 1.5
+    assert "fastest tf certified within 700 mrad" in tol.message
