@@ -19,7 +19,8 @@ def _floats(values: Optional[Sequence[float]]) -> tuple[float, ...]:
 @dataclass(frozen=True)
 class MotionLimits:
     """Per-joint position range [position_min, position_max] (rad) and speed limit |qd| <=
-    velocity_max (rad/s). Each sequence is empty (no such limit) or has one value per joint."""
+    velocity_max (rad/s). Each sequence is empty (no such limit) or has one value per joint.
+    Messages number joints from 1."""
 
     position_min: tuple[float, ...] = ()
     position_max: tuple[float, ...] = ()
@@ -49,16 +50,16 @@ class MotionLimits:
         if self.position_min and self.position_max:
             for j, (lo, hi) in enumerate(zip(self.position_min, self.position_max)):
                 if not lo < hi:
-                    raise PlanningError(f"joint {j}: position_min {lo:g} rad must be below "
+                    raise PlanningError(f"joint {j + 1}: position_min {lo:g} rad must be below "
                                         f"position_max {hi:g} rad")
         for name, q in (("start q0", q0), ("goal qf", qf)):
             for j, x in enumerate(q):
                 if self.position_min and float(x) < self.position_min[j]:
-                    raise PlanningError(f"joint {j}: {name} = {float(x):g} rad is below "
+                    raise PlanningError(f"joint {j + 1}: {name} = {float(x):g} rad is below "
                                         f"position_min {self.position_min[j]:g} rad; widen the "
                                         f"range or move the {name.split()[0]}")
                 if self.position_max and float(x) > self.position_max[j]:
-                    raise PlanningError(f"joint {j}: {name} = {float(x):g} rad is above "
+                    raise PlanningError(f"joint {j + 1}: {name} = {float(x):g} rad is above "
                                         f"position_max {self.position_max[j]:g} rad; widen the "
                                         f"range or move the {name.split()[0]}")
 
@@ -90,13 +91,13 @@ class Excursion:
             return out
         for j in range(len(self.worst_min)):
             if limits.position_min and self.worst_min[j] < limits.position_min[j] - slack:
-                out.append(f"joint {j} reaches {self.worst_min[j]:.4g} rad < position_min "
+                out.append(f"joint {j + 1} reaches {self.worst_min[j]:.4g} rad < position_min "
                            f"{limits.position_min[j]:.4g}")
             if limits.position_max and self.worst_max[j] > limits.position_max[j] + slack:
-                out.append(f"joint {j} reaches {self.worst_max[j]:.4g} rad > position_max "
+                out.append(f"joint {j + 1} reaches {self.worst_max[j]:.4g} rad > position_max "
                            f"{limits.position_max[j]:.4g}")
             if limits.velocity_max and self.worst_speed[j] > limits.velocity_max[j] + slack:
-                out.append(f"joint {j} reaches {self.worst_speed[j]:.4g} rad/s > velocity_max "
+                out.append(f"joint {j + 1} reaches {self.worst_speed[j]:.4g} rad/s > velocity_max "
                            f"{limits.velocity_max[j]:.4g}")
         return out
 

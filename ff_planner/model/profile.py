@@ -103,8 +103,8 @@ class PlanRequest:
     tf: float = 1.0                          # s
     uncertain: Sequence[str] = ("pv", "pc", "pt")
     objective: str = "robust-box"
-    steps: Optional[int] = None              # per joint; None = 2 + k (robust-box 8, others
-    #                                          tried while 8 has no robust plan); 0 = chosen
+    steps: Optional[int] = None              # per joint; None = 2 + k (robust-box 12,
+    #                                          BOX_DEFAULT_STEPS; others only while 12 has none); 0 = chosen
     starts: int = 50                         # 0 = chosen (1-DOF robust planners)
     seed: int = 0
     time_budget: float = 30.0                # s

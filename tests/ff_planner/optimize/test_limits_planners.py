@@ -98,7 +98,7 @@ def test_robust_box_keeps_its_plan_when_the_limits_do_not_bind():
 def test_baselines_refuse_limits_they_leave(objective):
     with pytest.raises(PlanningError, match="cannot honour them.*") as err:
         plan_baseline(PlanRequest(objective=objective, limits=PAPER_LIMITS))
-    assert err.value.code == "UNREACHABLE" and "joint 0 reaches" in str(err.value)
+    assert err.value.code == "UNREACHABLE" and "joint 1 reaches" in str(err.value)
     wide = MotionLimits.of([-0.5], [2.0], [12.0])
     r = plan_baseline(PlanRequest(objective=objective, limits=wide))
     assert r.success
