@@ -51,12 +51,13 @@ import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from lifecycle_msgs.srv import GetState
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.exceptions import ParameterException
 from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
@@ -64,6 +65,8 @@ from sensor_msgs.msg import JointState
 from ff_executor.engine import (NS, EngineConfig, Motion, ProfileRejected, Setpoint, SettleDetector, Stream,
                                 StreamRunner, TimingStats, build_setpoints, check_profile, check_start_state,
                                 estimate_applied_times, missed_cycles, resolve_start, timing_stats)
+from ff_executor.engine.config import EXECUTOR_PARAMETERS
+from ff_executor.engine.paramspec import ParamTable
 from ff_msgs.action import ExecuteProfile
 from ff_msgs.msg import CurrentSetpoint
 from ff_msgs_py.convert import msg_to_profile, predicted_rest_of, setpoint_msg, time_to_ns
@@ -72,41 +75,11 @@ from ff_msgs_py.threads import in_thread
 
 READY_LINE = "ff_executor ready"
 
-INF = float("inf")
 #: s, the longest the result waits for a bridge status newer than the last applied report
 DIAG_WAIT = 0.6
-#: name: (default, description with units, (from, to) range or None, read_only). Read-only ones go
-#: into the engine's configuration (or a subscription) when the node starts; the others are read
-#: for each goal, so ``ff-ctl param set`` changes them at once.
-PARAMETERS: dict[str, tuple[Any, str, Optional[tuple[float, float]], bool]] = {
-    "joint_names": (["joint1"], "joints of the drive group, in the bridge's order", None, True),
-    "current_limits": ([10.0], "A, per joint (one value = all joints); profiles above are refused", None, True),
-    "lead_time": (0.1, "s, publish each setpoint this long before its stamp", (0.0, 10.0), True),
-    "start_margin": (0.25, "s, start this long after the goal when no start time is given", (0.0, 60.0), True),
-    "max_start_wait": (60.0, "s, refuse start times further ahead", (0.0, 86400.0), True),
-    "max_steps": (10000, "most current steps per joint", (1, 10_000_000), True),
-    "min_step": (1e-4, "s, shortest current step accepted", (0.0, 10.0), True),
-    "max_move_time": (600.0, "s, longest move accepted", (0.0, 86400.0), True),
-    "keepalive": (0.0, "s, repeat the present current at this period (0 = switches only)", (0.0, 60.0), True),
-    "start_tolerance": (0.02, "rad, the arm must be at rest this close to the profile's q0 (inf = no check)",
-                        (0.0, INF), True),
-    "rest_velocity": (1e-3, "rad/s, at rest below this", (0.0, 100.0), True),
-    "settle_hold": (0.05, "s, at rest this long = settled", (0.0, 60.0), False),
-    "settle_timeout": (3.0, "s after tf, give up waiting for rest", (0.0, 3600.0), False),
-    "feedback_rate": (20.0, "Hz, action feedback rate (at least 10 Hz is sent)", (0.0, 1000.0), False),
-    "bridge_node": ("ff_hwbridge", "name of the bridge lifecycle node", None, True),
-    "require_bridge_active": (True, "refuse goals unless the bridge reports lifecycle state active", None, False),
-    "bridge_timeout": (5.0, "s, wait this long for the bridge's get_state service", (0.0, 600.0), False),
-    "setpoint_topic": ("/ff_hwbridge/setpoints", "where setpoints go (ff_msgs/msg/CurrentSetpoint)", None, True),
-    "joint_state_topic": ("/ff_hwbridge/joint_states", "measured joint states (sensor_msgs/msg/JointState)",
-                          None, True),
-    "current_topic": ("/ff_hwbridge/motor_currents", "measured motor currents (sensor_msgs/msg/JointState, "
-                      "effort A) for the switch-time estimate; '' = the joint states' effort", None, True),
-    "applied_topic": ("/ff_hwbridge/applied", "the bridge's reports of applied setpoints (optional)", None, True),
-    "joint_state_timeout": (1.0, "s, stop the move (zero current, abort) if joint states stop this long",
-                            (0.0, 600.0), False),
-    "refuse_mode": ("abort", "'abort': accept, then abort with the reason; 'reject': reject the goal", None, False),
-}
+#: Every parameter of this node, with its default, unit, range and description (the single
+#: source: ``config/executor.yaml`` and ``docs/parameters.md`` are written from it).
+PARAMETERS: ParamTable = EXECUTOR_PARAMETERS
 
 
 def _number(values: dict[str, str], key: str, default: Optional[float] = 0.0) -> Any:
@@ -119,18 +92,18 @@ def _number(values: dict[str, str], key: str, default: Optional[float] = 0.0) ->
 
 
 def descriptor(name: str) -> ParameterDescriptor:
-    """The ParameterDescriptor of executor parameter ``name`` (description, range, read-only)."""
-    default, text, rng, read_only = PARAMETERS[name]
-    d = ParameterDescriptor(name=name, description=text, read_only=read_only)
-    if name == "refuse_mode":
-        d.additional_constraints = "one of: abort, reject"
-    if rng is not None and isinstance(default, bool):
-        pass
-    elif rng is not None and isinstance(default, int):
+    """The ParameterDescriptor of executor parameter ``name``: "<unit>, <description>", range or
+    allowed values, and read-only for the parameters read at start."""
+    spec = PARAMETERS[name]
+    d = ParameterDescriptor(name=name, description=spec.text(), read_only=spec.read_at_start)
+    if spec.choices:
+        d.additional_constraints = f"one of: {', '.join(spec.choices)}"
+    rng, default = spec.range, spec.default
+    if rng is not None and isinstance(default, int) and not isinstance(default, bool):
         d.integer_range = [IntegerRange(from_value=int(rng[0]), to_value=int(rng[1]), step=0)]
-    elif rng is not None:
+    elif rng is not None and isinstance(default, float):
         d.floating_point_range = [FloatingPointRange(from_value=float(rng[0]), to_value=float(rng[1]), step=0.0)]
-    if read_only:
+    if spec.read_at_start:
         d.description += " (read at start)"
     return d
 
@@ -140,17 +113,12 @@ class ExecutorNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__("ff_executor", **kwargs)
-        for name, (default, *_rest) in PARAMETERS.items():
-            self.declare_parameter(name, default, descriptor(name))
+        for spec in PARAMETERS:
+            self.declare_parameter(spec.name, spec.ros_default, descriptor(spec.name))
         g = self._p
-        self.config = EngineConfig(
-            joint_names=tuple(g("joint_names")), current_limits=tuple(g("current_limits")),
-            lead_time=g("lead_time"), start_margin=g("start_margin"),
-            max_start_wait=g("max_start_wait"), max_steps=int(g("max_steps")),
-            min_step=g("min_step"), max_move_time=g("max_move_time"), keepalive=g("keepalive"),
-            start_tolerance=float(g("start_tolerance")), rest_velocity=g("rest_velocity"))
-        if g("refuse_mode") not in ("abort", "reject"):
-            raise ValueError(f"refuse_mode must be 'abort' or 'reject', got {g('refuse_mode')!r}")
+        self.config = EngineConfig.from_parameters({name: g(name) for name in PARAMETERS.names()})
+        PARAMETERS["refuse_mode"].check(g("refuse_mode"))
+        self.add_on_set_parameters_callback(self._on_set_parameters)
         if not g("feedback_rate") >= 10.0:
             self.get_logger().warn("feedback_rate below 10 Hz requested; using 10 Hz")
 
@@ -195,6 +163,16 @@ class ExecutorNode(Node):
             self, ExecuteProfile, "~/execute", execute_callback=self._execute_in_thread,
             goal_callback=self._on_goal, cancel_callback=self._on_cancel,
             callback_group=ReentrantCallbackGroup())
+
+    def _on_set_parameters(self, params: list[Parameter]) -> SetParametersResult:
+        """Refuse a runtime value outside its parameter's allowed choices (ROS checks the ranges)."""
+        for p in params:
+            if p.name in PARAMETERS:
+                try:
+                    PARAMETERS[p.name].check(p.value)
+                except ValueError as exc:
+                    return SetParametersResult(successful=False, reason=str(exc))
+        return SetParametersResult(successful=True)
 
     def _p(self, name: str) -> Any:
         return self.get_parameter(name).value

@@ -342,8 +342,8 @@ def test_parameters_carry_descriptors_with_units_ranges_and_read_only():
 
     from ff_executor.ros.executor_node import PARAMETERS, descriptor
 
-    for name in PARAMETERS:
-        d = descriptor(name)
+    for spec in PARAMETERS:
+        d = descriptor(spec.name)
         assert isinstance(d, ParameterDescriptor) and d.description
     lead = descriptor("lead_time")
     assert lead.read_only and lead.description.startswith("s,")
@@ -351,3 +351,5 @@ def test_parameters_carry_descriptors_with_units_ranges_and_read_only():
     assert descriptor("max_steps").integer_range[0].from_value == 1
     assert not descriptor("feedback_rate").read_only      # read for each goal
     assert descriptor("start_tolerance").floating_point_range[0].to_value == float("inf")
+    assert descriptor("refuse_mode").additional_constraints == "one of: abort, reject"
+    assert descriptor("keepalive").description.startswith("s, ")
