@@ -140,3 +140,13 @@ def test_plan_then_execute_a_motion_file_while_recording(stack, capsys, tmp_path
     missing = [c for cs in layout_plots().values() for c in cs if c not in series]
     assert not missing, (missing, sorted(s for s in series if not s.startswith("/rosout")))
     assert os.path.getsize(mcap) > 10_000
+    # the library that wrote the bag reads every message of every topic back, checking each
+    # topic's recorded type hash against the embedded definition
+    from rosbags.highlevel import AnyReader
+
+    again: Counter[str] = Counter()
+    with AnyReader([bag]) as reader:
+        for conn, _t, raw in reader.messages():
+            reader.deserialize(raw, conn.msgtype)
+            again[conn.topic] += 1
+    assert again == counts, (again, counts)
