@@ -1,13 +1,19 @@
 """``ff-library``: build a motion library from a task grid on Dask, and show what it holds.
 
-    ff-library build GRID.yaml --library PATH [--workers N | --scheduler tcp://HOST:PORT | --serial]
+    ff-library build GRID.yaml --library PATH [--workers N | --serial | --scheduler tls://HOST:PORT
+                     --tls-ca-file CA.pem --tls-cert CLIENT.pem --tls-key CLIENT.key]
                      [--no-continuation] [--roots R] [--dashboard] [--json]
     ff-library show --library PATH [--grid GRID.yaml] [--png map.png] [--limit N] [--json]
 
 The library is the planner node's motion library (``ff_planner.library.store``, SQLite): point the node's
 ``library_path`` at the same file, with the same model preset/overrides (rows of other parameters
 are invisible to it). With ``--scheduler`` the workers of that cluster must have this suite
-installed (same version); they only compute, this command writes the file.
+installed (same version); they only compute, this command writes the file. A ``tls://`` scheduler
+takes this client's certificate and key, signed by the cluster's CA (mutual TLS); a plain
+``tcp://`` one works, with a warning: it is unencrypted and unauthenticated, and whoever reaches it
+can run code on its workers (docs/security.md). The grid file may name the scheduler and the files
+itself (keys ``scheduler``, ``tls_ca_file``, ``tls_cert``, ``tls_key``); the command line wins
+(``--serial`` or ``--workers`` build here whatever the file says).
 
 Exit codes: 0 done (infeasible tasks are an answer, not an error); 1 some tasks failed (re-run to
 retry them); 2 bad input (one line on stderr saying what to change).
@@ -24,6 +30,7 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
+from ff_planner.library.cluster import SchedulerSettings, merge
 from ff_planner.library.grid import GridError, describe, expand, load_grid
 from ff_planner.library.store import LibraryError, MotionLibrary, MotionRecord
 from ff_planner.model.params import ParameterError, n_joints
@@ -162,14 +169,20 @@ def cmd_build(a: argparse.Namespace) -> int:
 
     grid = expand(load_grid(a.grid))
     info = describe(grid)
+    settings = scheduler_settings(a, grid.spec.scheduler)
+    if a.dashboard and (settings or a.serial):
+        raise GridError("--dashboard only applies to the LocalCluster this command starts")
+    if settings is not None:
+        settings.check()
+        note = settings.warning()
+        if note:
+            print(f"ff-library: warning: {note}", file=sys.stderr)
     if not a.quiet:
-        where = a.scheduler or ("this process" if a.serial else
-                                f"a LocalCluster on 127.0.0.1 with {a.workers or 'one per core'} workers")
+        local = f"a LocalCluster on 127.0.0.1 with {a.workers or 'one per core'} workers"
+        where = settings.parsed.url if settings else ("this process" if a.serial else local)
         print(f"ff-library: {info['tasks']} tasks ({info['distinct_motions']} distinct motions, "
               f"{info['shift_copies']} shifted copies), continuation tree depth {info['tree_depth']}, "
               f"on {where}", file=sys.stderr)
-    if a.dashboard and (a.scheduler or a.serial):
-        raise GridError("--dashboard only applies to the LocalCluster this command starts")
     client = cluster = None
     if a.dashboard:
         import importlib.util
@@ -183,7 +196,7 @@ def cmd_build(a: argparse.Namespace) -> int:
         else:
             print(f"ff-library: dashboard at {cluster.dashboard_link}", file=sys.stderr)
     try:
-        rep = build_library(grid, a.library, workers=a.workers, scheduler=a.scheduler, client=client,
+        rep = build_library(grid, a.library, workers=a.workers, scheduler=settings, client=client,
                             serial=a.serial, continuation=not a.no_continuation, roots=a.roots,
                             local_starts=a.local_starts, progress=not a.quiet)
     finally:
@@ -202,6 +215,14 @@ def cmd_build(a: argparse.Namespace) -> int:
         for e in rep.worker_errors[:5]:
             print(f"  worker error: {e}")
     return 1 if rep.failed else 0
+
+
+def scheduler_settings(a: argparse.Namespace, from_grid: Optional[SchedulerSettings]) -> Optional[SchedulerSettings]:
+    """The scheduler to build on: the command line's, else the grid file's unless --serial or
+    --workers ask for a build here; None = build here."""
+    if a.serial or a.workers is not None:
+        from_grid = None
+    return merge(from_grid, a.scheduler, a.tls_ca_file, a.tls_cert, a.tls_key)
 
 
 def cmd_show(a: argparse.Namespace) -> int:
@@ -239,7 +260,12 @@ def parser() -> argparse.ArgumentParser:
     b.add_argument("--library", required=True, help="motion library file (SQLite), created if missing")
     b.add_argument("--workers", type=int, default=None,
                    help="LocalCluster worker processes (default: one per core)")
-    b.add_argument("--scheduler", default=None, help="use an existing Dask scheduler, tcp://HOST:PORT")
+    b.add_argument("--scheduler", default=None,
+                   help="use an existing Dask scheduler: tls://HOST:PORT (with the three --tls-* files) or "
+                        "tcp://HOST:PORT (unencrypted, unauthenticated: warns)")
+    b.add_argument("--tls-ca-file", default=None, help="tls://: the CA that signed the cluster's certificates (PEM)")
+    b.add_argument("--tls-cert", default=None, help="tls://: this client's certificate, signed by that CA (PEM)")
+    b.add_argument("--tls-key", default=None, help="tls://: this client's private key (PEM, unencrypted)")
     b.add_argument("--serial", action="store_true", help="no Dask: solve in this process")
     b.add_argument("--no-continuation", action="store_true",
                    help="solve every task cold (multistart), ignoring neighbours")
@@ -265,8 +291,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if getattr(a, "workers", None) is not None and a.workers < 1:
         print("ff-library: error: --workers must be >= 1", file=sys.stderr)
         return 2
-    if getattr(a, "scheduler", None) and getattr(a, "serial", False):
-        print("ff-library: error: give --scheduler or --serial, not both", file=sys.stderr)
+    if getattr(a, "scheduler", None) and (getattr(a, "serial", False) or getattr(a, "workers", None)):
+        print("ff-library: error: give --scheduler, --serial or --workers, one of them", file=sys.stderr)
         return 2
     try:
         return int(a.fn(a))

@@ -1,7 +1,8 @@
 """The motion library: the SQLite store of solved tasks, task grids, warm starts, refusals.
 
 The Dask builder is ``ff_planner.library.build`` (``build_library``); it is not imported here, as
-it loads the planner facade and its compiled kernels.
+it loads the planner facade and its compiled kernels. ``ff_planner.library.cluster``: the
+scheduler address and its TLS certificates.
 """
 from ff_planner.library.grid import (
            Grid,

@@ -5,8 +5,9 @@ Who writes: the *client* writes every result into the store (``ff_planner.librar
 the same SQLite file and schema the planner node reads), as the results arrive. Workers only
 compute: ``solve_task(payload) -> MotionRecord`` is a pure function of its payload. Why:
 
-* workers of a remote cluster (``--scheduler``) need not see the client's disk, and SQLite must not
-  live on a network file system; the client is the one place that always has the file;
+* workers of a remote cluster (``--scheduler``; TLS and its certificates:
+  ``ff_planner.library.cluster``) need not see the client's disk, and SQLite must not live on a
+  network file system; the client is the one place that always has the file;
 * exactly-once is then a property of one writer plus the store's primary key: ``put`` is
   INSERT-OR-IGNORE on the task key (an upgrade only replaces a strictly worse row), so a result
   delivered twice is written once;
@@ -46,6 +47,7 @@ from typing import Any, Callable, Optional, TextIO
 import numpy as np
 
 from ff_planner.core.errors import ParameterError, PlanningError, WarmStartUnavailable, error_code_of
+from ff_planner.library.cluster import DEFAULT_CONNECT_TIMEOUT, SchedulerSettings, connect
 from ff_planner.library.grid import Grid, GridSpec, GridTask, continuation_tree, describe, expand, load_grid
 from ff_planner.library.refusal import failure
 from ff_planner.library.store import MotionLibrary, MotionRecord, record_from_result
@@ -355,6 +357,15 @@ class BuildReport:
         return d
 
 
+def _close(own_client: Any, own_cluster: Any, client: Any) -> None:
+    """Close the client and LocalCluster that build_library made (not a client it was given)."""
+    if own_client is not None:
+        own_client.close()
+    if own_cluster is not None:
+        client.close()
+        own_cluster.close()
+
+
 def _nearest_solved_ancestor(grid: Grid, i: int, recs: dict[int, MotionRecord]) -> Optional[MotionRecord]:
     p = grid.tasks[i].parent
     while p >= 0:
@@ -366,16 +377,22 @@ def _nearest_solved_ancestor(grid: Grid, i: int, recs: dict[int, MotionRecord]) 
 
 
 def build_library(grid: Grid | GridSpec | str | os.PathLike, library: str | os.PathLike | MotionLibrary, *,
-                  workers: Optional[int] = None, scheduler: Optional[str] = None, client: Any = None,
-                  serial: bool = False, continuation: bool = True, roots: int = 1,
+                  workers: Optional[int] = None, scheduler: str | SchedulerSettings | None = None,
+                  client: Any = None, serial: bool = False, continuation: bool = True, roots: int = 1,
                   plan_fn: PlanFn = plan, local_starts: int = 16, progress: bool = True,
                   stream: Optional[TextIO] = None,
-                  on_result: Optional[Callable[[int, MotionRecord], None]] = None) -> BuildReport:
+                  on_result: Optional[Callable[[int, MotionRecord], None]] = None,
+                  connect_timeout: float = DEFAULT_CONNECT_TIMEOUT) -> BuildReport:
     """Solve every task of ``grid`` not yet stored in ``library``; see the module docstring.
 
-    Executor: ``client`` (a distributed.Client) if given; else ``scheduler`` ("tcp://HOST:PORT",
-    an existing cluster); else ``serial`` (this process); else a LocalCluster on 127.0.0.1 with
-    ``workers`` processes (default one per core). ``continuation=False`` solves every task cold
+    Executor: ``client`` (a distributed.Client) if given; else ``scheduler``, an existing cluster
+    (a :class:`~ff_planner.library.cluster.SchedulerSettings` with its TLS files, or an address:
+    "tls://HOST:PORT" then needs the settings, "tcp://HOST:PORT" is plain); else ``serial`` (this
+    process); else a LocalCluster on 127.0.0.1 with ``workers`` processes (default one per core).
+    The grid's own ``scheduler`` keys are not read here (``ff-library build`` reads them). The
+    executor is set up before the library file is opened: a scheduler that cannot be reached or
+    refuses this client raises ClusterError (a ValueError) and nothing is written.
+    ``continuation=False`` solves every task cold
     (multistart) in grid order (for comparison); ``local_starts`` = single-start solves from the
     neighbour's currents and perturbations of them before falling back to multistart. ``plan_fn``
     is the planner, ``plan(request, progress, initial_currents=...)``: a module-level function, so
@@ -387,9 +404,42 @@ def build_library(grid: Grid | GridSpec | str | os.PathLike, library: str | os.P
         grid = expand(spec)
     if roots != 1:
         continuation_tree(grid, n_roots=int(roots))
-    lib = library if isinstance(library, MotionLibrary) else MotionLibrary(library)
-    params = grid.spec.params
     t0 = time.monotonic()
+
+    # the executor first: a refused scheduler leaves no file behind
+    own_cluster = own_client = None
+    address = "serial"
+    if serial and client is None and scheduler is None:
+        runner: Any = _SerialRunner()
+    else:
+        if client is None:
+            if scheduler is not None:
+                settings = scheduler if isinstance(scheduler, SchedulerSettings) else SchedulerSettings(str(scheduler))
+                client = own_client = connect(settings, timeout=connect_timeout)
+                address = settings.parsed.url
+            else:
+                own_cluster, client = start_local_cluster(workers)
+        runner = _DaskRunner(client)
+    try:
+        lib = library if isinstance(library, MotionLibrary) else MotionLibrary(library)
+        try:
+            report = _fill(grid, lib, runner, address, client, continuation=continuation, plan_fn=plan_fn,
+                           local_starts=local_starts, progress=progress, stream=stream, on_result=on_result)
+        finally:
+            if not isinstance(library, MotionLibrary):
+                lib.close()
+    finally:
+        runner.close()
+        _close(own_client, own_cluster, client)
+    report.wall_time = time.monotonic() - t0
+    return report
+
+
+def _fill(grid: Grid, lib: MotionLibrary, runner: Any, address: str, client: Any, *, continuation: bool,
+          plan_fn: PlanFn, local_starts: int, progress: bool, stream: Optional[TextIO],
+          on_result: Optional[Callable[[int, MotionRecord], None]]) -> BuildReport:
+    """The build proper on a ready executor and an open library (see build_library)."""
+    params = grid.spec.params
 
     # what is stored already
     recs: dict[int, MotionRecord] = {}
@@ -400,8 +450,12 @@ def build_library(grid: Grid | GridSpec | str | os.PathLike, library: str | os.P
             stored_before += 1
             if t.rep == i:
                 recs[i] = r
-    report = BuildReport(grid=describe(grid), library=str(lib.path), workers=0, scheduler="serial",
+    report = BuildReport(grid=describe(grid), library=str(lib.path), workers=0, scheduler=address,
                          stored_before=stored_before)
+    if not isinstance(runner, _SerialRunner):
+        report.workers = len(client.scheduler_info().get("workers", {}))
+        if report.scheduler == "serial":
+            report.scheduler = str(client.scheduler.address)
     bar = ProgressBar(len(grid.tasks), stored_before, stream=stream, enabled=progress)
 
     def put_twins(i: int, rec: MotionRecord) -> None:
@@ -413,31 +467,6 @@ def build_library(grid: Grid | GridSpec | str | os.PathLike, library: str | os.P
             lib.put(shift_record(rec, tw), params)
             setattr(report, rec.status, getattr(report, rec.status) + 1)
             bar.update(rec.status)
-
-    for i, r in recs.items():   # resumed: make sure the shift copies of stored tasks are stored too
-        put_twins(i, r)
-
-    # the executor
-    own_cluster = own_client = None
-    if serial and client is None and scheduler is None:
-        runner: Any = _SerialRunner()
-    else:
-        if client is None:
-            from distributed import Client
-
-            if scheduler:
-                try:
-                    client = own_client = Client(scheduler, timeout=30)
-                except OSError as exc:
-                    raise BuildError(f"cannot reach the Dask scheduler at {scheduler}: {exc}; "
-                                     f"check the address (tcp://HOST:PORT) and that it runs") from None
-                report.scheduler = str(scheduler)
-            else:
-                own_cluster, client = start_local_cluster(workers)
-        runner = _DaskRunner(client)
-        report.workers = len(client.scheduler_info().get("workers", {}))
-        if report.scheduler == "serial":
-            report.scheduler = str(client.scheduler.address)
 
     order = grid.order() if continuation else list(grid.reps)
     todo = set(i for i in grid.reps if i not in recs)
@@ -455,6 +484,8 @@ def build_library(grid: Grid | GridSpec | str | os.PathLike, library: str | os.P
 
     submitted: set[int] = set()
     try:
+        for i, r in list(recs.items()):   # resumed: the shift copies of stored tasks are stored too
+            put_twins(i, r)
         for i in order:
             if i in todo and ready(i):
                 runner.submit(i, payload(i))
@@ -482,14 +513,5 @@ def build_library(grid: Grid | GridSpec | str | os.PathLike, library: str | os.P
                     runner.submit(c, payload(c))
                     submitted.add(c)
     finally:
-        runner.close()
         bar.close()
-        if own_client is not None:
-            own_client.close()
-        if own_cluster is not None:
-            client.close()
-            own_cluster.close()
-        if not isinstance(library, MotionLibrary):
-            lib.close()
-    report.wall_time = time.monotonic() - t0
     return report

@@ -21,6 +21,10 @@ Grid file (YAML; angles rad, times s)::
                                 #    1-DOF plans; what the planner node serves)
     zero_moves: skip            # skip | keep  (tasks with qf == q0)
     max_tasks: 100000
+    scheduler: tls://HOST:PORT  # optional: build on this Dask scheduler (ff-library build --scheduler)
+    tls_ca_file: ca.pem         # with tls://: the cluster's CA, this client's certificate and key
+    tls_cert: client.pem        #    (PEM; relative names are taken from the grid file's folder)
+    tls_key: client.key
 
 For scara2, ``q0`` and ``qf`` are lists with one axis per joint, e.g.
 ``q0: [-0.5, 0.0]`` or ``qf: [{start: 0.3, stop: 0.7, step: 0.1}, 0.0]``.
@@ -50,13 +54,20 @@ from scipy.sparse.csgraph import connected_components, minimum_spanning_tree
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
+from ff_planner.library.cluster import (
+    CONFIG_KEYS,
+    ClusterError,
+    SchedulerSettings,
+    parse_address,
+    settings_from_mapping,
+)
 from ff_planner.library.gridded import GridPlanRequest, applies
 from ff_planner.library.store import canonical_coords, task_key
 from ff_planner.model.params import MODELS, ParameterError, Params, default_params, n_joints, preset
 from ff_planner.model.profile import DEFAULT_COAST, OBJECTIVES, PlanningError, PlanRequest
 
 _KEYS = ("model", "preset", "params", "objective", "uncertain", "steps", "coast", "starts", "seed",
-         "time_budget", "tol", "q0", "qf", "tf", "zero_moves", "max_tasks", "name", "switch_grid")
+         "time_budget", "tol", "q0", "qf", "tf", "zero_moves", "max_tasks", "name", "switch_grid", *CONFIG_KEYS)
 _DIGITS = 9
 
 
@@ -97,6 +108,7 @@ class GridSpec:
     max_tasks: int = 100000
     name: str = ""
     switch_grid: Optional[float] = None    # s; None = switch times anywhere
+    scheduler: Optional[SchedulerSettings] = None   # where to build; None = the command line decides
 
     @property
     def axes(self) -> list[Axis]:
@@ -193,8 +205,9 @@ def _joint_axes(name: str, v: Any, nj: int) -> list[Axis]:
     return [parse_axis(f"{name}[{j + 1}]", x) for j, x in enumerate(v)]
 
 
-def parse_grid(data: Mapping[str, Any]) -> GridSpec:
-    """Check and parse a grid mapping (see module docstring); raises GridError."""
+def parse_grid(data: Mapping[str, Any], base_dir: Optional[Path] = None) -> GridSpec:
+    """Check and parse a grid mapping (see module docstring); raises GridError. Relative TLS file
+    names are taken from ``base_dir`` (default: the working directory)."""
     if not isinstance(data, Mapping):
         raise GridError("a grid file must hold a mapping (model, q0, qf, tf, ...)")
     extra = sorted(set(data) - set(_KEYS))
@@ -250,6 +263,12 @@ def parse_grid(data: Mapping[str, Any]) -> GridSpec:
             raise GridError(f"switch_grid: the {model} {objective} planner does not place switch times on "
                             f"a grid; remove switch_grid")
         spec.switch_grid = g
+    try:
+        spec.scheduler = settings_from_mapping(data, base_dir)
+        if spec.scheduler is not None:
+            parse_address(spec.scheduler.address)
+    except ClusterError as exc:
+        raise GridError(str(exc)) from None
     if min(spec.tf.values) <= spec.coast:
         raise GridError(f"tf: every move time must exceed the coast of {spec.coast} s; "
                         f"smallest is {min(spec.tf.values)} s")
@@ -270,7 +289,7 @@ def load_grid(source: Union[str, Path, Mapping[str, Any]]) -> GridSpec:
             data = yaml.safe_load(p.read_text(encoding="utf-8"))
         except yaml.YAMLError as exc:
             raise GridError(f"{p}: not valid YAML: {exc}") from None
-        return parse_grid(data or {})
+        return parse_grid(data or {}, p.parent)
     return parse_grid(source)
 
 
