@@ -370,10 +370,10 @@ class Stack:
     def planner_files(self) -> tuple[list[str], dict[str, object]]:
         """(parameter files in order, overrides written after them) for the planner."""
         pp: dict[str, object] = {"library_path": str(self.run_dir / "motions.sqlite")}
-        if self.options.setpoint_timing == "sync":     # switch times on the drives' SYNC cycle
-            pp["switch_grid"] = SYNC_PERIOD
-        # currents on the simulated EPOS4's grid (target torque in per mille of the rated torque):
-        # the plan's predicted rest position is then the one of the profile the drive applies
+        # plans drive-exact for the drive this stack runs (the bridge's own file, written before
+        # the planner starts): currents on its setpoint unit (per mille of the rated torque),
+        # switch times on its SYNC cycle, the certificate on that profile
+        pp["drive_config"] = str(self.run_dir / "bridge.yaml")
         pp["current_quantum"] = NOMINAL_CURRENT / 1000.0
         pp.update(self.options.planner_overrides)
         return [self.options.planner_params or str(CONFIG_DIR / "planner.yaml")], pp

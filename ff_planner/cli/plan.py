@@ -7,6 +7,7 @@ short summary. Exit codes: 0 plan found and meets its tolerances; 1 only a best-
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import sys
@@ -56,10 +57,12 @@ def _names(values: Optional[Sequence[str]]) -> Optional[list[str]]:
     return [p for v in values for p in str(v).replace(",", " ").split()]
 
 
-def build_parser(tolerance_search: bool = True, tradeoff: bool = True) -> argparse.ArgumentParser:
+def build_parser(tolerance_search: bool = True, tradeoff: bool = True,
+                 drive: Optional[bool] = None) -> argparse.ArgumentParser:
     """ff-plan's parser; ``tolerance_search=False`` leaves out --tolerance and --tf-max (for a
     command whose own --tolerance means something else), ``tradeoff=False`` --tradeoff (for a
-    command that plans through a service)."""
+    command that plans through a service); ``drive`` (default: as ``tradeoff``) adds
+    --drive-config (in-process plans; a service takes its drive from its own configuration)."""
     p = _Parser(
         prog=PROG,
         description="Plan a rest-to-rest feedforward current profile whose final position is "
@@ -72,6 +75,7 @@ def build_parser(tolerance_search: bool = True, tradeoff: bool = True) -> argpar
                "  ff-plan --objective energy-optimal --qf 1 -o energy.json\n"
                "  ff-plan --qf 1 --tf 1 --q-min -0.3 --q-max 1.05 --qd-max 4   # limits, whole box\n"
                "  ff-plan --qf 1 --tolerance 0.002 --tf-max 3   # the fastest tf certified within 2 mrad\n"
+               "  ff-plan --qf 1 --drive-config config/bridge_epos4_1dof.yaml -o move.json   # drive-exact\n"
                "exit codes: 0 plan meets its tolerances; 1 best-effort plan only (still written)\n"
                "or internal error; 2 bad input or unreachable goal.",
         formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -138,6 +142,13 @@ def build_parser(tolerance_search: bool = True, tradeoff: bool = True) -> argpar
                    help="round the plan's currents to this grid, the drive's setpoint unit "
                         "(EPOS4: nominal current / 1000, e.g. 0.003); rest position and "
                         "certificate are for the rounded profile (default 0 = none)")
+    if tradeoff if drive is None else drive:
+        o.add_argument("--drive-config", metavar="YAML", default=None,
+                       help="plan for the drive of this bridge config (config/bridge_*.yaml, the "
+                            "file the bridge runs with): currents in its setpoint unit (EPOS4: "
+                            "nominal current / 1000), switch times on its SYNC grid (sync_period), "
+                            "certificate computed on exactly that profile (plan-file key "
+                            "plan: {drive_config: ...}; default: none)")
     o.add_argument("--time-budget", type=float, default=None, metavar="S",
                    help="wall-clock budget for the whole plan, every N tried (and with "
                         "--tolerance every tf tried) included (default 30 s); the best plan so far "
@@ -197,7 +208,7 @@ DEFAULTS = {"tf": 1.0, "coast": DEFAULT_COAST, "objective": PlanRequest().object
 _TASK_KEYS = ("q0", "qf", "tf", "coast", "q_min", "q_max", "qd_max", "tolerance", "tf_max")
 DEFAULT_TF_MAX = 3.0    # s, longest move time a --tolerance search considers
 _PLAN_KEYS = ("uncertain", "objective", "steps", "starts", "seed", "time_budget", "tol", "box",
-              "coast_max", "current_quantum")
+              "coast_max", "current_quantum", "drive_config")
 
 
 def load_config(path: str) -> dict:
@@ -367,6 +378,22 @@ def make_request(args: argparse.Namespace) -> PlanRequest:
                        time_budget=time_budget, coast=coast, params=params, tol=tol)
 
 
+def drive_of(args: argparse.Namespace):
+    """The DriveGrid of ``--drive-config`` (or the plan file's ``plan: drive_config``), or None;
+    UsageError naming the problem."""
+    from ff_planner.optimize.drive_grid import DriveConfigError, drive_grid_from_config
+
+    path = getattr(args, "drive_config", None)
+    if path is None and getattr(args, "config", None):
+        path = (load_config(args.config).get("plan") or {}).get("drive_config")
+    if path is None or str(path) == "":
+        return None
+    try:
+        return drive_grid_from_config(str(path))
+    except DriveConfigError as exc:
+        raise UsageError(f"--drive-config: {exc}") from None
+
+
 def _flag_names(text: str) -> str:
     """A MotionLimits message in the flags' names."""
     for field_name, flag in (("position_min", "--q-min"), ("position_max", "--q-max"),
@@ -414,7 +441,7 @@ def summary(result, output: Optional[str] = None, plot: Optional[str] = None) ->
     cert = getattr(result, "certificate", None)
     if cert is not None:
         d["certificate"] = cert.to_dict()
-    for key in ("limits_checked", "limit_violations", "tolerance_search"):
+    for key in ("limits_checked", "limit_violations", "tolerance_search", "drive_exact"):
         if key in (result.extra or {}):
             d[key] = result.extra[key]
     if output:
@@ -458,6 +485,7 @@ def _print_summary(d: dict, result) -> None:
               f"alone (mrad): {alone}; moving at tf: {c['moving_at_tf'] * 100:.0f} % of the box; "
               f"switch timing: max {sw * 1e3:.3g} mrad per 100 us delay")
         _print_excursion(c.get("excursion"), getattr(result, "extra", None) or {})
+    _print_drive(d.get("drive_exact"), c)
     search = (getattr(result, "extra", None) or {}).get("tolerance_search")
     if search:
         _print_search(search)
@@ -488,6 +516,28 @@ def _print_excursion(ex: Optional[dict], extra: dict) -> None:
               else "  limits NOT checked (no excursion)")
 
 
+def _print_drive(info: Optional[dict], cert: Optional[dict]) -> None:
+    """The drive-exact profile: its grid, what rounding moved, what the certificate is for."""
+    if not info:
+        return
+    if info.get("error"):
+        print(f"  drive-exact: NOT applied: {info['error']}")
+        return
+    period = float(info["switch_period_s"])
+    grid = f"{period * 1e3:g} ms SYNC" if period > 0.0 else "no SYNC grid (on receipt)"
+    shift = [f"{x * 1e3:+.3g}" for x in info.get("rest_shift_rad") or []]
+    ref = info.get("refine") or {}
+    print(f"  drive-exact: {float(info['current_quantum_A']) * 1e3:g} mA steps, {grid} "
+          f"({info.get('source') or 'drive config'}); switches moved up to "
+          f"{float(info.get('max_switch_shift_s', 0.0)) * 1e3:.3g} ms, nominal rest moved "
+          f"{', '.join(shift) or '-'} mrad"
+          + (f"; rounding refined: worst {ref['worst_before_rad'] * 1e3:.3g} -> "
+             f"{ref['worst_after_rad'] * 1e3:.3g} mrad on the refinement's points" if ref else ""))
+    if cert and cert.get("drive"):
+        print("  certificate computed on the profile sent to the drive (currents on its quantum, "
+              "switches on its SYNC grid)")
+
+
 def _print_search(search: dict) -> None:
     """The tolerance search: every tf tried with its certified worst rest error and time."""
     print(f"  tolerance search ({search['tolerance'] * 1e3:.3g} mrad, tf <= "
@@ -503,7 +553,7 @@ def _print_search(search: dict) -> None:
                                           else f": {t['note']}"))
 
 
-def _tradeoff(args: argparse.Namespace, request: PlanRequest, progress) -> int:
+def _tradeoff(args: argparse.Namespace, request: PlanRequest, progress, plan_fn=None) -> int:
     """--tradeoff: certified rest error and excursion against move time; table, JSON, PNG."""
     from ff_planner.optimize.fastest import tradeoff
 
@@ -513,7 +563,8 @@ def _tradeoff(args: argparse.Namespace, request: PlanRequest, progress) -> int:
     tf_max = DEFAULT_TF_MAX if given is None else float(_number(given, "--tf-max"))
     if not 0.0 < tf_max <= MAX_TF:
         raise UsageError(f"--tf-max must be in (0, {MAX_TF:g}] s, got {tf_max:g}")
-    pts = tradeoff(request, int(args.tradeoff_points), tf_max, progress=progress)
+    kw = {} if plan_fn is None else {"plan_fn": plan_fn}
+    pts = tradeoff(request, int(args.tradeoff_points), tf_max, progress=progress, **kw)
     _plot_tradeoff(pts, request, args.tradeoff)
     rows = [p.to_dict() for p in pts]
     if args.json:
@@ -614,15 +665,18 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         _check_writable(args.plot, "--plot")
         _check_writable(getattr(args, "tradeoff", None), "--tradeoff")
         request = make_request(args)
+        drive = drive_of(args)
         # after argument checks: keeps --help and errors fast
         from ff_planner.optimize.fastest import plan_fastest
-        from ff_planner.optimize.planner import plan
+        from ff_planner.optimize.planner import on_drive_grid, plan
 
         progress = None if args.quiet else ProgressPrinter()
+        plan_fn = plan if drive is None else functools.partial(plan, drive=drive)
+        request = on_drive_grid(request, drive)   # a search's move times on the SYNC grid too
         if getattr(args, "tradeoff", None):
-            return _tradeoff(args, request, progress)
-        result = (plan_fastest(request, progress) if request.tolerance is not None
-                  else plan(request, progress))
+            return _tradeoff(args, request, progress, plan_fn)
+        result = (plan_fastest(request, progress, plan_fn=plan_fn) if request.tolerance is not None
+                  else plan_fn(request, progress))
         if args.output and result.profile is not None:
             from ff_planner.export.motion_file import write_motion
 

@@ -13,6 +13,14 @@ objective) with steps unset, steps = 0 or starts = 0 goes through ``plan_auto_1d
 starts along ``auto_ladders``); ``request.current_quantum`` > 0 rounds the answer's currents to
 the drive's setpoint grid before its rest position and certificate are computed.
 
+Drive-exact plans: ``check(request, drive=DriveGrid)`` (``ff_planner.optimize.drive_grid``, read
+from the bridge's configuration) carries the drive's current quantum (A) and SYNC period (s) in the
+CheckedRequest. ``plan`` then has the robust 1-DOF planners place the switch times on the SYNC grid
+(and solve the currents again there), puts any switch still off it on the nearest SYNC, rounds the
+currents to the quantum, moves them by whole quanta where that lowers the worst rest error over
+the box (1-DOF), and certifies exactly that profile: the certificate is a ``DriveCertificate``
+whose ``drive`` says so, and ``extra["drive_exact"]`` gives the figures.
+
 Beyond the request's own validation, ``check`` refuses positions beyond ±MAX_POSITION rad, a
 torque-dependent friction ``pt`` ≥ 1 (it would take all of the motor torque) and a negative viscous
 friction that Coulomb friction cannot stop (the arm would never come to rest). ``plan`` checks the
@@ -38,6 +46,14 @@ from ff_planner.optimize.baselines import plan_baseline, reach_1dof
 from ff_planner.optimize.box_robust import plan_box_robust_1dof
 from ff_planner.optimize.certificate import certify_1dof
 from ff_planner.optimize.certificate2d import certify_scara2
+from ff_planner.optimize.drive_grid import (
+    DriveCertificate,
+    DriveGrid,
+    on_period,
+    on_quantum,
+    refine_on_quantum,
+    snap_times,
+)
 from ff_planner.optimize.quantize import quantize_result
 from ff_planner.optimize.robust1d import plan_robust_1dof
 from ff_planner.optimize.robust2d import plan_robust_scara2
@@ -308,10 +324,72 @@ class CheckedRequest:
     request: PlanRequest
     params: Params
     reach: tuple[float, ...]
+    drive: Optional[DriveGrid] = None     # the drive's current quantum and SYNC period, if any
 
 
-def check(request: PlanRequest) -> CheckedRequest:
-    """Validate ``request`` (fields, a planner for its model and objective, reachability).
+#: (model, objective) whose planner places switch times on a grid (``request.grid``, s)
+GRID_ROUTES = frozenset({("arm1dof", "robust-derivative"), ("arm1dof", "robust-sampled"),
+                         ("arm1dof", "robust-box")})
+
+
+@dataclass
+class DrivePlanRequest(PlanRequest):
+    """A PlanRequest whose switch times the inner planner puts on ``grid`` (s): what the facade
+    hands a gridding planner (``GRID_ROUTES``) for a drive."""
+
+    grid: Optional[float] = None
+
+
+def on_drive_grid(req: PlanRequest, drive: Optional[DriveGrid]) -> PlanRequest:
+    """``req`` with ``grid`` = the drive's SYNC period for a planner that places switch times."""
+    if drive is None or drive.period <= 0.0 or (req.model, req.objective) not in GRID_ROUTES:
+        return req
+    if hasattr(req, "grid"):
+        return dc_replace(req, grid=drive.period)   # type: ignore[call-arg]
+    kw = {f: getattr(req, f) for f in PlanRequest.__dataclass_fields__}
+    return DrivePlanRequest(grid=drive.period, **kw)
+
+
+def _baseline_on_drive_grid(req: PlanRequest, drive: Optional[DriveGrid]) -> PlanRequest:
+    """An energy-optimal request with steps unset, for a drive: the most equal steps (at most
+    100) whose boundaries fall on the SYNC grid when tf − coast is a whole number of periods,
+    else min(periods, 100) equal steps (their switches then go to the nearest SYNC)."""
+    if (drive is None or drive.period <= 0.0 or req.objective != "energy-optimal"
+            or req.steps is not None):
+        return req
+    span = (float(req.tf) - float(req.coast)) / drive.period
+    cells = math.floor(span + 1e-9)
+    if cells < 1:
+        return req
+    steps = min(cells, 100)
+    if abs(span - round(span)) < 1e-6:
+        steps = max(n for n in range(1, min(cells, 100) + 1) if cells % n == 0)
+    return dc_replace(req, steps=steps)
+
+
+def _check_drive(request: PlanRequest, drive: DriveGrid) -> None:
+    """Refuse a request the drive's grid cannot serve (INVALID_REQUEST, what to change)."""
+    q = float(request.current_quantum)
+    if q > 0.0 and abs(q - drive.quantum) > 1e-12:
+        raise PlanningError(f"current_quantum {q:g} A differs from the drive's setpoint unit "
+                            f"{drive.quantum:g} A ({drive.source or 'drive config'}); leave it 0",
+                            code="INVALID_REQUEST")
+    t = drive.period
+    if t <= 0.0:
+        return
+    if t >= float(request.tf):
+        raise PlanningError(f"the drive's SYNC period {t:g} s is not shorter than the move time "
+                            f"{float(request.tf):g} s; ask for a longer move", code="INVALID_REQUEST")
+    cells = math.floor((float(request.tf) - float(request.coast)) / t + 1e-9)
+    if not request.auto_steps and request.n_steps() > cells:
+        raise PlanningError(f"{request.n_steps()} steps do not fit on the drive's {t:g} s SYNC grid "
+                            f"within tf - coast = {float(request.tf) - float(request.coast):g} s; "
+                            f"ask for at most {cells} steps or a longer move", code="INVALID_REQUEST")
+
+
+def check(request: PlanRequest, drive: Optional[DriveGrid] = None) -> CheckedRequest:
+    """Validate ``request`` (fields, a planner for its model and objective, reachability) and,
+    with ``drive``, that its steps fit the drive's SYNC grid.
 
     Raises PlanningError whose ``.code`` is the PlanTrajectory error name (INVALID_REQUEST,
     UNKNOWN_MODEL, UNKNOWN_PARAMETER, UNREACHABLE)."""
@@ -331,9 +409,11 @@ def check(request: PlanRequest) -> CheckedRequest:
                             f"only; for model '{request.model}' use one of {served}",
                             code="INVALID_REQUEST")
     _check_physics(request, params)
+    if drive is not None:
+        _check_drive(request, drive)
     bound = reach(params, float(request.tf), float(request.coast))
     _unreachable(request, params, bound)
-    return CheckedRequest(request, params, tuple(float(r) for r in bound))
+    return CheckedRequest(request, params, tuple(float(r) for r in bound), drive)
 
 
 def _certify(result: PlanResult, req: PlanRequest, checked: CheckedRequest) -> None:
@@ -369,6 +449,100 @@ def _quantize(result: PlanResult, req: PlanRequest, checked: CheckedRequest) -> 
     except (ValueError, ArithmeticError) as exc:
         result.extra["current_quantum"] = {"quantum": float(req.current_quantum),
                                            "error": str(exc)}
+
+
+def _drive_exact(result: PlanResult, req: PlanRequest, checked: CheckedRequest) -> None:
+    """Make ``result.profile`` the profile the drive applies (``checked.drive``): switch times on
+    the nearest SYNC, currents rounded to the quantum, then (1-DOF, uncertain parameters) moved
+    by whole quanta while the worst rest error over the box falls. q(tf), the rest position and
+    the derivatives follow; the certificate is dropped for ``_certify`` to compute on this
+    profile. ``extra["drive_exact"]`` gets the figures."""
+    drive = checked.drive
+    prof = result.profile
+    if drive is None or prof is None:
+        return
+    params = result.params if result.params is not None else checked.params
+    q0 = [float(x) for x in result.q0]
+    info: dict = drive.to_dict()
+    try:
+        rest_before = rest_position(params, prof, q0)
+        snapped = snap_times(prof, drive.period)
+    except (PlanningError, ValueError, ArithmeticError) as exc:
+        info["error"] = str(exc)
+        result.extra["drive_exact"] = info
+        result.success = False
+        result.best_effort = True
+        if result.error_code == "OK":
+            result.error_code = "NO_ROBUST_PLAN"
+        result.message = f"{result.message}; not drive-exact: {exc}"
+        return
+    info["max_switch_shift_s"] = float(np.max(np.abs(snapped.step_times - prof.step_times)))
+    result.profile = snapped
+    unc = list(req.uncertain)
+    try:
+        info["rounding"] = quantize_result(result, params, drive.quantum, unc)
+        if (isinstance(params, Arm1DofParams) and unc and result.profile is not None):
+            refined, how = refine_on_quantum(params, result.profile, q0[0], float(result.qf[0]),
+                                             unc, req.box, drive.quantum, float(params.i_max))
+            info["refine"] = how
+            if how["worst_after_rad"] < how["worst_before_rad"]:
+                result.profile = refined
+                again = quantize_result(result, params, drive.quantum, unc)
+                info["rounding"].update({k: again[k] for k in ("max_abs_derivative",
+                                                               "q_tf_error_rad") if k in again})
+        rest_after = [float(x) for x in (result.extra.get("rest_position") or [])]
+        info["rest_shift_rad"] = [a - float(b) for a, b in zip(rest_after, rest_before)]
+    except (ValueError, ArithmeticError) as exc:
+        info["error"] = str(exc)
+    out = result.profile
+    info["on_grid"] = bool(out is not None and on_period(out, drive.period))
+    info["on_quantum"] = bool(out is not None and on_quantum(out, drive.quantum))
+    result.certificate = None
+    result.extra["drive_exact"] = info
+
+
+def _mark_drive_certificate(result: PlanResult, checked: CheckedRequest) -> None:
+    """Turn the certificate of a drive-exact plan into a DriveCertificate that says what it was
+    computed on; a plan whose profile is off the drive's grid or quantum gets no such claim."""
+    drive = checked.drive
+    cert = result.certificate
+    info = (result.extra or {}).get("drive_exact")
+    if drive is None or cert is None or info is None or isinstance(cert, DriveCertificate):
+        return
+    if not (info.get("on_grid") and info.get("on_quantum")):
+        return
+    fields = {f: getattr(cert, f) for f in cert.__dataclass_fields__}
+    result.certificate = DriveCertificate(drive=dict(
+        drive.to_dict(), certified_profile=("the profile sent to the drive: currents on its "
+                                            "quantum, switch times on its SYNC grid")), **fields)
+    result.message = (f"{result.message}; drive-exact ({drive.describe()}): certified on the "
+                      f"profile the drive applies, worst rest error "
+                      f"{float(result.certificate.worst_rest_error) * 1e3:.3g} mrad")
+
+
+def apply_drive_exact(result: PlanResult, checked: CheckedRequest) -> PlanResult:
+    """A plan from elsewhere (e.g. a motion-library row) as ``plan`` would answer it for
+    ``checked``: with a drive, made drive-exact and certified again (unchanged when it already
+    is); without one, ``apply_current_quantum``."""
+    if checked.drive is None:
+        return apply_current_quantum(result, checked)
+    prof = result.profile
+    if prof is None:
+        return result
+    if (isinstance(result.certificate, DriveCertificate) and on_quantum(prof, checked.drive.quantum)
+            and on_period(prof, checked.drive.period)):
+        return result
+    req = checked.request
+    result.extra = dict(result.extra or {})
+    if on_quantum(prof, checked.drive.quantum) and on_period(prof, checked.drive.period):
+        result.extra["drive_exact"] = dict(checked.drive.to_dict(), on_grid=True, on_quantum=True)
+        result.certificate = None     # certified again below, on this very profile
+    else:
+        _drive_exact(result, req, checked)
+    _certify(result, req, checked)
+    _mark_drive_certificate(result, checked)
+    _check_limits(result, req)
+    return result
 
 
 def _never_at_rest(result: PlanResult) -> None:
@@ -425,7 +599,8 @@ def apply_current_quantum(result: PlanResult, checked: CheckedRequest) -> PlanRe
 
 
 def plan(request: Union[PlanRequest, CheckedRequest], progress: Progress = None,
-         initial_currents: Optional[np.ndarray] = None) -> PlanResult:
+         initial_currents: Optional[np.ndarray] = None,
+         drive: Optional[DriveGrid] = None) -> PlanResult:
     """Plan a rest-to-rest feedforward current profile.
 
     A plain PlanRequest is checked first (``check``: PlanningError with ``.code`` for bad input
@@ -435,11 +610,13 @@ def plan(request: Union[PlanRequest, CheckedRequest], progress: Progress = None,
     inner planners honour ``request.time_budget``; the facade labels a result that came back
     late. ``initial_currents`` (A, N × joints) warm-starts the search from a known plan (e.g. a
     motion-library neighbour); WarmStartUnavailable if the route's planner takes none
-    (``ROUTES``).
+    (``ROUTES``). ``drive`` (or ``CheckedRequest.drive``): answer the drive-exact plan (module
+    docstring); a CheckedRequest given with ``drive`` is checked again for it.
     """
     t0 = time.perf_counter()
-    checked = request if isinstance(request, CheckedRequest) else check(request)
-    req = checked.request
+    checked = (request if isinstance(request, CheckedRequest) and drive is None else
+               check(request.request if isinstance(request, CheckedRequest) else request, drive))
+    req = on_drive_grid(_baseline_on_drive_grid(checked.request, checked.drive), checked.drive)
     if req.tolerance is not None:
         raise PlanningError("a request with a tolerance is a search over the move time: plan it "
                             "with ff_planner.optimize.fastest.plan_fastest", code="INVALID_REQUEST")
@@ -461,7 +638,9 @@ def plan(request: Union[PlanRequest, CheckedRequest], progress: Progress = None,
                                    f"({route.fn.__module__}.{route.fn.__name__}) takes no "
                                    f"initial_currents")
     result.extra = dict(result.extra or {})
-    if req.current_quantum > 0.0:
+    if checked.drive is not None:
+        _drive_exact(result, req, checked)
+    elif req.current_quantum > 0.0:
         _quantize(result, req, checked)
     elapsed = time.perf_counter() - t0
     result.extra.setdefault("reach_bound", list(checked.reach))
@@ -475,6 +654,7 @@ def plan(request: Union[PlanRequest, CheckedRequest], progress: Progress = None,
         except (ValueError, ArithmeticError):
             pass
     _certify(result, req, checked)
+    _mark_drive_certificate(result, checked)
     _never_at_rest(result)
     _check_limits(result, req)
     if float(req.tf) >= MAX_TF and "a longer move time" in result.message:

@@ -75,6 +75,9 @@ PARAMETERS: dict[str, tuple[str, Optional[tuple[float, float]]]] = {
     "switch_grid": ("s, put switch times on this grid when a request says 0 (the drives' SYNC period; "
                     "default 0.001 = 1 ms); 0 = no grid. Applied by the robust 1-DOF planners "
                     "(robust-derivative, robust-sampled, robust-box)", (0.0, 1.0)),
+    "drive_config": ("the bridge's config file (config/bridge_*.yaml): every plan drive-exact for "
+                     "its drive: currents on its setpoint unit, switch times on its sync_period "
+                     "(replaces switch_grid), certificate on that profile; '' = none", None),
     "diagnostics_period": ("s between /diagnostics messages; 0 = off", (0.0, 3600.0)),
     "executor_threads": ("rclpy executor threads; 0 = max_pending + 4", (0, 100_000)),
 }

@@ -26,6 +26,11 @@ certificate's box the request's). Every answer with a profile carries ``extra["p
 (rad per joint, nominal parameters: 1-DOF where the arm stops with zero current after tf, 2-DOF
 ``q_final`` when the plan is at rest at tf).
 
+``drive_config`` (the bridge's own config file) makes every answer drive-exact for that drive
+(``ff_planner.optimize.drive_grid``): switch times on its SYNC period (which then replaces
+``switch_grid``), currents on its setpoint unit, the certificate computed on that profile; a
+library row planned otherwise is made drive-exact and certified again before it is answered.
+
 Long plans: ``handle_fields(fields, progress=fn, cancel=event)`` reports the planner's progress
 dicts (sent by the worker process over a Unix datagram socket, see :class:`ProgressChannel`) and
 stops when ``event`` is set (the worker is killed and replaced, the answer says "canceled").
@@ -72,7 +77,8 @@ from ff_planner.model.params import MODELS, Params, check_model, default_params,
 from ff_planner.model.profile import OBJECTIVES, PlanRequest, PlanResult, RobustnessCertificate
 from ff_planner.model.simulate import rest_position
 from ff_planner.optimize.fastest import DEFAULT_MOVE_TIME_MAX, plan_fastest
-from ff_planner.optimize.planner import CheckedRequest, apply_current_quantum, check, plan
+from ff_planner.optimize.drive_grid import DriveConfigError, DriveGrid, drive_grid_from_config
+from ff_planner.optimize.planner import CheckedRequest, apply_drive_exact, check, plan
 from ff_planner.optimize.sample_box import box_fractions
 
 SHIFT_EPS = 1e-9          # rad / s: canonical distance below which a stored task is the same motion
@@ -119,6 +125,22 @@ class ServiceConfig:
     #                                      setpoint unit, e.g. an EPOS4's nominal current / 1000); 0 = none
     limits: dict[str, MotionLimits] = field(default_factory=dict)   # model -> the cell's limits,
     #                                      for requests that give none (<model>.position_min ...)
+    drive_config: str = ""               # the bridge's config file (config/bridge_*.yaml): every
+    #                                      plan drive-exact for its drive; "" = none
+
+    def drive(self) -> Optional[DriveGrid]:
+        """The DriveGrid of ``drive_config`` (None when unset); ServiceConfigError if unusable."""
+        if not self.drive_config:
+            return None
+        try:
+            grid = drive_grid_from_config(self.drive_config)
+        except DriveConfigError as exc:
+            raise ServiceConfigError(f"drive_config: {exc}") from None
+        if self.current_quantum > 0.0 and abs(self.current_quantum - grid.quantum) > 1e-12:
+            raise ServiceConfigError(f"current_quantum {self.current_quantum:g} A differs from the "
+                                     f"drive's setpoint unit {grid.quantum:g} A ({self.drive_config}); "
+                                     f"set it to 0 (the drive config gives it)")
+        return grid
 
     def validate(self) -> None:
         """Raise ServiceConfigError naming the first setting that cannot be used."""
@@ -158,6 +180,7 @@ class ServiceConfig:
         if not (math.isfinite(self.current_quantum) and 0.0 <= self.current_quantum < 1.0):
             raise ServiceConfigError(f"current_quantum must be in [0, 1) A (0 = none), got "
                                      f"{self.current_quantum}")
+        self.drive()
 
     def model_params(self, model: str) -> Params:
         """The node's parameters for ``model``: its preset with the configured overrides."""
@@ -360,6 +383,7 @@ class PlannerService:
         self.plan_fn = plan_fn
         self.log = log or (lambda msg: None)
         self.params = {m: config.model_params(m) for m in MODELS}
+        self.drive = config.drive()
         self.library: Optional[MotionLibrary] = None
         try:
             if config.use_library and config.library_path:
@@ -467,7 +491,7 @@ class PlannerService:
         if coast_max > 0.0:
             kw["coast_max"] = coast_max
         req = GridPlanRequest(grid=grid, **kw) if grid is not None else PlanRequest(**kw)
-        checked = check(req)   # UNREACHABLE answered at once, before the library lookup
+        checked = check(req, drive=self.drive)   # UNREACHABLE answered at once, before the library lookup
         if req.n_steps() > c.max_steps and chosen is None:
             raise PlanningError(f"{req.n_steps()} steps per joint exceeds this planner's limit of "
                                 f"{c.max_steps}; ask for fewer steps or uncertain parameters")
@@ -534,6 +558,8 @@ class PlannerService:
                                 f"negative = no grid), got {g}")
         if g == 0.0:
             g = float(self.config.switch_grid)
+        if self.drive is not None and self.drive.period > 0.0:
+            g = self.drive.period              # the drive applies setpoints at its SYNC only
         if g <= 0.0 or not applies(model, objective):
             return None
         if g >= tf:
@@ -559,6 +585,8 @@ class PlannerService:
             wanted = float(f.switch_grid) or float(self.config.switch_grid)
         except (TypeError, ValueError):
             wanted = 0.0
+        if self.drive is not None and self.drive.period > 0.0:
+            wanted = self.drive.period
         return self.handle(req, received=t0, progress=progress, cancel=cancel, grid=max(0.0, wanted))
 
     def handle(self, checked: CheckedRequest, received: Optional[float] = None,
@@ -579,11 +607,11 @@ class PlannerService:
         elapsed = time.monotonic() - t0
         result.extra = dict(result.extra or {}, source=source, latency=elapsed)
         if result.profile is not None:
-            if request.current_quantum > 0.0:     # e.g. a library row planned without it
-                try:
-                    apply_current_quantum(result, checked)
+            if checked.drive is not None or request.current_quantum > 0.0:
+                try:     # e.g. a library row planned without the drive's grid
+                    apply_drive_exact(result, checked)
                 except Exception as exc:  # noqa: BLE001 - the node must keep serving
-                    self.log(f"current quantum not applied: {exc!r}")
+                    self.log(f"drive grid / current quantum not applied: {exc!r}")
             result.extra["predicted_rest"] = predicted_rest(result, checked.params)
             if grid > 0.0 and not on_grid(result.profile, grid):
                 result.message = ((result.message + "; ") if result.message else "") + (
@@ -710,7 +738,9 @@ class PlannerService:
                 if progress is not None and channel is not None:
                     report_to = channel.register(progress)
                     tag = report_to[1]
-                plan_fn = (partial(plan_fastest, plan_fn=self.plan_fn)
+                one = self.plan_fn if checked.drive is None else partial(self.plan_fn,
+                                                                          drive=checked.drive)
+                plan_fn = (partial(plan_fastest, plan_fn=one)
                            if request.tolerance is not None else self.plan_fn)
                 fut = pool.schedule(_solve, args=(checked, deadline, initial, plan_fn, report_to),
                                     timeout=max(0.0, deadline - time.monotonic()) + 2 * self.config.grace)

@@ -38,6 +38,9 @@ from ff_planner.export.motion_file import read_motion
     (["-o", "/nonexistent-dir/x.json"], "does not exist"),
     (["--bogus"], "unrecognized arguments"),
     (["--time-budget", "1e-9"], "ran out before any plan was tried"),
+    (["--drive-config", "/nonexistent/bridge.yaml"], "no bridge config file"),
+    (["--drive-config", "config/bridge_epos4_1dof.yaml", "--current-quantum", "0.001"],
+     "differs from the drive's setpoint unit"),
     (["--set", "pc=1e-300"], "never comes to rest"),
     (["--q0", "1e308", "--qf", "1e308"], "beyond ±10000 rad"),
     (["--set", "pt=1.5"], "pt must be < 1"),
@@ -97,6 +100,32 @@ def test_json_summary_and_params_file(tmp_path, capsys):
     assert d["objective"] == "energy-optimal" and d["success"] and not d["robust"]
     assert read_motion(tmp_path / "e.json").params.pc == 0.2
     assert abs(d["q_final"][0] - 1.0) < 1e-8
+
+
+def test_drive_config_plans_drive_exact(tmp_path, capsys):
+    out = tmp_path / "d.json"
+    rc = main(["--objective", "robust-derivative", "--drive-config",
+               "config/bridge_epos4_1dof.yaml", "--json", "-o", str(out)])
+    d = json.loads(capsys.readouterr().out)
+    assert rc == (0 if d["success"] else 1)
+    drive = d["certificate"]["drive"]
+    assert drive["current_quantum_A"] == 0.003 and drive["switch_period_s"] == 0.01
+    assert d["drive_exact"]["on_grid"] and d["drive_exact"]["on_quantum"]
+    m = json.loads(out.read_text())
+    assert m["certificate"]["drive"] == drive          # the motion file says what was certified
+    k = [t / 0.01 for t in m["step_times"]]
+    assert all(abs(x - round(x)) < 1e-9 for x in k)
+    assert all(abs(i / 0.003 - round(i / 0.003)) < 1e-6 for row in m["currents"] for i in row)
+
+
+def test_drive_config_from_a_plan_file_and_printed(tmp_path, capsys):
+    f = tmp_path / "plan.yaml"
+    f.write_text("plan: {objective: time-optimal, uncertain: [pc], "
+                 "drive_config: config/bridge_epos4_1dof.yaml}\n")
+    assert main(["--config", str(f)]) == 0
+    text = capsys.readouterr().out
+    assert "drive-exact: 3 mA steps, 10 ms SYNC" in text
+    assert "certificate computed on the profile sent to the drive" in text
 
 
 @pytest.mark.integration
