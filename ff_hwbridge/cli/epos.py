@@ -1,6 +1,11 @@
-"""``ff-epos --config PATH [--channel URL] [--enable] [--current A ...] [--hold S]``: configure
-EPOS drives over CANopen, optionally enable them and hold a current, print joint states as JSON
-lines, then disable.
+"""``ff-epos --config PATH [--channel URL] [--fault-reset] [--enable] [--current A ...] [--hold S]``:
+configure EPOS drives over CANopen, optionally enable them and hold a current, print joint states
+as JSON lines, then disable.
+
+A drive found in Fault after configure is reported with its error code (0x603F) and error
+history (0x1003), decoded with maxon's error table; ``--fault-reset`` resets it and goes on,
+without it ``ff-epos`` stops (exit 1). Once the safe state latches (a drive fault, a lost
+heartbeat, ...) the states stop and the reason and the drive's error code are printed.
 
     ff-epos --config config/bridge_sim_scara2.yaml --channel ws://127.0.0.1:54701/ --enable --hold 5
 """
@@ -9,25 +14,81 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 import time
 from typing import Optional, Sequence
 
 from ff_hwbridge.drive.config import load_config, with_bus
 from ff_hwbridge.drive.epos import EposError, EposMaster
+from ff_hwbridge.drive.player import SWITCH_INTERVAL
+from ff_hwbridge.drive.scheduler import fifo_process
 from ff_hwbridge.protocol.cia402 import State
 
 __all__ = ["main"]
 
+FAULT_STATES = (State.FAULT, State.FAULT_REACTION_ACTIVE)
+
+
+def _faulted(master: EposMaster) -> list[str]:
+    """The joints whose drive reports Fault (waits up to ``state_timeout`` s for a statusword
+    from every drive)."""
+    end = time.monotonic() + master.config.state_timeout
+    while time.monotonic() < end and any(s is None for s in master.states()):
+        time.sleep(0.01)
+    return [n for n, s in zip(master.joint_names, master.states()) if s in FAULT_STATES]
+
+
+def _report_faults(master: EposMaster, joints: Sequence[str]) -> None:
+    for name in joints:
+        print(json.dumps({"fault": name, "error": master.read_error_history(name)}), flush=True)
+
+
+def _fresh_state(master: EposMaster) -> list[Optional[str]]:
+    """Per joint the drive's state, None when its feedback is older than ``feedback_timeout``
+    (a drive gone PRE-OPERATIONAL sends none: its last state is no longer true)."""
+    now = master.clock()
+    limit = master.config.feedback_timeout
+    return [f.state.value if f.state is not None and now - f.stamp <= limit else None
+            for f in master.feedback()]
+
+
+def _policies() -> dict[int, tuple[int, int]]:
+    """Scheduling policy and priority of every thread of this process now (Linux)."""
+    out: dict[int, tuple[int, int]] = {}
+    try:
+        tids = [int(t) for t in os.listdir("/proc/self/task")]
+    except OSError:
+        return out
+    for tid in tids:
+        try:
+            out[tid] = (os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority)
+        except OSError:
+            continue
+    return out
+
+
+def _restore(policies: dict[int, tuple[int, int]], switch_interval: float) -> None:
+    """Put the threads that still run back to ``policies`` (``_policies()``) and the switch
+    interval (s) back."""
+    sys.setswitchinterval(switch_interval)
+    for tid, (policy, prio) in policies.items():
+        try:
+            os.sched_setscheduler(tid, policy, os.sched_param(prio))
+        except OSError:
+            continue
+
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    """Exit code 0 when the drives were disabled cleanly, 1 on a drive error or a latched safe
-    state, 2 on a configuration or bus error."""
+    """Exit code 0 when the drives were disabled cleanly, 1 on a drive error, a drive in Fault at
+    start (without ``--fault-reset``) or a latched safe state, 2 on a configuration or bus error."""
     ap = argparse.ArgumentParser(prog="ff-epos",
                                  description="Configure EPOS drives over CANopen and print joint states.")
     ap.add_argument("--config", required=True, help="bridge YAML (config/bridge_*.yaml)")
     ap.add_argument("--channel", help="override the bus channel, e.g. ws://127.0.0.1:54701/ (remote)")
     ap.add_argument("--interface", help="override the bus interface (default: remote with --channel ws://...)")
+    ap.add_argument("--fault-reset", action="store_true",
+                    help="reset drives found in Fault (after printing their error code) and go on")
     ap.add_argument("--enable", action="store_true", help="enable operation after configuring")
     ap.add_argument("--current", type=float, nargs="*", default=[], help="A per joint to hold while enabled")
     ap.add_argument("--hold", type=float, default=1.0, help="s to run before disabling")
@@ -43,9 +104,29 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except (ValueError, OSError) as exc:
         print(f"ff-epos: {exc}", file=sys.stderr)
         return 2
+    saved: Optional[tuple[dict[int, tuple[int, int]], float]] = None
     try:
         master.configure()
+        if cfg.rt_priority > 1:
+            # the bus receiver (SCHED_FIFO since configure) writes every SYNC cycle's RPDO: no
+            # thread here that may hold the GIL runs at normal priority (preempted, it would
+            # hold the receiver off for longer than a cycle), and the GIL changes hands fast
+            saved = _policies(), sys.getswitchinterval()
+            sys.setswitchinterval(SWITCH_INTERVAL)
+            fifo_process(cfg.rt_priority - 1, "ff-epos")
         print(json.dumps({"configured": True, "joints": list(cfg.joint_names)}), flush=True)
+        faulted = _faulted(master)
+        if faulted:
+            _report_faults(master, faulted)
+            if not args.fault_reset:
+                print(f"ff-epos: drive(s) in Fault: {', '.join(faulted)} (error code above); "
+                      "'ff-epos --fault-reset ...' resets them", file=sys.stderr)
+                return 1
+            master.fault_reset(reenable=False)
+            ok = master.wait_for_state(State.SWITCH_ON_DISABLED, cfg.state_timeout)
+            print(json.dumps({"fault_reset": ok, "states": _fresh_state(master)}), flush=True)
+            if not ok:
+                return 1
         if args.enable:
             master.enable()
             ok = master.wait_for_state(State.OPERATION_ENABLED, 2.0)
@@ -55,9 +136,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         t_end = time.monotonic() + args.hold
         while time.monotonic() < t_end:
             time.sleep(0.2)
-            print(json.dumps({"joints": [{"q": f.position, "qd": f.velocity, "i": f.current,
-                                          "state": f.state.value if f.state else None}
-                                         for f in master.feedback()],
+            if master.latched:
+                _report_faults(master, [n for n, s in zip(master.joint_names, master.states())
+                                        if s in FAULT_STATES])
+                print(json.dumps({"safe_state": master.fault_reason}), flush=True)
+                break
+            print(json.dumps({"joints": [{"q": f.position, "qd": f.velocity, "i": f.current, "state": s}
+                                         for f, s in zip(master.feedback(), _fresh_state(master))],
                               "safe_state": master.fault_reason}), flush=True)
         master.disable()
         time.sleep(0.05)
@@ -67,6 +152,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         return 1
     finally:
         master.disconnect()
+        if saved is not None:           # main() called in a longer-lived process (tests)
+            _restore(*saved)
 
 
 if __name__ == "__main__":

@@ -3,17 +3,21 @@
 Example (``config/bridge_epos4_1dof.yaml``)::
 
     bus: {interface: socketcan, channel: can0, bitrate: 1000000}
-    sync_period: 0.001            # s, SYNC producer period (TPDOs come on every SYNC)
+    sync_period: 0.01             # s, SYNC producer period (TPDOs come on every SYNC): 10 ms is
+                                  #   the supported rate from Python; 1 ms only experimental
     heartbeat_producer_ms: 10     # ms, written to each drive's 0x1017
-    heartbeat_timeout: 0.04       # s, no heartbeat this long -> safe state
+    timeout_margin: 0.1           # s, scheduling margin of the derived timeouts below
+    heartbeat_timeout: 0          # s, no heartbeat this long -> safe state
+                                  #   (0: 3 x heartbeat_producer_ms + timeout_margin)
     master_heartbeat_ms: 100      # ms, > 0: the master produces a heartbeat (id master_node_id,
                                   #   default 127) and each drive consumes it (0x1016:01): if the
                                   #   bridge process dies, the drives fault by themselves (0x8130)
     master_heartbeat_timeout_ms: 0  # ms, the drives' consumer time (0 = max(3 x master_heartbeat_ms,
                                   #   heartbeat_timeout): as patient with the master as it is with them)
-    rpdo_timeout_ms: 500          # ms, RxPDO1 event timer 0x1400:05 (deadline monitoring): no
-                                  #   RPDO this long -> the drive faults (0x8250); stops the drive
-                                  #   when the master hangs but its heartbeat goes on; 0 = off;
+    rpdo_timeout_ms: 500          # ms, RxPDO1 event timer 0x1400:05 where a drive has it
+                                  #   (maxon's EPOS4 EDS does not): nothing relies on it, the
+                                  #   drive's interpolation supervision (0x60C2, EMCY 0x8250)
+                                  #   stops it when the master hangs; 0 = off;
                                   #   absent: max(500, 2 x heartbeat_timeout)
     quick_stop_option: 2          # 0x605A: 0 disable drive at once; 1/2 stop on the profile /
                                   #   quick stop ramp, then Switch on disabled; 5/6 same, then
@@ -35,8 +39,9 @@ Example (``config/bridge_epos4_1dof.yaml``)::
     scheduler_rt_priority: -1     # 1..99: SCHED_FIFO for the setpoint player's thread and the bus
                                   #   receiver (needs CAP_SYS_NICE; falls back with a warning);
                                   #   0 = normal; -1 = auto: 50 with setpoint_timing sync, else 0
-    feedback_timeout: 0.04        # s, no TPDO this long while SYNC runs -> safe state
-                                  #    (default: max(heartbeat_timeout, 20 feedback periods))
+    feedback_timeout: 0           # s, no TPDO this long while SYNC runs -> safe state
+                                  #    (0: max(3 x sync_period x feedback_every + timeout_margin,
+                                  #    heartbeat_timeout))
     feedback_every: 1             # SYNCs per TPDO (status, motion): their transmission type
                                   #   1..240 (CiA 301); e.g. 10 at a 1 kHz SYNC for 100 Hz feedback
     setpoint_timing: sync         # 'sync': setpoint RPDO transmission type 1, latched by the drive
@@ -45,8 +50,8 @@ Example (``config/bridge_epos4_1dof.yaml``)::
     sync_producer: master         # 'master': this bridge produces SYNC (canopen network.sync:
                                   #   the kernel's broadcast manager on socketcan); 'external':
                                   #   another node does (the simulation's CAN hub, a PLC)
-    sync_timeout: 0.1             # s, no SYNC seen this long -> safe state
-                                  #   (default: max(heartbeat_timeout, 20 SYNC periods))
+    sync_timeout: 0               # s, no SYNC seen this long -> safe state
+                                  #   (0: max(3 x sync_period + timeout_margin, heartbeat_timeout))
     missed_cycle_tolerance: 1     # cycles: a setpoint that takes effect more than this many
                                   #   SYNC cycles after its own -> safe state (every miss counts)
     player_process: false         # sync: the setpoint player (guard, units, RPDO, SYNC watch) in
@@ -161,6 +166,17 @@ SCALING_SOURCES = ("check", "drive", "config")
 SETPOINT_TIMINGS = ("sync", "on_receipt")
 AUTO_RT_PRIORITY = 50       # SCHED_FIFO priority of the synchronous player (scheduler_rt_priority -1)
 SYNC_PRODUCERS = ("master", "external")
+#: s, what a derived timeout allows beyond its frames' periods: a process on a loaded machine is
+#: held off the CPU for tens of ms (40-66 ms seen on the shared 2-core machine)
+TIMEOUT_MARGIN = 0.1
+#: periods of a producer a derived timeout spans (two frames in a row may be late or lost)
+TIMEOUT_PERIODS = 3
+
+
+def derived_timeout(period: float, margin: float) -> float:
+    """s: no frame of a producer with ``period`` (s) for ``TIMEOUT_PERIODS`` periods plus
+    ``margin`` (s, scheduling)."""
+    return TIMEOUT_PERIODS * float(period) + float(margin)
 
 
 @dataclass(frozen=True)
@@ -169,7 +185,7 @@ class BridgeConfig:
 
     bus: BusConfig
     joints: tuple[JointConfig, ...]
-    sync_period: float = 0.001
+    sync_period: float = 0.01
     heartbeat_producer_ms: int = 10
     master_heartbeat_ms: int = 100
     master_heartbeat_timeout_ms: int = 0
@@ -183,7 +199,8 @@ class BridgeConfig:
     boot_wait: float = 10.0
     check_identity: bool = True
     master_node_id: int = 127
-    heartbeat_timeout: float = 0.1
+    heartbeat_timeout: float = 0.0
+    timeout_margin: float = TIMEOUT_MARGIN
     setpoint_timeout: float = 0.5
     feedback_timeout: float = 0.0
     feedback_every: int = 1
@@ -227,13 +244,22 @@ class BridgeConfig:
                 and 1 <= self.feedback_every <= 240):
             raise ConfigError("feedback_every must be an integer 1..240 SYNCs (the TPDOs' "
                               f"transmission type), got {self.feedback_every!r}")
-        if self.feedback_timeout == 0.0:   # default: the heartbeat timeout, >= 20 TPDO periods
+        if not (isinstance(self.timeout_margin, (int, float)) and 0.0 <= self.timeout_margin <= 10.0):
+            raise ConfigError(f"timeout_margin must be 0 .. 10 s, got {self.timeout_margin!r}")
+        # derived timeouts: the producer's period x TIMEOUT_PERIODS + timeout_margin; the SYNC
+        # and feedback ones at least as patient as the heartbeat's (a patient configuration)
+        if self.heartbeat_timeout == 0.0 and isinstance(self.heartbeat_producer_ms, int):
+            object.__setattr__(self, "heartbeat_timeout",
+                               derived_timeout(self.heartbeat_producer_ms / 1000.0, self.timeout_margin))
+        if self.feedback_timeout == 0.0:
             object.__setattr__(self, "feedback_timeout",
                                max(float(self.heartbeat_timeout),
-                                   20.0 * float(self.sync_period) * self.feedback_every))
-        if self.sync_timeout == 0.0:       # default: as patient as with the TPDOs
+                                   derived_timeout(float(self.sync_period) * self.feedback_every,
+                                                   self.timeout_margin)))
+        if self.sync_timeout == 0.0:
             object.__setattr__(self, "sync_timeout",
-                               max(float(self.heartbeat_timeout), 20.0 * float(self.sync_period)))
+                               max(float(self.heartbeat_timeout),
+                                   derived_timeout(float(self.sync_period), self.timeout_margin)))
         if self.setpoint_timing not in SETPOINT_TIMINGS:
             raise ConfigError(f"setpoint_timing must be one of {SETPOINT_TIMINGS}, got "
                               f"{self.setpoint_timing!r}")

@@ -20,8 +20,14 @@ One :class:`EposMaster` drives a group of joints (one EPOS each) on one python-c
                   :class:`~ff_hwbridge.drive.safety.SafetyGuard` (clamp, latch) and is clamped again in
                   raw drive units. ``prepare_currents`` + ``send_prepared`` split it so that a
                   player (``drive.player.SetpointPlayer``) does the work before a stamp and only sends at it.
-- RPDOs are not acknowledged: while a drive's state differs from its target the controlword is
-                  repeated every 5 ms, and every RPDO is refreshed at least every 50 ms.
+- The cycle contract (CiA 402 cyclic synchronous modes): every SYNC seen opens a cycle in
+                  which each operational drive gets its RPDO1 once, the value in force repeated
+                  when nothing new went out in it (``_on_cycle``, the bus receiver's thread, user
+                  space: a frozen process falls silent and the drive's interpolation-period
+                  supervision, EMCY 0x8250, stops it). A player in another process repeats an
+                  enabled drive's RPDO itself. ``on_receipt`` also: while a drive's state differs
+                  from its target the controlword is repeated every 5 ms, and every RPDO is
+                  refreshed at least every 50 ms (when no SYNC is seen).
 - Faults (EMCY, drive in Fault, heartbeat loss, TPDO silence, boot-up or NMT state other than
                   OPERATIONAL in the heartbeat, setpoint watchdog) latch the safe state: zero
                   current, quick stop (or disable voltage), reason kept until ``fault_reset()``
@@ -48,6 +54,7 @@ import numpy as np
 
 from ff_hwbridge.drive.bus import open_bus
 from ff_hwbridge.drive.config import BridgeConfig, JointConfig
+from ff_hwbridge.drive.heartbeat import HeartbeatSender
 from ff_hwbridge.drive.safety import SafeCommand, SafetyGuard
 from ff_hwbridge.drive.sync_watch import SyncWatch
 from ff_hwbridge.protocol import cia402
@@ -67,12 +74,17 @@ ECHO_INTERFACES = frozenset({"socketcan", "virtual", "remote", "kvaser"})
 SYNC_COB_ID = 0x80               # CiA 301 default 0x1005 COB-ID SYNC
 # SDO abort codes meaning "this drive has no such object" (CiA 301)
 ABORT_NO_OBJECT = (0x06020000, 0x06090011)
+# objects the master writes only where a drive has them (maxon's EPOS4 EDS lacks the RxPDO event
+# timer): an EDS without them is accepted
+OPTIONAL_SUBS = frozenset({(0x1400, 5)})
 
 
-# s: repeat the controlword while the drive's state differs from the target; refresh any RPDO
-# at least this often (both are idempotent for the drive: a fault reset needs a rising edge)
+# s, setpoint_timing on_receipt only (sync: one RPDO per SYNC cycle): repeat the controlword
+# while the drive's state differs from the target; refresh any RPDO at least this often (both
+# are idempotent for the drive: a fault reset needs a rising edge)
 RESEND_PERIOD = 0.005
 REFRESH_PERIOD = 0.05
+
 
 
 @dataclass(frozen=True)
@@ -127,6 +139,8 @@ class _Drive:
     seen_operational: bool = False
     tpdo_seen: bool = False
     last_tx: float = 0.0          # monotonic s of the latest RPDO
+    cycle_sent: int = -1          # SYNC count (SyncWatch) seen when the latest RPDO was sent
+    cycle_repeats: int = 0        # RPDOs repeated because nothing new went out in a cycle
     tx_seq: int = 0               # setpoint RPDOs handed to the bus
     tx_failing: int = 0           # setpoint RPDOs failed since the last that went through
     sample_unmatched_ns: int = 0  # bus ns of the latest TPDO1 whose SYNC was not seen yet (0: none)
@@ -138,6 +152,9 @@ class _Drive:
     error_history: str = ""       # decoded 0x1003 / 0x603F, newest first
     notes: list = field(default_factory=list)   # drive settings that could not be applied
     envelope_armed: bool = True   # False after a fault reset outside the envelope
+    consumer_armed: bool = False  # 0x1016:01 consumes this master's heartbeat (disarmed on exit)
+    limited_count: int = 0        # TPDO1s with statusword bit 11 (internal limit) in this motion
+    limited_first_ns: int = 0     # wall ns (sample instant) of the first of them; 0: none
 
     @property
     def node_id(self) -> int:
@@ -175,6 +192,11 @@ class EposMaster:
         self.external_player = False
         self.gate_listener: Optional[Callable[[], None]] = None
         self._sync_expected_since: Optional[float] = None   # monotonic s: SYNC must come
+        # wall ns (time.time_ns, the setpoints' stamp clock) of the latest safe state or fault
+        # reset: the current is 0 from then on until a setpoint stamped after it
+        self.reset_epoch_ns = 0
+        # the cycle contract: every SYNC seen, each operational drive's RPDO goes out once
+        self.sync_watch.add_listener(self._on_cycle)
 
     # --- properties ---------------------------------------------------------------------------
     @property
@@ -221,10 +243,14 @@ class EposMaster:
             out[p + "heartbeat_age_ms"] = (round((now - d.last_heartbeat) * 1000.0, 1)
                                            if d.last_heartbeat is not None else -1.0)
             out[p + "setpoint_raw"] = d.setpoint
+            out[p + "cycle_repeats"] = d.cycle_repeats     # RPDOs repeating the value in force
             out[p + "last_emcy"] = d.emcy[-1] if d.emcy else ""
             sw = d.feedback.statusword
             out[p + "warning"] = bool(sw & SW_WARNING)                # statusword bit 7
             out[p + "internal_limit_active"] = bool(sw & SW_INTERNAL_LIMIT)   # bit 11
+            # latched per motion: the drive clipped the command (a failed feedforward move)
+            out[p + "motion_limited_count"] = d.limited_count
+            out[p + "motion_limited_first_ns"] = d.limited_first_ns
             out[p + "last_warning"] = d.warnings[-1] if d.warnings else ""
             out[p + "error_history"] = d.error_history
             if d.notes:
@@ -266,7 +292,9 @@ class EposMaster:
         net.subscribe(SYNC_COB_ID, self._on_sync)
 
     def disconnect(self) -> None:
-        """Zero current, disable voltage, stop SYNC and the monitor, close the bus (idempotent)."""
+        """Zero current, disable voltage, disarm the drives' consumer of this master's heartbeat
+        (0x1016:01 = 0: a clean exit is no heartbeat loss, and the next start finds the drive
+        out of Fault), stop SYNC and the monitor, close the bus (idempotent)."""
         self._stop_monitor()
         if self.network is None:
             return
@@ -275,9 +303,10 @@ class EposMaster:
                 d.target = State.SWITCH_ON_DISABLED
                 if d.operational:
                     self._send_rpdo(d, cia402.CONTROLWORD[cia402.Command.DISABLE_VOLTAGE], 0)
-            if self.config.synchronous and self._sync_running:
+            if self.config.synchronous and self.sync_expected:
                 # a synchronous RPDO takes effect at the next SYNC: keep SYNC for two more
                 time.sleep(2.5 * self.config.sync_period)
+            self.disarm_heartbeat_consumers()
         finally:
             self.stop_sync()
             self.stop_master_heartbeat()
@@ -291,6 +320,27 @@ class EposMaster:
             self._configured = False
 
     close = disconnect
+
+    def disarm_heartbeat_consumers(self) -> list[str]:
+        """Write 0x1016:01 = 0 on every drive this master armed to consume its heartbeat (while
+        that heartbeat still runs); returns the joints where it failed (logged, never raised:
+        a drive that cannot be reached faults 0x8130 as it would for a dead master)."""
+        failed = []
+        if self.network is None or self._bus_lost_told:
+            return [d.cfg.name for d in self._drives if d.consumer_armed]
+        for d in self._drives:
+            if not d.consumer_armed or d.node is None:
+                continue
+            try:
+                with self._sdo_lock:
+                    d.node.sdo[0x1016][1].raw = 0
+                d.consumer_armed = False
+            except Exception as exc:  # noqa: BLE001 - canopen raises SdoError, CanError, ...
+                failed.append(d.cfg.name)
+                log.warning("node %d (%s): could not disarm its heartbeat consumer 0x1016:01 (%s); "
+                            "it faults 0x8130 once this master's heartbeat stops", d.node_id,
+                            d.cfg.name, exc)
+        return failed
 
     def _connected_network(self) -> canopen.Network:
         """The canopen Network; EposError before ``connect()`` / after ``disconnect()``."""
@@ -308,6 +358,10 @@ class EposMaster:
             self._configure_drive(d)
         self.start_sync()
         self._start_monitor()
+        if self.config.rt_priority > 0:
+            # the bus receiver writes every SYNC cycle's RPDO (``_on_cycle``): SCHED_FIFO, so that
+            # a loaded machine does not hold it off the CPU for a cycle (the drive would fault)
+            self.set_receiver_priority(self.config.rt_priority)
         self._configured = True
 
     def _configure_drive(self, d: _Drive) -> None:
@@ -364,9 +418,11 @@ class EposMaster:
             except Exception as exc:  # noqa: BLE001
                 raise EposError(f"node {nid} ({d.cfg.name}): SDO read {what} failed: {exc}") from exc
 
-        def optional(index: int, sub: Optional[int], value: Optional[int], what: str) -> Optional[int]:
+        def optional(index: int, sub: Optional[int], value: Optional[int], what: str,
+                     quiet: bool = False) -> Optional[int]:
             """Write ``value`` (or read, when None); None when the drive has no such object
-            (noted in the diagnostics), EposError on any other failure."""
+            (noted in the diagnostics; logged as a warning unless ``quiet``), EposError on any
+            other failure."""
             try:
                 obj = node.sdo[index] if sub is None else node.sdo[index][sub]
                 if value is None:
@@ -376,9 +432,11 @@ class EposMaster:
             except canopen.SdoAbortedError as exc:
                 if exc.code not in ABORT_NO_OBJECT:
                     raise EposError(f"node {nid} ({d.cfg.name}): SDO {what} failed: {exc}") from exc
+            except KeyError:
+                pass                   # not in the drive's EDS (the object dictionary used)
             note = f"{what}: not on this drive"
             d.notes.append(note)
-            log.warning("node %d (%s): %s", nid, d.cfg.name, note)
+            log.log(logging.INFO if quiet else logging.WARNING, "node %d (%s): %s", nid, d.cfg.name, note)
             return None
 
         if self.config.check_identity:
@@ -405,6 +463,7 @@ class EposMaster:
         consumer = ((self.config.master_node_id << 16) | self.config.master_heartbeat_timeout_ms
                     if self.config.master_heartbeat_ms else 0)
         sdo_write(0x1016, 1, consumer, "0x1016:01 consumer heartbeat time (master)")
+        d.consumer_armed = consumer != 0
         # the drive's own reactions, explicitly (never the factory settings by accident)
         c = self.config
         for index, sub, value, what in ((0x605A, None, c.quick_stop_option, "0x605A quick stop option"),
@@ -419,16 +478,24 @@ class EposMaster:
             # synchronous (1): the drive latches the setpoint at the next SYNC; 255: on receipt
             self._map_pdo(node.rpdo[RPDO_SETPOINT], 0x200 + nid, 1 if c.synchronous else 255,
                           rpdo_layout(fam))
-            # the feedback: every feedback_every-th SYNC (transmission type 1..240)
-            self._map_pdo(node.tpdo[TPDO_STATUS], 0x180 + nid, c.feedback_every, tpdo1_layout(fam))
-            self._map_pdo(node.tpdo[TPDO_MOTION], 0x280 + nid, c.feedback_every, tpdo2_layout(fam))
+            # the feedback: every feedback_every-th SYNC (transmission type 1..240); TxPDO
+            # COB-IDs with bit 30 set (no RTR), as maxon's EDS has them (0x40000180 + id)
+            self._map_pdo(node.tpdo[TPDO_STATUS], 0x180 + nid, c.feedback_every, tpdo1_layout(fam),
+                          rtr=False)
+            self._map_pdo(node.tpdo[TPDO_MOTION], 0x280 + nid, c.feedback_every, tpdo2_layout(fam),
+                          rtr=False)
         except Exception as exc:  # noqa: BLE001
             raise EposError(f"node {nid} ({d.cfg.name}): PDO mapping failed: {exc}") from exc
-        # drive-side deadline for the setpoint stream (a hung master whose heartbeat goes on)
+        # CiA 301 RxPDO event timer where a drive has it (maxon's EPOS4 EDS lists none): an
+        # extra, nothing relies on it; with synchronous setpoints a hung master is stopped by
+        # the drive's interpolation-period supervision (0x60C2: no RPDO in a cycle, EMCY 0x8250)
         if c.rpdo_timeout_ms:
-            optional(0x1400, 5, c.rpdo_timeout_ms, "0x1400:05 RxPDO1 event timer (RPDO timeout)")
-        period_ms = c.sync_period * 1000.0
-        if abs(period_ms - round(period_ms)) < 1e-9 and 1 <= round(period_ms) <= 255:
+            optional(0x1400, 5, c.rpdo_timeout_ms, "0x1400:05 RxPDO1 event timer (optional)", quiet=True)
+        # 0x60C2 interpolation time period = the SYNC period: the drive then expects a setpoint
+        # RPDO in every SYNC cycle (supervised: EMCY 0x8250). on_receipt is no cycle contract:
+        # 0 (off), whatever an earlier master left there
+        period_ms = c.sync_period * 1000.0 if c.synchronous else 0.0
+        if abs(period_ms - round(period_ms)) < 1e-9 and 0 <= round(period_ms) <= 255:
             if optional(0x60C2, 1, int(round(period_ms)), "0x60C2:01 interpolation time period") is not None:
                 optional(0x60C2, 2, -3, "0x60C2:02 interpolation time index")
         # our own fast decoders instead of canopen's per-variable ones
@@ -518,23 +585,28 @@ class EposMaster:
             raise EposError(f"node {d.node_id}: motor data read from the drive is unusable: {exc}") from exc
 
     @staticmethod
-    def _map_pdo(pdo_map: Any, cob_id: int, trans_type: int, layout: Sequence[tuple[int, int, str]]) -> None:
-        """Standard remap over SDO: disable (COB-ID bit 31), count 0, entries, count, enable."""
+    def _map_pdo(pdo_map: Any, cob_id: int, trans_type: int, layout: Sequence[tuple[int, int, str]],
+                 rtr: bool = True) -> None:
+        """Standard remap over SDO: disable (COB-ID bit 31), count 0, entries, count, enable;
+        ``rtr`` False: COB-ID bit 30 set (CiA 301: no RTR allowed on this TPDO)."""
         pdo_map.clear()
         for index, sub, _ in layout:
             pdo_map.add_variable(index, sub)
         pdo_map.cob_id = cob_id
+        pdo_map.rtr_allowed = rtr
         pdo_map.trans_type = trans_type
         pdo_map.enabled = True
         pdo_map.save()
 
     # --- master heartbeat, SYNC and monitoring ------------------------------------------------
     def _start_master_heartbeat(self) -> None:
-        """Produce the master's heartbeat (OPERATIONAL) when ``master_heartbeat_ms`` > 0."""
+        """Produce the master's heartbeat (OPERATIONAL) when ``master_heartbeat_ms`` > 0, from a
+        thread of this process (never the kernel's periodic sender: a frozen master must fall
+        silent, ``drive.heartbeat``)."""
         if self.config.master_heartbeat_ms and self._master_hb is None and self.network is not None:
-            self._master_hb = self.network.send_periodic(
-                0x700 + self.config.master_node_id, bytes([0x05]),
-                self.config.master_heartbeat_ms / 1000.0)
+            net, cob = self.network, 0x700 + self.config.master_node_id
+            self._master_hb = HeartbeatSender(lambda: net.send_message(cob, b"\x05"),
+                                              self.config.master_heartbeat_ms / 1000.0)
 
     def stop_master_heartbeat(self) -> None:
         """Stop producing the master's heartbeat (as a dead master would; SYNC keeps running)."""
@@ -569,7 +641,11 @@ class EposMaster:
         net = self.network
         notifier = getattr(net, "notifier", None)
         threads = [t for t in getattr(notifier, "_readers", []) if isinstance(t, threading.Thread)]
-        for extra in (self._monitor, getattr(self._master_hb, "thread", None)):
+        # this master's SYNC producer where python-can runs it in a thread (not the kernel's
+        # broadcast manager): canopen's PeriodicMessageTask around python-can's task
+        sync_task = getattr(getattr(getattr(net, "sync", None), "_task", None), "_task", None)
+        for extra in (self._monitor, getattr(self._master_hb, "thread", None),
+                      getattr(sync_task, "thread", None)):
             if isinstance(extra, threading.Thread) and extra.is_alive():
                 threads.append(extra)
         ok = bool(threads)
@@ -594,6 +670,22 @@ class EposMaster:
             if t and 0 <= t - ev.bus_ns < self.sync_watch.period_ns:
                 d.feedback.sample_ns = ev.bus_ns
                 d.sample_unmatched_ns = 0
+
+    def _on_cycle(self, ev: Any) -> None:
+        """A SYNC seen (bus receiver's thread; ``ev`` a SyncEvent): the cycle it opens gets each
+        operational drive's RPDO1 once: the value in force (controlword, setpoint) again when
+        nothing went out since this SYNC. A player in another process does it for the enabled
+        drives it feeds. A later new setpoint in the same cycle replaces it (the drive latches
+        the last one before the SYNC)."""
+        if self.network is None:
+            return
+        for d in self._drives:
+            if not d.operational or d.cycle_sent >= ev.count:
+                continue
+            with self._send_lock:
+                if d.operational and d.cycle_sent < ev.count and not self._player_owns(d):
+                    d.cycle_repeats += 1
+                    self._send_rpdo(d, d.controlword, d.setpoint)
 
     def _make_echo_cb(self, d: _Drive) -> Callable[[int, bytearray, float], None]:
         def on_echo(can_id: int, data: bytearray, timestamp: float) -> None:
@@ -642,10 +734,10 @@ class EposMaster:
                 now = self.clock()
                 self.check(now)
                 for d in self._drives:
-                    # keep the RPDO stream (and so the drive's RPDO deadline) fed even when no
-                    # TPDO arrives to step the state machine
-                    if (d.operational and d.feedback.state is not None and not self._player_owns(d)
-                            and now - d.last_tx >= REFRESH_PERIOD):
+                    # on_receipt: keep the RPDO stream fed even when no TPDO arrives to step
+                    # the state machine (sync: every SYNC cycle does, ``_on_cycle``)
+                    if (not self.config.synchronous and d.operational and d.feedback.state is not None
+                            and not self._player_owns(d) and now - d.last_tx >= REFRESH_PERIOD):
                         with self._send_lock:
                             self._send_rpdo(d, d.controlword, d.setpoint)
                     if d.history_wanted and d.operational:
@@ -780,6 +872,7 @@ class EposMaster:
 
     def _react(self, reason: str) -> None:
         t_latch = self.clock()
+        self.reset_epoch_ns = max(self.reset_epoch_ns, time.time_ns())
         for d in self._drives:
             state = d.feedback.state
             d.target = State.QUICK_STOP_ACTIVE if state is State.OPERATION_ENABLED else State.SWITCH_ON_DISABLED
@@ -874,6 +967,10 @@ class EposMaster:
             fb.sample_ns = self._sample_instant(tpdo_ns)
             d.sample_unmatched_ns = tpdo_ns if fb.sample_ns == tpdo_ns and not proxy else 0
             d.tpdo_seen = True
+            if sw & SW_INTERNAL_LIMIT and self.guard.motion_running:
+                if not d.limited_count:
+                    d.limited_first_ns = fb.sample_ns
+                d.limited_count += 1
             if proxy:
                 # no echo of our own SYNC: the first drive's synchronous TPDO1 marks the cycle
                 self.sync_watch.observe(timestamp, None)
@@ -900,7 +997,8 @@ class EposMaster:
             subs = getattr(obj, "subindices", None)
             if subs:
                 have = od[obj.index]
-                missing += [f"0x{obj.index:04X}:{k:02X}" for k in subs if k not in getattr(have, "subindices", {})]
+                missing += [f"0x{obj.index:04X}:{k:02X}" for k in subs
+                            if k not in getattr(have, "subindices", {}) and (obj.index, k) not in OPTIONAL_SUBS]
         if missing:
             raise EposError(f"node {d.node_id} ({d.cfg.name}): the EDS {d.cfg.eds!r} lacks object(s) the "
                             f"master uses: {', '.join(missing[:12])}" + (" ..." if len(missing) > 12 else ""))
@@ -957,15 +1055,16 @@ class EposMaster:
             setpoint = d.setpoint if (state is State.OPERATION_ENABLED
                                       and target is State.OPERATION_ENABLED
                                       and not self.guard.latched) else 0
-            # RPDOs are not acknowledged: while the drive is not where we want it, repeat the
-            # controlword (a lost quick stop must not leave the drive driving current), and
-            # refresh the RPDO now and then anyway (a lost setpoint heals)
+            # RPDOs are not acknowledged: sync, every SYNC cycle repeats them (``_on_cycle``);
+            # on_receipt, while the drive is not where we want it, repeat the controlword (a
+            # lost quick stop must not leave the drive driving current), and refresh the RPDO
+            # now and then anyway (a lost setpoint heals)
             since = now - d.last_tx
             if self._player_owns(d) and cw == d.controlword:
-                return                    # the player's RPDOs (and refreshes) carry it
-            if (cw != d.controlword or setpoint != d.setpoint
-                    or (state is not target and since >= RESEND_PERIOD)
-                    or since >= REFRESH_PERIOD):
+                return                    # the player's RPDOs (one per cycle) carry it
+            repeat = not self.config.synchronous and ((state is not target and since >= RESEND_PERIOD)
+                                                      or since >= REFRESH_PERIOD)
+            if cw != d.controlword or setpoint != d.setpoint or repeat:
                 self._send_rpdo(d, cw, setpoint)
 
     def gate(self) -> list[tuple[int, bool]]:
@@ -1019,6 +1118,7 @@ class EposMaster:
             d.controlword = int(controlword) & 0xFFFF
             d.setpoint = sp
             d.last_tx = self.clock()
+            d.cycle_sent = self.sync_watch.count
             if changed and self.external_player:
                 self._gate_changed()      # the player learns the new controlword first
             try:
@@ -1078,8 +1178,9 @@ class EposMaster:
     def fault_reset(self, reenable: bool = True) -> Optional[str]:
         """Clear the latch and reset drive faults (controlword bit 7 rising edge, transition 15);
         then request Operation enabled (``reenable``) or Switch on disabled. Returns the cleared
-        reason."""
+        reason. The current stays 0 until a setpoint stamped after this call."""
         now = self.clock()
+        self.reset_epoch_ns = max(self.reset_epoch_ns, time.time_ns())
         for d in self._drives:
             d.reset_until = now + self.config.state_timeout
             d.setpoint = 0
@@ -1153,8 +1254,20 @@ class EposMaster:
             d.setpoint = 0
 
     def note_setpoint(self, motion_running: bool) -> None:
-        """Feed the setpoint watchdog (a fresh setpoint arrived)."""
+        """Feed the setpoint watchdog (a fresh setpoint arrived); a motion that starts here
+        clears the per-motion record of statusword bit 11 (``motion_limits``)."""
+        starts = motion_running and not self.guard.motion_running
         self.guard.feed(self.clock(), motion_running)
+        if starts:
+            for d in self._drives:
+                d.limited_count, d.limited_first_ns = 0, 0
+
+    def motion_limits(self) -> list[tuple[int, int]]:
+        """Per joint, during the latest motion (from its first setpoint until it ended): how many
+        feedback TPDOs had statusword bit 11 set (internal limit active: the drive clipped the
+        command, so the move did not get the planned current) and the wall ns of the first
+        (0: none)."""
+        return [(d.limited_count, d.limited_first_ns) for d in self._drives]
 
     def rpdo_marks(self) -> tuple[int, ...]:
         """Per joint, how many setpoint RPDOs have been handed to the bus (compare with the

@@ -41,7 +41,7 @@ from __future__ import annotations
 import sys
 import time
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Callable, Optional, Self, Sequence
 
 from ff_hwbridge.drive.config import BridgeConfig
@@ -126,6 +126,7 @@ class _Queued:
     seq: int
     profile_id: str
     last: bool
+    stamp_ns: int = 0         # as submitted (before any shift onto the SYNC grid)
 
 
 @dataclass(frozen=True)
@@ -160,14 +161,20 @@ class PlayerBase:
         raise NotImplementedError
 
     def _accept(self, currents: Sequence[float], profile_id: str, last: bool,
-                refusal: Optional[str] = None) -> tuple[float, ...]:
+                refusal: Optional[str] = None, *, stamp_ns: int = 0) -> tuple[float, ...]:
         """A submitted setpoint's currents (A) as floats, once checked, and the setpoint watchdog
         fed. SetpointRejected while the safe state is latched, with ``refusal`` (why this player
-        takes none now), or for a wrong number of currents."""
+        takes none now), for a stamp (ns) before the latest safe state / fault reset (the current
+        stays 0 until a setpoint stamped after it) or for a wrong number of currents."""
         if self.master.latched:
             raise SetpointRejected(f"safe state ({self.master.fault_reason})")
         if refusal is not None:
             raise SetpointRejected(refusal)
+        epoch = self.master.reset_epoch_ns
+        if int(stamp_ns) < epoch:
+            raise SetpointRejected(f"stamped {(epoch - int(stamp_ns)) / 1e6:.1f} ms before the latest "
+                                   "safe state / fault reset: the current stays 0 until a setpoint "
+                                   "stamped after it")
         amps = tuple(float(c) for c in currents)
         if len(amps) != self._n_joints:
             raise SetpointRejected(f"{len(amps)} current(s) for {self._n_joints} joint(s) "
@@ -264,12 +271,12 @@ class SetpointPlayer(PlayerBase):
         """Queue motor currents (A, one per joint) to be applied at ``stamp_ns`` (ns on
         ``clock_ns``); feeds the setpoint watchdog. SetpointRejected while the safe state is
         latched or for a wrong number of currents."""
-        amps = self._accept(currents, profile_id, last)
+        amps = self._accept(currents, profile_id, last, stamp_ns=stamp_ns)
         stamp = int(stamp_ns)
         stop = all(c == 0.0 for c in amps)
         if self._placement is not None:
             stamp = self._placement.place(stamp, str(profile_id), int(seq))
-        self._scheduler.submit(stamp, _Queued(amps, int(seq), str(profile_id), bool(last)), stop=stop)
+        self._scheduler.submit(stamp, _Queued(amps, int(seq), str(profile_id), bool(last), int(stamp_ns)), stop=stop)
 
     def clear(self) -> int:
         """Drop every pending setpoint; returns how many were dropped."""
@@ -332,7 +339,10 @@ class SetpointPlayer(PlayerBase):
 
     # --- the scheduler thread ---------------------------------------------------------------
     def _prepare(self, queued: _Queued) -> _Prepared:
-        """Just before the stamp: safety guard + unit conversion."""
+        """Just before the stamp: safety guard + unit conversion; 0 A for a setpoint queued
+        before the latest safe state / fault reset."""
+        if queued.stamp_ns < self.master.reset_epoch_ns:
+            queued = replace(queued, currents=(0.0,) * len(queued.currents))
         return _Prepared(queued, self.master.prepare_currents(queued.currents))
 
     def _apply(self, stamp_ns: int, item: _Queued | _Prepared) -> None:

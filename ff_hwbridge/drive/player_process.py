@@ -11,8 +11,11 @@ process (``multiprocessing``, spawn) that imports no ROS and runs no executor:
   thread), places each stamp on the grid (:class:`~ff_hwbridge.drive.placement.GridPlacement`),
   and runs the :class:`~ff_hwbridge.drive.cycle.CycleScheduler`: safety clamp
   (:class:`~ff_hwbridge.drive.safety.SafetyGuard`: ±limit A, NaN → 0 A), units (raw 0x6071 ‰ /
-  0x2030 mA) and RPDO1 (controlword + setpoint, CiA 402) for the right cycle; it refreshes an
-  enabled drive's RPDO every ``REFRESH_PERIOD`` (the drive's RPDO deadline);
+  0x2030 mA) and RPDO1 (controlword + setpoint, CiA 402) for the right cycle; every SYNC it
+  sees opens a cycle in which an enabled drive gets its RPDO1 once (``_on_cycle``): the value in
+  force for that cycle again when no new setpoint went out (or, with ``setpoint_lead``, was
+  scheduled) for it; the drive's interpolation-period supervision (0x60C2, EMCY 0x8250) is
+  what stops a drive whose player froze;
 - what it may send comes from the master through shared memory (:meth:`EposMaster.gate`: per
   joint the controlword and whether a current may be sent; the master updates it before it
   sends a new controlword or its safe-state reaction), so the child never re-enables a drive
@@ -21,7 +24,11 @@ process (``multiprocessing``, spawn) that imports no ROS and runs no executor:
   missed cycles, faults and the statistics come back over the pipe. A fault the child reports
   (a miss beyond ``missed_cycle_tolerance``, a setpoint that cannot be placed, a failing send)
   latches the master's safe state with its reason; a child that dies or stops reporting for
-  ``DEAD_AFTER`` s latches it too (and the drive's own RPDO timeout 0x1400:05 stops it).
+  ``DEAD_AFTER`` s latches it too (the drive stops by itself a cycle or two after the last
+  RPDO: EMCY 0x8250);
+- a safe state or fault reset raises the gate's reset epoch (wall ns): the child forgets the
+  value in force (0 until a new setpoint), drops queued setpoints and ignores any stamped
+  before the epoch.
 
 The master keeps the state machine, the watchdogs and the reactions; while the player owns an
 enabled drive it sends RPDO1 with 0 current only and no refresh of its own
@@ -44,7 +51,7 @@ import can
 from ff_hwbridge.drive.bus import send_at
 from ff_hwbridge.drive.cycle import CycleScheduler, Resolved
 from ff_hwbridge.drive.gc_pauses import IdleCollector, freeze_heap, hold_full_collections
-from ff_hwbridge.drive.epos import ECHO_INTERFACES, REFRESH_PERIOD, SYNC_COB_ID, EposMaster
+from ff_hwbridge.drive.epos import ECHO_INTERFACES, SYNC_COB_ID, EposMaster
 from ff_hwbridge.drive.placement import GridPlacement
 from ff_hwbridge.drive.player import (MAX_REPORTS, SWITCH_INTERVAL, AppliedSetpoint, PlayerBase, PlayerConfig,
                                       SetpointPlayer)
@@ -59,6 +66,7 @@ __all__ = ["ProcessPlayer", "make_player"]
 
 STATUS_PERIOD = 0.02      # s, the child's status report (pending, heartbeat)
 ECHO_KEEP = 4096          # echoes remembered per joint (their numbers and bus instants)
+ECHO_MATCH_NS = 2_000     # a scheduled frame's echo carries its instant (float s: within this)
 STATS_PERIOD = 0.25       # s, ... with statistics refreshed this often
 DEAD_AFTER = 2.0          # s without a status report: the player process counts as dead
 START_TIMEOUT = 30.0      # s for the child to import, open the bus and report ready
@@ -98,11 +106,12 @@ class _Spec:
 class _Child:
     """What runs in the player process (see the module docstring)."""
 
-    def __init__(self, spec: _Spec, conn: Any, gate: Any) -> None:
+    def __init__(self, spec: _Spec, conn: Any, gate: Any, epoch: Any = None) -> None:
         from ff_hwbridge.drive.bus import open_bus
         from ff_hwbridge.drive.sync_watch import SyncWatch
 
         self.spec, self.conn, self.gate = spec, conn, gate
+        self.epoch_ref = epoch                # shared 64-bit value: the master's reset epoch (ns)
         self.n = len(spec.joints)
         self._conn_lock = threading.Lock()
         self._send_lock = threading.Lock()
@@ -125,12 +134,20 @@ class _Child:
         self.rx_ids = {0x200 + j.node_id: i for i, j in enumerate(spec.joints)}
         self.tx_seq = [0] * self.n
         self.echo_seq = [0] * self.n
-        self.sent_data: list[deque[bytes]] = [deque(maxlen=1024) for _ in range(self.n)]
-        # per joint: echo number -> its bus instant (wall ns), the latest ECHO_KEEP of them
+        # per joint, the frames handed to the bus not yet echoed: [tx number, data, scheduled
+        # wall ns (0: sent at once)]
+        self.sent_data: list[deque[list]] = [deque(maxlen=1024) for _ in range(self.n)]
+        # per joint: tx number of an echoed frame -> its bus instant (wall ns), the latest ECHO_KEEP
         self.echo_log: list[dict[int, int]] = [{} for _ in range(self.n)]
         self.last_frame: list[Optional[bytes]] = [None] * self.n
-        self.last_tx = [0.0] * self.n
-        self.raw = [0] * self.n
+        self.raw = [0] * self.n               # the latest setpoint handed to the bus, per joint
+        # per joint: (SYNC count of the cycle a frame lies in, its raw setpoint), sorted, and the
+        # value in force before the oldest kept: what each cycle's RPDO repeats
+        self.planned: list[list[tuple[int, int]]] = [[] for _ in range(self.n)]
+        self.base = [0] * self.n
+        self.repeats = 0                      # RPDOs repeated in a cycle without a new one
+        self.repeats_late = 0                 # with a lead: cycles whose repeat came too late
+        self.epoch = 0                        # the gate's reset epoch last acted on (wall ns)
         self.received = 0
         self.stopped = threading.Event()
         self.sched = CycleScheduler(self.watch, self._send, self._report, echo_time=self._echo_time,
@@ -141,6 +158,7 @@ class _Child:
                                     stall_dump=spec.stall_dump, lead=spec.lead)
         self.placement = GridPlacement(self.sched.grid)
         self.rx_rt = False
+        self.watch.add_listener(self._on_cycle)
 
     def tell(self, *msg: Any) -> None:
         with self._conn_lock:
@@ -149,16 +167,42 @@ class _Child:
             except (OSError, EOFError, BrokenPipeError):
                 self.stopped.set()
 
-    # gate in shared memory: [cw_0, ok_0, cw_1, ok_1, ..., latched]
+    # gate in shared memory: [cw_0, ok_0, cw_1, ok_1, ..., latched]; reset epoch apart
     def _gate(self, i: int) -> tuple[int, bool]:
         return int(self.gate[2 * i]), bool(self.gate[2 * i + 1]) and not self.gate[2 * self.n]
 
+    def _reset_epoch(self) -> int:
+        """Wall ns of the latest safe state / fault reset (0: none): setpoints stamped before it
+        are never sent, and the value in force was 0 from it on."""
+        return int(self.epoch_ref.value) if self.epoch_ref is not None else 0
+
+    def _check_epoch(self) -> int:
+        """Act on a new reset epoch (any thread): forget the value in force, drop what is
+        queued. Returns the epoch."""
+        e = self._reset_epoch()
+        if e != self.epoch:
+            with self._send_lock:
+                if e != self.epoch:
+                    self.epoch = e
+                    for i in range(self.n):
+                        self._forget(i)
+            self.sched.clear()
+        return e
+
+    def _forget(self, i: int) -> None:
+        """Joint ``i``'s value in force is 0 from now on (call with ``_send_lock`` held)."""
+        self.planned[i].clear()
+        self.base[i] = 0
+        self.raw[i] = 0
+
     def _prepare(self, q: tuple) -> tuple:
         """Safety clamp (±limit A, NaN → 0 A) and units; 0 A while the bridge's safe state is
-        latched (the gate's last entry)."""
+        latched (the gate's last entry) or for a setpoint stamped before the reset epoch."""
         cmd = self.guard.filter(q[1])
         if self.gate[2 * self.n]:
             return q, (0,) * self.n, "safe state latched by the bridge", True
+        if q[0] < self._check_epoch():
+            return q, (0,) * self.n, "stamped before the latest safe state / fault reset", True
         raws = tuple(j.units.amps_to_setpoint(float(a), limit=j.limit)
                      for j, a in zip(self.spec.joints, cmd.currents))
         return q, raws, cmd.reason, cmd.latched
@@ -169,35 +213,93 @@ class _Child:
             return None                       # the master owns this drive's RPDO now
         return struct.pack(self.spec.joints[i].rx_fmt, cw & 0xFFFF, int(raw))
 
+    def _cycle_of(self, at_ns: Optional[int]) -> int:
+        """SYNC count of the cycle a frame lies in that is sent now (``at_ns`` None: the cycle
+        the latest SYNC seen opened) or scheduled for wall instant ``at_ns``."""
+        g = self.watch.grid()
+        if g is None:
+            return 0
+        ev, nominal = g
+        if at_ns is None:
+            return ev.count
+        p = self.watch.period_ns
+        return ev.count + (at_ns - nominal) // p
+
+    def _note(self, i: int, cycle: int, raw: int, now: bool) -> None:
+        """Record joint ``i``'s frame in ``cycle`` (call with ``_send_lock`` held); a frame
+        sent at once on a bus with a transmit schedule replaced the ones scheduled after it."""
+        plan = self.planned[i]
+        if now and self.spec.lead > 0:
+            while plan and plan[-1][0] > cycle:
+                plan.pop()
+        k = len(plan)
+        while k and plan[k - 1][0] > cycle:
+            k -= 1
+        if k and plan[k - 1][0] == cycle:
+            plan[k - 1] = (cycle, int(raw))     # the later frame in one cycle is latched
+        else:
+            plan.insert(k, (cycle, int(raw)))
+
+    def _in_force(self, i: int, cycle: int) -> int:
+        """Joint ``i``'s raw setpoint in force in ``cycle`` (the last frame at or before it)."""
+        for c, raw in reversed(self.planned[i]):
+            if c <= cycle:
+                return raw
+        return self.base[i]
+
     def _tx(self, i: int, data: bytes, raw: int, at_ns: Optional[int] = None) -> None:
         """Send RPDO1 ``data`` (setpoint ``raw``) to joint ``i``, at once or (``at_ns``, wall ns)
-        through the bus's transmit schedule; call with ``_send_lock`` held, so that a refresh
-        never goes out between a setpoint and the record of it: a refresh of the previous
+        through the bus's transmit schedule; call with ``_send_lock`` held, so that a repeat
+        never goes out between a setpoint and the record of it: a repeat of the previous
         setpoint after a new one would be what the drive latches at the SYNC."""
-        self.sent_data[i].append(data)
+        entry = [self.tx_seq[i] + 1, data, int(at_ns or 0)]
+        self.sent_data[i].append(entry)
         msg = can.Message(arbitration_id=0x200 + self.spec.joints[i].node_id, data=data,
                           is_extended_id=False)
-        ahead = 0.0
+        scheduled = False
         if at_ns is not None:
-            ahead = max(0.0, (at_ns - time.time_ns()) / 1e9)
-            send_at(self.bus, msg, at_ns)
+            scheduled = send_at(self.bus, msg, at_ns)
+            if not scheduled:
+                entry[2] = 0                    # its instant had passed: sent now
         else:
             self.bus.send(msg)
         self.tx_seq[i] += 1
         self.last_frame[i] = data
-        self.last_tx[i] = time.monotonic() + ahead      # its bus instant: no refresh before it
         self.raw[i] = int(raw)
+        self._note(i, self._cycle_of(at_ns if scheduled else None), raw, not scheduled)
 
-    def _refresh(self, i: int) -> None:
-        """Repeat joint ``i``'s latest setpoint when none went out for ``REFRESH_PERIOD`` (the
-        drive's RPDO deadline); decided and sent under ``_send_lock``."""
-        with self._send_lock:
-            if time.monotonic() - self.last_tx[i] < REFRESH_PERIOD:
-                return
-            cw, ok = self._gate(i)
-            if ok:
-                self._tx(i, struct.pack(self.spec.joints[i].rx_fmt, cw & 0xFFFF, self.raw[i]),
-                         self.raw[i])
+    def _on_cycle(self, ev: Any) -> None:
+        """A SYNC seen (receiver thread; ``ev`` a SyncEvent): the cycle it opens gets each
+        enabled drive's RPDO1 once: the value in force for it again when no frame went out (or
+        is scheduled) in it. With a lead the repeat is scheduled mid-cycle (a frame sent at
+        once would replace the setpoints scheduled after it)."""
+        self._check_epoch()
+        lead = self.spec.lead > 0
+        for i in range(self.n):
+            with self._send_lock:
+                cw, ok = self._gate(i)
+                if not ok:
+                    self._forget(i)             # the master owns the RPDO; 0 when it hands back
+                    continue
+                plan = self.planned[i]
+                while len(plan) > 1 and plan[0][0] < ev.count - 1:
+                    self.base[i] = plan.pop(0)[1]
+                if any(c == ev.count for c, _ in plan):
+                    continue
+                raw = self._in_force(i, ev.count)
+                data = struct.pack(self.spec.joints[i].rx_fmt, cw & 0xFFFF, raw)
+                at_ns: Optional[int] = None
+                if lead:
+                    g = self.watch.grid()
+                    if g is None:
+                        continue
+                    p = self.watch.period_ns
+                    at_ns = max(g[1] + p // 2, time.time_ns() + 200_000)
+                    if at_ns > g[1] + p - p // 10:
+                        self.repeats_late += 1    # too late to schedule within its cycle
+                        continue
+                self.repeats += 1
+                self._tx(i, data, raw, at_ns)
 
     def _send(self, stamp_ns: int, prepared: tuple,
               at_ns: Optional[int] = None) -> tuple[Optional[tuple[int, ...]], Any]:
@@ -262,41 +364,54 @@ class _Child:
                 self.watch.observe(msg.timestamp, tuple(self.echo_seq) if self.spec.echo else None)
             elif cid in self.rx_ids:
                 i = self.rx_ids[cid]
-                data = bytes(msg.data)
-                sent = self.sent_data[i]
-                skip = self._own(sent, data)
-                if skip >= 0:                         # our own frame, echoed by the bus
-                    for _ in range(skip + 1):
-                        sent.popleft()
-                    self.echo_seq[i] += skip + 1
-                    ts = int(round(msg.timestamp * 1e9)) if msg.timestamp else time.time_ns()
+                ts = int(round(msg.timestamp * 1e9)) if msg.timestamp else time.time_ns()
+                seq = self._own(self.sent_data[i], bytes(msg.data), ts)
+                if seq > 0:                           # our own frame, echoed by the bus
+                    self.echo_seq[i] += 1
                     log_ = self.echo_log[i]
-                    log_[self.echo_seq[i]] = ts
-                    log_.pop(self.echo_seq[i] - ECHO_KEEP, None)
+                    log_[seq] = ts
+                    log_.pop(seq - ECHO_KEEP, None)
 
-    def _own(self, sent: "deque[bytes]", data: bytes) -> int:
-        """Index in ``sent`` of the frame ``data`` echoes (-1: not ours). With a transmit schedule
-        a frame sent at once drops those scheduled after it, which never echo: the echo may then
-        match a later entry, and the ones before it are gone."""
-        if sent and sent[0] == data:
+    def _own(self, sent: "deque[list]", data: bytes, ts_ns: int) -> int:
+        """The tx number of the frame an echo (``data``, bus instant ``ts_ns``) is of, removed
+        from ``sent`` (0: not ours). Without a transmit schedule the bus echoes in send order.
+        With one, frames go on the bus in the order of their instants, not of their hand-over
+        (a setpoint scheduled cycles ahead, the repeats of the cycles before it handed over
+        later), and a frame sent at once drops those scheduled after it, which never echo: a
+        scheduled frame is known by its instant (the echo carries it), one sent at once is the
+        oldest of its data; entries scheduled well before this echo are gone."""
+        if not sent:
             return 0
-        if self.spec.lead > 0:
-            for k, d in enumerate(sent):
-                if d == data:
-                    return k
-        return -1
+        if self.spec.lead <= 0:
+            if sent[0][1] == data:
+                return int(sent.popleft()[0])
+            return 0
+        hit = None
+        for e in sent:
+            if e[1] != data:
+                continue
+            if e[2] and abs(e[2] - ts_ns) <= ECHO_MATCH_NS:
+                hit = e
+                break
+            if not e[2] and hit is None:
+                hit = e
+        if hit is None:
+            return 0
+        sent.remove(hit)
+        stale = ts_ns - 2 * self.watch.period_ns
+        while sent and 0 < sent[0][2] < stale:
+            sent.popleft()                            # dropped by the bus: never echoed
+        return int(hit[0])
 
     def status(self) -> None:
-        if self.spec.rt_priority > 0:         # the refresh and the heartbeat to the bridge
+        if self.spec.rt_priority > 0:         # the heartbeat to the bridge
             use_fifo(self.spec.rt_priority, "player process status")
         idle_gc = IdleCollector(lambda: self.sched.pending == 0)
         figures_at, was_pending = 0.0, False
         while not self.stopped.wait(STATUS_PERIOD):
             idle_gc.tick()
+            self._check_epoch()
             now = time.monotonic()
-            for i in range(self.n):                 # the drive's RPDO deadline: refresh
-                if now - self.last_tx[i] >= REFRESH_PERIOD:
-                    self._refresh(i)
             pending = self.sched.pending
             # percentiles: numpy, but not for free; fresh at once when a stream has ended
             if now - figures_at >= STATS_PERIOD or (was_pending and not pending):
@@ -306,7 +421,8 @@ class _Child:
             g = self.sched.grid()
             self.tell("status", self.received, pending, s, c, w.as_dict(), g,
                       int(self.sched.rt_active and (self.rx_rt or self.spec.rt_priority <= 0)),
-                      self.sched.stale, self.sched.stale_stops, self.sched.errors)
+                      self.sched.stale, self.sched.stale_stops, self.sched.errors,
+                      self.repeats, self.repeats_late)
 
     def run(self) -> None:
         sys.setswitchinterval(SWITCH_INTERVAL)
@@ -330,6 +446,8 @@ class _Child:
                 if kind == "sp":
                     _, stamp, amps, seq, pid, last, stop = msg
                     self.received += 1
+                    if stamp < self._check_epoch():
+                        continue              # from before the latest safe state / reset
                     placed = self.placement.place(stamp, pid, seq)
                     self.sched.submit(placed, (stamp, amps, seq, pid, last), stop=stop)
                 elif kind == "clear":
@@ -350,10 +468,10 @@ class _Child:
                 log.debug("closing the player's bus: %s", exc)
 
 
-def _child_main(spec: _Spec, conn: Any, gate: Any) -> None:
+def _child_main(spec: _Spec, conn: Any, gate: Any, epoch: Any) -> None:
     logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
     try:
-        child = _Child(spec, conn, gate)
+        child = _Child(spec, conn, gate, epoch)
     except Exception as exc:  # noqa: BLE001 - told to the parent, which latches the safe state
         conn.send(("fault", f"setpoint player process could not start: {type(exc).__name__}: {exc}"))
         return
@@ -378,6 +496,7 @@ class ProcessPlayer(PlayerBase):
         ctx = mp.get_context("spawn")
         self._ctx = ctx
         self._gate = ctx.Array("i", 2 * self._n + 1, lock=False)
+        self._epoch = ctx.Value("q", 0, lock=False)      # the master's reset epoch, wall ns
         self._proc: Optional[Any] = None
         self._conn: Optional[Any] = None
         self._conn_lock = threading.Lock()
@@ -413,14 +532,15 @@ class ProcessPlayer(PlayerBase):
         parent, child = self._ctx.Pipe()
         self._conn = parent
         self._ready.clear()
-        self._proc = self._ctx.Process(target=_child_main, args=(self._spec(), child, self._gate),
+        self._proc = self._ctx.Process(target=_child_main, args=(self._spec(), child, self._gate, self._epoch),
                                        name="ff-setpoint-player", daemon=True)
         self._proc.start()
         child.close()
-        if self.config.rt_priority > 0 and self._proc.pid:
-            # its start-up (interpreter, imports, bus) under SCHED_FIFO too: a loaded machine
-            # would otherwise keep a new normal-priority process waiting for seconds
-            use_fifo(self.config.rt_priority, "setpoint player process", tid=self._proc.pid)
+        # its start-up (interpreter, imports, bus) at normal priority: under SCHED_FIFO it would
+        # hold a CPU for a few hundred ms, and a normal-priority thread of this process holding
+        # the GIL, preempted meanwhile, would hold off the bus receiver that writes every SYNC
+        # cycle's RPDO until the child is ready (the drive faults 0x8250 after one empty cycle);
+        # the child takes SCHED_FIFO itself once it runs
         self.master.gate_listener = self._write_gate
         self._status_at = time.monotonic() + self._start_timeout
         self._reader = threading.Thread(target=self._read, name="ff-player-reader", daemon=True)
@@ -434,6 +554,7 @@ class ProcessPlayer(PlayerBase):
         return self
 
     def _write_gate(self) -> None:
+        self._epoch.value = int(self.master.reset_epoch_ns)    # first: the child forgets first
         g = self.master.gate()
         for i, (cw, ok) in enumerate(g):
             self._gate[2 * i] = int(cw)
@@ -453,7 +574,7 @@ class ProcessPlayer(PlayerBase):
     def submit(self, stamp_ns: int, currents: Sequence[float], *, seq: int = 0,
                profile_id: str = "", last: bool = False) -> None:
         """As :meth:`SetpointPlayer.submit`; the setpoint goes to the player process."""
-        amps = self._accept(currents, profile_id, last, self.exit_reason)
+        amps = self._accept(currents, profile_id, last, self.exit_reason, stamp_ns=stamp_ns)
         self._submitted += 1
         self._tell("sp", int(stamp_ns), amps, int(seq), str(profile_id), bool(last),
                    all(c == 0.0 for c in amps))
@@ -580,5 +701,6 @@ class ProcessPlayer(PlayerBase):
                         "sync_count": w["count"], "sync_period_us": w["period_us"],
                         "sync_jitter_p99_us": w["jitter_p99_us"], "sync_jitter_max_us": w["jitter_max_us"],
                         "sync_missing": w["missing"], "sync_age_ms": w["age_ms"],
-                        "stale_setpoints": st[8], "stale_stops": st[9], "player_errors": st[10]})
+                        "stale_setpoints": st[8], "stale_stops": st[9], "player_errors": st[10],
+                        "cycle_repeats": st[11], "cycle_repeats_late": st[12]})
         return out

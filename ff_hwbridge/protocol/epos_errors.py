@@ -65,7 +65,9 @@ ERRORS: dict[int, str] = {
     0x81FE: "CAN Rx queue overflow",
     0x81FF: "CAN Tx queue overflow",
     0x8210: "CAN PDO length error",
-    0x8250: "RPDO timeout (no RxPDO within its event timer 0x1400:05)",
+    0x8250: ("RPDO timeout (interpolation aborted in a cyclic synchronous mode: no RxPDO within "
+             "the interpolation time period 0x60C2; a hung master or a setpoint not sent every "
+             "SYNC cycle)"),
     0x8611: "following error",
 }
 

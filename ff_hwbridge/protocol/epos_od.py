@@ -18,7 +18,7 @@ modes of operation (+display), 0x6064 position actual (inc), 0x606C velocity act
 0x6084 profile deceleration (rpm/s, the "slow down ramp"; drive only),
 0x60A9 SI unit velocity, 0x60C2 interpolation time period (:01 value, :02 index), 0x6502
 supported drive modes, 0x3000:05 main sensor resolution (EPOS4, increments/rev), RxPDO1 event
-timer 0x1400:05 (ms, deadline monitoring),
+timer 0x1400:05 (ms, deadline monitoring; master's view only: maxon's EPOS4 EDS lacks it),
 0x6076 motor rated torque (µNm), 0x6071 target torque (per mille), 0x6077 torque actual (per
 mille), 0x3001 motor data (EPOS4, :01 nominal current mA, :02 output current limit mA, :05 torque
 constant µNm/A), 0x30D1 current actual values (EPOS4, :01 averaged, :02 actual, mA), 0x2030
@@ -95,7 +95,9 @@ Default = Union[int, str, Callable[[_Ctx], Union[int, str]]]
 class Entry:
     """One (sub)object: subindex, name, CANopen data type, access, default, unit, PDO-mappable.
 
-    ``drive_only`` entries are served by a drive but not needed in the master's view."""
+    ``drive_only`` entries are served by a drive but not needed in the master's view;
+    ``master_only`` entries are in the master's view (written where a drive has them, optional)
+    but not served by the simulated drive, because maxon's EPOS4 EDS does not list them."""
 
     sub: int
     name: str
@@ -105,6 +107,7 @@ class Entry:
     unit: str = ""
     pdo: bool = False
     drive_only: bool = False
+    master_only: bool = False
 
 
 @dataclass(frozen=True)
@@ -151,8 +154,8 @@ def _pdo_objects() -> list[ObjectSpec]:
             ObjectSpec(0x1400 + n, f"Receive PDO {n + 1} parameter", (
                 Entry(1, "COB-ID used by RxPDO", UNSIGNED32, "rw", rcob),
                 Entry(2, "Transmission type", UNSIGNED8, "rw", 255),
-                # CiA 301 RPDO deadline monitoring: no RPDO this long -> EMCY 0x8250
-                Entry(5, "Event timer", UNSIGNED16, "rw", 0, "ms")), "record",
+                # CiA 301 RPDO deadline monitoring; not in maxon's EPOS4 EDS
+                Entry(5, "Event timer", UNSIGNED16, "rw", 0, "ms", master_only=True)), "record",
                 drive_only=rx_only),
             ObjectSpec(0x1600 + n, f"Receive PDO {n + 1} mapping",
                        tuple(rmap + entries[len(rmap):]), "record", drive_only=rx_only),
@@ -286,7 +289,8 @@ def build_object_dictionary(family: str = "epos4", node_id: int = 1,
     for spec in OBJECTS:
         if fam not in spec.families or (spec.drive_only and not drive):
             continue
-        entries = [e for e in spec.entries if drive or not e.drive_only]
+        entries = [e for e in spec.entries
+                   if (drive or not e.drive_only) and not (drive and e.master_only)]
         if spec.kind == "var":
             od.add_object(_variable(spec.index, entries[0], ctx))
             continue

@@ -106,14 +106,17 @@ PARAMS: dict[str, tuple[Any, str]] = {
     "torque_constants": ([0.0267], "Nm/A per joint"),
     "counts_per_rev": ([2048.0], "encoder increments per motor revolution, per joint"),
     "gear_ratios": ([54.0], "per joint"),
-    "sync_period": (0.001, "s, SYNC period"),
+    "sync_period": (0.01, "s, SYNC period (10 ms supported from Python; 1 ms experimental)"),
     "heartbeat_producer_ms": (10, "ms, written to each drive's 0x1017"),
-    "heartbeat_timeout": (0.1, "s, heartbeat consumer timeout -> safe state"),
+    "heartbeat_timeout": (0.0, "s, heartbeat consumer timeout -> safe state "
+                               "(0 = 3 x heartbeat_producer_ms + timeout_margin)"),
+    "timeout_margin": (0.1, "s, scheduling margin of the derived heartbeat / SYNC / feedback timeouts"),
     "master_heartbeat_ms": (100, "ms, > 0: produce a master heartbeat the drives consume (0x1016); 0 = off"),
     "master_heartbeat_timeout_ms": (0, "ms, the drives' consumer time "
                                        "(0 = max(3 x master_heartbeat_ms, heartbeat_timeout))"),
     "master_node_id": (127, "node id of the master's heartbeat"),
-    "rpdo_timeout_ms": (-1, "ms, RxPDO1 event timer 0x1400:05 (drive faults 0x8250 without RPDOs); 0 = off, "
+    "rpdo_timeout_ms": (-1, "ms, RxPDO1 event timer 0x1400:05 where a drive has it (nothing relies on it: "
+                            "the drive's interpolation supervision stops a hung bridge); 0 = off, "
                             "-1 = max(500, 2 x heartbeat_timeout)"),
     "quick_stop_option": (2, "0x605A quick stop option code (maxon: 0, 1, 2, 5, 6)"),
     "fault_reaction_option": (2, "0x605E fault reaction option code (0 disable drive, 1/2 ramp)"),
@@ -125,7 +128,8 @@ PARAMS: dict[str, tuple[Any, str]] = {
                                 "type 1, sent the cycle before); 'on_receipt': type 255"),
     "sync_producer": ("master", "'master': this bridge produces SYNC; 'external': another node "
                                 "(the simulation's CAN hub)"),
-    "sync_timeout": (0.0, "s, no SYNC this long -> safe state (0 = max(heartbeat_timeout, 20 periods))"),
+    "sync_timeout": (0.0, "s, no SYNC this long -> safe state "
+                          "(0 = max(3 x sync_period + timeout_margin, heartbeat_timeout))"),
     "missed_cycle_tolerance": (1, "SYNC cycles a setpoint may take effect late before the safe state"),
     "feedback_every": (1, "SYNCs per feedback TPDO (their transmission type 1..240)"),
     "boot_timeout": (2.0, "s per NMT reset communication waiting for the boot-up frame"),
@@ -150,7 +154,8 @@ RANGES: dict[str, tuple[float, float]] = {
     "heartbeat_timeout": (0.0, 60.0), "master_heartbeat_ms": (0, 65535),
     "master_heartbeat_timeout_ms": (0, 65535), "master_node_id": (1, 127),
     **{k: (lo, hi) for k, lo, hi in OPTION_RANGES}, "rpdo_timeout_ms": (-1, 65535),
-    "scaling_tolerance": (0.0, 1.0), "sync_timeout": (0.0, 60.0), "missed_cycle_tolerance": (0, 1000),
+    "scaling_tolerance": (0.0, 1.0), "sync_timeout": (0.0, 60.0), "timeout_margin": (0.0, 10.0),
+    "missed_cycle_tolerance": (0, 1000),
     "feedback_every": (1, 240), "boot_timeout": (0.0, 600.0), "boot_wait": (0.0, 3600.0),
     "setpoint_timeout": (0.0, 60.0),
     "spin_margin": (0.0, 0.05), "scheduler_rt_priority": (-1, 99), "joint_state_rate": (0.1, 10_000.0),
@@ -213,7 +218,7 @@ FLAT_DRIVE_KEYS = ("master_heartbeat_timeout_ms", "rpdo_timeout_ms", "quick_stop
                    "fault_reaction_option", "abort_connection_option",
                    "communication_error_behaviour", "scaling_source", "scaling_tolerance",
                    "boot_timeout", "boot_wait", "check_identity", "setpoint_timing", "sync_producer",
-                   "sync_timeout", "missed_cycle_tolerance", "feedback_every")
+                   "sync_timeout", "missed_cycle_tolerance", "feedback_every", "timeout_margin")
 
 
 def _envelopes(get: Callable[[str], Any], n: int) -> list[dict[str, Any]]:
@@ -766,6 +771,12 @@ class BridgeNode(LifecycleNode):
             status.level, status.message = DiagnosticStatus.ERROR, f"safe state: {self.master.fault_reason}"
         elif not self._active:
             status.level, status.message = DiagnosticStatus.WARN, "not active"
+        elif any(v for k, v in st.items() if k.endswith(".motion_limited_count")):
+            limited = [k[:-len(".motion_limited_count")] for k, v in st.items()
+                       if k.endswith(".motion_limited_count") and v]
+            status.level = DiagnosticStatus.WARN
+            status.message = ("operation enabled; the drive clipped the latest motion's current "
+                              f"(statusword bit 11: {', '.join(limited)})")
         elif any(v is True for k, v in st.items() if k.endswith(".warning")):
             warn = [str(v) for k, v in st.items() if k.endswith(".last_warning") and v]
             status.level = DiagnosticStatus.WARN

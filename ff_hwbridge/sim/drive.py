@@ -38,12 +38,19 @@ What it does, per the suite's CANopen contract (CiA 301/402):
   (EMCY "error reset" 0x0000 sent).
 - Heartbeat consumer 0x1016:01-04 ((node id << 16) | ms): once a consumed heartbeat has been
   seen, silence longer than its time is a communication error (EMCY 0x8130 heartbeat error), so
-  a dead master stops the drive as on the real EPOS. RxPDO deadline monitoring (CiA 301 event
-  timer 0x1400+n:05, ms, armed by the first RPDO): no RPDO that long in OPERATIONAL is a
-  communication error too (EMCY 0x8250 RPDO timeout): a hung master whose heartbeat goes on.
-  The reaction to a communication error is 0x6007 abort connection option (0 none but the EMCY,
-  1 fault, 2 disable voltage, 3 quick stop; maxon default 3), then the NMT state per 0x1029:01
-  (0 pre-operational, 1 unchanged, 2 stopped). These watchdogs run on the drive's own thread.
+  a dead master stops the drive as on the real EPOS. The reaction to a communication error is
+  0x6007 abort connection option (0 none but the EMCY, 1 fault, 2 disable voltage, 3 quick
+  stop; maxon default 3), then the NMT state per 0x1029:01 (0 pre-operational, 1 unchanged,
+  2 stopped). This watchdog runs on the drive's own thread. There is no RxPDO event timer
+  (maxon's EPOS4 EDS has no 0x1400+n:05: SDO abort 0x06090011, as for every object the EDS lacks).
+- Interpolation supervision (EPOS4, CSP/CSV/CST with 0x60C2 interpolation time period set, in
+  OPERATION ENABLED): every SYNC interval must bring a new target RPDO, or the drive faults
+  with EMCY 0x8250 "RPDO timeout" (maxon: interpolation aborted in cyclic mode, no PDO within
+  the interpolation time period), current 0 per 0x605E. So a master that hangs, whatever keeps
+  its SYNC and heartbeat going, stops the drive within a few periods. Judged on the frames' bus
+  instants at each SYNC, ``SUPERVISION_SLACK_NS`` of SYNCs after the interval (an RPDO on the
+  bus before a SYNC may be handled after it); ``DriveConfig.interpolation_supervision`` /
+  ``SimEpos.interpolation_supervision`` = False turns it off (tests of old masters only).
 - Warnings (``raise_warning``, e.g. 0xFF01): EMCY sent, statusword bit 7 set, no state change.
   Statusword bit 11 (internal limit active) while the setpoint is clamped to the current limit.
   0x603F error code = the code of the present fault; 0x1003 the history, newest first.
@@ -75,6 +82,7 @@ NMT STOPPED halts PDOs and SDO but (as on the real drive) does not change the po
 from __future__ import annotations
 
 import bisect
+import functools
 import heapq
 import math
 import random
@@ -83,6 +91,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass
+from importlib import resources
 from typing import Any, Callable, Optional, cast
 
 import canopen
@@ -111,6 +120,25 @@ ABORT_PDO_TOO_LONG = 0x06040042
 ABORT_VALUE_RANGE = 0x06090030
 ABORT_DEVICE_STATE = 0x08000022
 ABORT_NOT_IN_OD = 0x06020000
+ABORT_NO_SUBINDEX = 0x06090011
+
+#: The EPOS4 EDS of the simulated drive (CiA 306; maxon's indices, data types and defaults)
+EPOS4_EDS = "epos4.eds"
+
+
+@functools.lru_cache(maxsize=None)
+def eds_objects() -> dict[tuple[int, int], int]:
+    """(index, sub-index) -> CANopen data type of every object of ``ff_hwbridge/sim/epos4.eds``,
+    read with canopen's EDS import: what a simulated EPOS4 may serve."""
+    with resources.as_file(resources.files("ff_hwbridge.sim") / EPOS4_EDS) as path:
+        eds = canopen.import_od(str(path), 1)
+    out: dict[tuple[int, int], int] = {}
+    for obj in eds.values():
+        for var in [obj] if isinstance(obj, ODVariable) else obj.values():
+            if var.data_type is None:
+                raise SimConfigError(f"{EPOS4_EDS}: 0x{var.index:04X}:{var.subindex:02X} has no DataType")
+            out[(var.index, var.subindex)] = int(var.data_type)
+    return out
 
 
 class SimConfigError(ValueError):
@@ -132,6 +160,8 @@ class DriveConfig:
     load_inertia: float = 0.0           # kg m² at the joint, the velocity loop's tuning for stop
                                         # ramps (0 = unknown: quick stop / fault reaction cut the
                                         # current at once)
+    interpolation_supervision: bool = True   # CSx: a SYNC interval without a new target -> 0x8250
+                                             # (an EPOS4's rule; off only for tests of old masters)
 
     def __post_init__(self) -> None:
         if not 1 <= int(self.node_id) <= 127:
@@ -213,6 +243,14 @@ RX_LATE_S = 0.1
 #: (a stalled drive process, or SYNC stopped) dumps every thread's stack to stderr
 #: (``faulthandler``: its watchdog needs no GIL, so it sees what holds it); 0 = off
 STALL_DUMP_S = 0.0
+#: EPOS4 cyclic synchronous modes (0x6060) -> their target object: CSP 0x607A, CSV 0x60FF, CST 0x6071
+CSX_TARGETS = {8: 0x607A, 9: 0x60FF, 10: 0x6071}
+#: EMCY code of the interpolation supervision (maxon: "RPDO timeout", interpolation aborted in
+#: cyclic mode: no PDO within the interpolation time period)
+RPDO_TIMEOUT = 0x8250
+#: ns: a SYNC interval is judged once the drive has seen SYNCs for this long after it (at least
+#: one), so that an RPDO on the bus inside it but handled after a later SYNC still counts
+SUPERVISION_SLACK_NS = 30_000_000
 #: SYNCs a drive remembers, with what each latched, to latch an RPDO delivered late at the SYNC
 #: it was on the bus before (at 1 kHz: 0.25 s; an older one is latched at the oldest remembered)
 SYNC_HISTORY = 256
@@ -388,6 +426,7 @@ class _Link:
         self.rx_mono_ns = 0
         self.rx_wall_ns = 0
         self.rx_bus_ns = 0            # the frame's bus timestamp (wall ns; arrival if none)
+        self.rx_lag_ns = 0            # how long after its bus timestamp the frame was handled
         self._wrappers: dict[tuple[int, Any], Callable] = {}
         self._rng = random.Random(seed)
         self._dispatch = threading.RLock()
@@ -443,7 +482,8 @@ class _Link:
             self.rx_mono_ns, self.rx_wall_ns = stamps
             self.rx_bus_ns = int(round(timestamp * 1e9)) if timestamp else stamps[1]
             began = time.time_ns()
-            lag = (began - self.rx_bus_ns) / 1e3
+            self.rx_lag_ns = began - self.rx_bus_ns
+            lag = self.rx_lag_ns / 1e3
             st = self.stats
             if lag > st.rx_lag_max_us:
                 st.rx_lag_max_us = lag
@@ -534,14 +574,19 @@ class SimEpos:
         self.node = _DriveNode(self, config.node_id, self._dict)
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
+        # what the SDO server may serve: on an EPOS4 the objects of its EDS, nothing else
+        self._served: Optional[frozenset[tuple[int, int]]] = (
+            frozenset(eds_objects()) if self.family == "epos4" else None)
+        self._served_indices = frozenset(i for i, _ in self._served or ())
         self._link: Optional[_Link] = None
         self._consumers: dict[int, float] = {}        # node id -> timeout s (0x1016)
         self._hb_seen: dict[int, float] = {}
         self._hb_tripped: set[int] = set()
         self._consumer_stop = threading.Event()
         self._consumer_thread: Optional[threading.Thread] = None
-        self._rpdo_seen: dict[int, float] = {}       # RPDO number -> monotonic s of the last one
-        self._rpdo_tripped: set[int] = set()
+        self.interpolation_supervision = bool(config.interpolation_supervision)
+        self.interpolation_faults = 0    # 0x8250 trips of the interpolation supervision so far
+        self.interpolation_unjudged = 0  # intervals opened by a SYNC the simulated bus delivered late
         self._warning = False
         self._rpdo_callbacks = False
         self._pending_emcy: list[int] = []
@@ -575,6 +620,10 @@ class SimEpos:
             self._brake = 0.0
             self._tpdo_sent: dict[int, tuple[int, bytes]] = {}   # id(map) -> (monotonic ns, data)
             self._in_rpdo = False
+            # interpolation supervision: bus instants (wall ns) of the SYNCs since it was armed,
+            # and of the target-carrying RPDOs not yet judged
+            self._ip_syncs: deque[tuple[int, bool]] = deque()     # (bus ns, delivered late)
+            self._ip_rx: list[int] = []
         self.plant.set_current(0.0, time.monotonic_ns())
 
     @property
@@ -663,8 +712,8 @@ class SimEpos:
         self._qs_decel_c = float(self._raw(0x6085))
         self._slow_decel_c = float(self._raw(0x6084)) if 0x6084 in self._dict else self._qs_decel_c
         self._abort_c = int(self._raw(0x6007))
-        self._rpdo_timer_c = {n: self._raw(0x1400 + n - 1, 5) / 1000.0 for n in range(1, 5)
-                              if 0x1400 + n - 1 in self._dict}
+        ip_value, ip_index = int(self._raw(0x60C2, 1)), int(self._raw(0x60C2, 2))
+        self._ip_period_ns = int(round(ip_value * 10.0 ** (ip_index + 9)))
         self._comm_err_c = int(self._raw(0x1029, 1))
         self._limit_c = self._raw(0x3001 if self.family == "epos4" else 0x6410, 2) / 1000.0
         if self.family == "epos4":
@@ -674,7 +723,7 @@ class SimEpos:
             self._scale_c = 1.0 / 1000.0
 
     _SETTINGS = frozenset({0x6060, 0x605A, 0x605E, 0x6084, 0x6085, 0x6007, 0x1029, 0x3001, 0x6410,
-                           0x6076, 0x1400, 0x1401, 0x1402, 0x1403})
+                           0x6076, 0x60C2})
 
     def _mode(self) -> int:
         return self._mode_c
@@ -721,7 +770,6 @@ class SimEpos:
             self._link = None
         self.node.remove_network()
         self._consumers = {}          # their subscriptions went with the link
-        self._rpdo_seen.clear()
 
     def bus_lost(self) -> None:
         """The CAN bus is gone (bus off, or the hub this drive joined went away): EMCY 0x81FD
@@ -740,8 +788,6 @@ class SimEpos:
         self._configure_consumers()
         self._hb_seen.clear()
         self._hb_tripped.clear()
-        self._rpdo_seen.clear()
-        self._rpdo_tripped.clear()
         self.node.nmt.send_command(0x80 if self._comm_err_c != 2 else 0x02)
         self.node.nmt.start_heartbeat(int(self._raw(0x1017)))
         for code in self._pending_emcy:
@@ -760,8 +806,6 @@ class SimEpos:
         self.faults.unpowered = False
         self._reload_pdos()
         self._refresh_settings()
-        self._rpdo_seen.clear()
-        self._rpdo_tripped.clear()
         self._configure_consumers()
         self._start_watch()
         self.node.nmt.send_command(0x81)     # INITIALISING -> boot-up frame
@@ -851,8 +895,12 @@ class SimEpos:
             raise SdoAbortedError(ABORT_VALUE_RANGE)
 
     def _check_comm_write(self, index: int, subindex: int, value: int) -> None:
+        """A PDO COB-ID (sub 1): bit 31 not valid, bit 30 no RTR (TxPDOs; maxon writes it set),
+        an 11-bit CAN-ID in bits 0-10 (bit 29, a 29-bit id, and bits 11-28 refused)."""
         if subindex != 1:
             return
+        if value & 0x3FFFF800:
+            raise SdoAbortedError(ABORT_VALUE_RANGE)
         cur = self._raw(index, 1)
         valid_now = not cur & PDO_VALID_BIT
         if valid_now and not value & PDO_VALID_BIT and (value & 0x7FF) != (cur & 0x7FF):
@@ -885,7 +933,7 @@ class SimEpos:
         obj = self._dict[idx]
         if not isinstance(obj, ODVariable):
             if sub not in obj:
-                raise SdoAbortedError(0x06090011)
+                raise SdoAbortedError(ABORT_NO_SUBINDEX)
             obj = obj[sub]
         if not obj.pdo_mappable or (receive and not obj.writable) or bits != len(obj):
             raise SdoAbortedError(ABORT_NOT_MAPPABLE)
@@ -1039,9 +1087,8 @@ class SimEpos:
         if link is None or self.node.nmt.state != "OPERATIONAL":
             return
         t_ns, wall = link.rx_mono_ns, link.rx_wall_ns
-        no = (pdo_map.com_record.od.index & 0x1FF) + 1
-        self._rpdo_seen[no] = time.monotonic()
-        self._rpdo_tripped.discard(no)
+        if any(v.index in self._TARGETS for v in pdo_map.map):
+            self._ip_rx.append(link.rx_bus_ns)       # a new target for the supervision
         if pdo_map.trans_type is not None and pdo_map.trans_type <= 240:
             ts = link.rx_bus_ns
             if self._syncs and ts <= self._syncs[-1].bus:
@@ -1115,6 +1162,7 @@ class SimEpos:
         for m, d, ts in sorted((p for p in pending if p[2] <= bus), key=lambda p: p[2]):
             sync.latched[id(m)] = (ts, d)
             self._take_rpdo(m, d, t_ns, wall)
+        self._supervise_interpolation(bus, link.rx_lag_ns)
         live: Optional[dict] = None
         for m in _maps(self.node.tpdo).values():
             if not m.enabled or m.trans_type is None or not 1 <= m.trans_type <= 240:
@@ -1129,6 +1177,44 @@ class SimEpos:
             values = [live[key] if key in live else od_var.decode_raw(self.node.get_data(*key))
                       for key, od_var in self._tpdo_layout(m)]
             link.send_message(m.cob_id, self._tpdo_struct(m).pack(*values))
+
+    _TARGETS = frozenset(CSX_TARGETS.values())
+
+    def _supervise_interpolation(self, bus: int, lag_ns: int = 0) -> None:
+        """Interpolation supervision of an EPOS4 in a cyclic synchronous mode (0x6060 8/9/10) in
+        OPERATION ENABLED with 0x60C2 set: every SYNC interval (bus instants, wall ns) must bring
+        at least one RPDO that carries a target (0x607A / 0x60FF / 0x6071); one without faults
+        the drive with EMCY 0x8250 (fault reaction 0x605E, current 0). Armed at the first SYNC
+        handled in OPERATION ENABLED; an interval is judged ``SUPERVISION_SLACK_NS`` of SYNCs
+        later. Called at each SYNC (``lag_ns``: how long after its bus instant this process got
+        it), after the RPDOs it latched.
+
+        An interval opened by a SYNC that reached the drive more than half a period after its bus
+        instant is not judged (``interpolation_unjudged`` counts them): the simulated bus (the
+        hub's timer, this process) was late, as a real bus is not, and the master, which answers
+        that SYNC, could not make the cycle either."""
+        period = self._ip_period_ns
+        if not (self.interpolation_supervision and period > 0 and self.family == "epos4"
+                and self._mode_c in CSX_TARGETS and self.state is State.OPERATION_ENABLED):
+            self._ip_syncs.clear()
+            self._ip_rx = [t for t in self._ip_rx if t > bus]
+            return
+        syncs = self._ip_syncs
+        syncs.append((bus, lag_ns > period // 2))
+        lag = max(1, -(-SUPERVISION_SLACK_NS // period))
+        while len(syncs) >= lag + 2:
+            lo, late = syncs.popleft()
+            hi = syncs[0][0]
+            rx = self._ip_rx
+            fresh = any(lo < t <= hi for t in rx)
+            self._ip_rx = [t for t in rx if t > hi]
+            if not fresh and late:
+                self.interpolation_unjudged += 1
+            elif not fresh:
+                syncs.clear()
+                self.interpolation_faults += 1
+                self.raise_emcy(RPDO_TIMEOUT)
+                return
 
     def _tpdo_layout(self, m: Any) -> list[tuple[tuple[int, int], ODVariable]]:
         return [((v.index, v.subindex), v.od) for v in m.map]
@@ -1173,8 +1259,19 @@ class SimEpos:
                 link.send_message(m.cob_id, data)
 
     def _on_sdo(self, can_id: int, data: bytearray, timestamp: float) -> None:
-        if self.node.nmt.state != "STOPPED":          # CiA 301: no SDO in STOPPED
-            self.node.sdo.on_request(can_id, data, timestamp)
+        if self.node.nmt.state == "STOPPED":          # CiA 301: no SDO in STOPPED
+            return
+        served = self._served
+        # initiate download (client command 1) / upload (2): refuse what the EDS lacks
+        if served is not None and len(data) >= 4 and data[0] >> 5 in (1, 2):
+            index, sub = struct.unpack_from("<HB", data, 1)
+            if (index, sub) not in served:
+                code = ABORT_NO_SUBINDEX if index in self._served_indices else ABORT_NOT_IN_OD
+                if self._link is not None:
+                    self._link.send_message(self.node.sdo.tx_cobid,
+                                            struct.pack("<BHBL", 0x80, index, sub, code))
+                return
+        self.node.sdo.on_request(can_id, data, timestamp)
 
     def _on_nmt(self, can_id: int, data: bytearray, timestamp: float) -> None:
         if len(data) < 2:
@@ -1235,7 +1332,7 @@ class SimEpos:
 
     def _watch(self) -> None:
         """The drive's own thread (every 2 ms): stop ramps, event-driven TPDOs, consumed
-        heartbeats, RxPDO deadlines."""
+        heartbeats."""
         while not self._consumer_stop.wait(0.002):
             nmt = self.node.nmt.state
             try:
@@ -1252,17 +1349,10 @@ class SimEpos:
                 if seen is not None and now - seen > limit and nid not in self._hb_tripped:
                     self._hb_tripped.add(nid)
                     self.communication_error(0x8130, bytes([nid]))   # heartbeat error
-            if nmt != "OPERATIONAL":
-                continue
-            for no, seen in list(self._rpdo_seen.items()):
-                timer = self._rpdo_timer_c.get(no, 0.0)
-                if timer and now - seen > timer and no not in self._rpdo_tripped:
-                    self._rpdo_tripped.add(no)
-                    self.communication_error(0x8250, bytes([no]))    # RPDO timeout
 
     def communication_error(self, code: int, data: bytes = b"") -> None:
-        """A communication error (heartbeat 0x8130, RPDO timeout 0x8250): the reaction of
-        0x6007 abort connection option, EMCY, then the NMT state of 0x1029:01."""
+        """A communication error (e.g. heartbeat 0x8130): the reaction of 0x6007 abort
+        connection option, EMCY, then the NMT state of 0x1029:01."""
         self.last_error_time = time.monotonic()
         option = self._abort_c
         if option == 1:

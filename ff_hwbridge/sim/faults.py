@@ -7,6 +7,10 @@ system-wide on Linux; the injection instant is taken just before the command or 
 figures include the pipe to the rig: upper bounds), and what the user reads (the master's
 fault reason, warning or error message, the drive's state and error code).
 
+``frozen_master``: the master frozen (SIGSTOP) or killed while SYNC (the hub's) and its heartbeat
+(``HeartbeatKeeper``, standing for the kernel's broadcast manager on SocketCAN) go on; only the
+simulated EPOS4's interpolation supervision (0x60C2, EMCY 0x8250) can stop the drive then.
+
 Used by ``tests/ff_hwbridge/faults`` and ``benchmarks/bench_bridge_faults.py``. No rclpy.
 """
 from __future__ import annotations
@@ -19,9 +23,12 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import asdict, dataclass, field
 from typing import Any, Callable, Optional
+
+import can
 
 from ff_hwbridge.drive.epos import EposError, EposMaster
 from ff_hwbridge.drive.scheduler import use_fifo
@@ -30,7 +37,8 @@ from ff_hwbridge.sim.rig_process import RigProcess, free_port, rig_master_config
 
 log = logging.getLogger(__name__)
 
-__all__ = ["HARDWARE_TIMING", "Outcome", "SCENARIOS", "drive_info", "run"]
+__all__ = ["HARDWARE_TIMING", "Outcome", "SCENARIOS", "HeartbeatKeeper", "drive_info", "frozen_master",
+           "run"]
 
 #: Master settings of these scenarios: the hardware example's drive-side watchdogs (master
 #: heartbeat 100 ms, consumed with 300 ms), 10 ms SYNC from the master, and master-side timeouts
@@ -192,6 +200,104 @@ def master_signal(sig: int) -> Outcome:
             out.notes["tripped_before_the_signal"] = before    # e.g. a starved heartbeat
         return out
     finally:
+        if sig == signal.SIGSTOP and p.poll() is None:
+            os.kill(p.pid, signal.SIGCONT)
+        p.kill()
+        p.wait(5)
+        rig.stop()
+        log_file.close()
+        os.unlink(fh.name)
+
+
+class HeartbeatKeeper:
+    """What the kernel's broadcast manager does on SocketCAN for a process that handed it a
+    periodic frame and then froze: the master's heartbeat (0x700 + ``node_id``, NMT state
+    OPERATIONAL) goes on from another process (this one), every ``period`` s, over its own
+    connection to the hub at ``url``; its thread under SCHED_FIFO ``RT_PRIORITY`` where allowed."""
+
+    def __init__(self, url: str, node_id: int, period: float) -> None:
+        self._bus = can.Bus(interface="remote", channel=url)
+        self._msg = can.Message(arbitration_id=0x700 + node_id, data=[0x05], is_extended_id=False)
+        self._period = period
+        self._stop = threading.Event()
+        self.sent = 0
+        self._thread = threading.Thread(target=self._run, name="heartbeat-keeper", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        use_fifo(RT_PRIORITY, "heartbeat keeper")
+        nxt = time.monotonic()
+        while not self._stop.is_set():
+            self._bus.send(self._msg)
+            self.sent += 1
+            nxt += self._period
+            self._stop.wait(max(0.0, nxt - time.monotonic()))
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+        self._bus.shutdown()
+
+
+#: s, SYNC period of the frozen-master scenario (the hub's, from outside the master)
+FROZEN_SYNC_S = 0.01
+
+
+def frozen_master(sig: int, supervision: bool = True, watch_s: float = 1.0) -> Outcome:
+    """An ``ff-epos`` process holds 0.5 A in CST; SYNC comes from the hub (10 ms, another
+    process), the master's RxPDO1 goes out in every SYNC cycle and 0x60C2 = the SYNC period. It
+    gets ``sig`` (SIGSTOP: frozen; SIGKILL: dead) while this process keeps its heartbeat going,
+    as the kernel's broadcast manager does on SocketCAN: neither SYNC nor the heartbeat stops,
+    so only the drive's interpolation supervision (EMCY 0x8250) can stop the drive.
+    ``supervision=False`` is the control: that supervision off in the drive (the rig's
+    ``supervision 1 off``), the drive is watched for ``watch_s`` s and must NOT have stopped."""
+    name = {int(signal.SIGKILL): "master_frozen_sigkill",
+            int(signal.SIGSTOP): "master_frozen_sigstop"}[int(sig)]
+    log_file = tempfile.TemporaryFile("w+")
+    rig = RigProcess([*RIG_ARGS, "--sync-period", str(FROZEN_SYNC_S)], stderr=log_file,
+                     ready_timeout=START_TIMEOUT)
+    timing = {**HARDWARE_TIMING, "sync_period": FROZEN_SYNC_S, "sync_producer": "external"}
+    with tempfile.NamedTemporaryFile("w", suffix=".yaml", delete=False) as fh:
+        json.dump(rig_master_data(rig.url, **timing), fh)              # JSON is YAML
+    p = subprocess.Popen([sys.executable, "-u", "-m", "ff_hwbridge.cli.epos", "--config", fh.name,
+                          "--enable", "--current", str(HOLD_A), "--hold", "60"],
+                         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    keeper: Optional[HeartbeatKeeper] = None
+    try:
+        assert p.stdout is not None
+        end = time.monotonic() + START_TIMEOUT
+        while time.monotonic() < end:
+            line = p.stdout.readline()
+            if '"enabled": true' in line or (not line and p.poll() is not None):
+                break
+        if not _wait(lambda: abs(float(drive_info(rig)["i"]) - HOLD_A) < 0.003, 5.0):
+            raise RuntimeError(f"ff-epos did not make the drive hold {HOLD_A} A: {drive_info(rig)}")
+        keeper = HeartbeatKeeper(rig.url, int(timing.get("master_node_id", 127)),
+                                 timing["master_heartbeat_ms"] / 1000.0)
+        if not supervision:
+            name += "_supervision_off"
+            rig.cmd("supervision 1 off")
+        time.sleep(0.3)
+        before = drive_info(rig)
+        t0 = _inject(lambda: os.kill(p.pid, sig))
+        if supervision:
+            out = _outcome(name, True, rig, t0, "")
+        else:
+            time.sleep(watch_s)
+            out = _outcome(name, False, rig, t0, "")
+        out.reason = f"drive: {out.drive_state}, 0x603F {out.drive_fault}"
+        after = drive_info(rig)
+        syncs_before = int(before["last_sync_ns"])
+        out.notes.update(
+            heartbeats_kept=keeper.sent, hb_age_after=after["hb_age"],
+            sync_went_on=int(after["last_sync_ns"]) > syncs_before,
+            supervision=before.get("supervision"), current_a_after=float(after["i"]))
+        if before["state"] != State.OPERATION_ENABLED.value:
+            out.notes["tripped_before_the_signal"] = f"{before['state']}, {before['fault']}"
+        return out
+    finally:
+        if keeper is not None:
+            keeper.close()
         if sig == signal.SIGSTOP and p.poll() is None:
             os.kill(p.pid, signal.SIGCONT)
         p.kill()
@@ -390,6 +496,8 @@ def hub_restart(down_s: float = 1.0) -> Outcome:
 SCENARIOS: dict[str, Callable[[], Outcome]] = {
     "master_sigkill": lambda: master_signal(signal.SIGKILL),
     "master_sigstop": lambda: master_signal(signal.SIGSTOP),
+    "master_frozen_sigstop": lambda: frozen_master(signal.SIGSTOP),
+    "master_frozen_sigkill": lambda: frozen_master(signal.SIGKILL),
     "hub_restart": hub_restart,
     "powered_late": powered_late,
     "fault_at_start": fault_at_start,

@@ -7,7 +7,9 @@ faults into a running process). Commands:
 ``emcy NODE CODE`` · ``resetnode NODE`` (NMT reset node: power-cycle the drive) ·
 ``power NODE off|on`` (switch the drive off; on = power-on boot) ·
 ``warn NODE [CODE]`` (warning EMCY, default 0xFF01) · ``warnclear NODE`` ·
-``heartbeat NODE on|off`` · ``sdo NODE on|off`` · ``delay NODE MS [rx|tx|both]`` ·
+``heartbeat NODE on|off`` · ``sdo NODE on|off`` ·
+``supervision NODE on|off`` (the drive's interpolation supervision, EMCY 0x8250; on by default) ·
+``delay NODE MS [rx|tx|both]`` ·
 ``drop NODE FRACTION [rx|tx|both]`` · ``dropnext NODE N [rx|tx|both]`` · ``clear NODE`` ·
 ``reset Q0...`` · ``state`` (prints ``state q=... qd=... i=...``) · ``info NODE`` (drive state,
 faults, heartbeat consumer, frame counts) · ``quit``.
@@ -47,6 +49,7 @@ class RigConfig:
     counts_per_rev: int = DriveConfig.counts_per_rev
     nominal_current: float = DriveConfig.nominal_current   # A (sets the ‰ scale on EPOS4)
     nominal_currents: Optional[tuple[float, ...]] = None   # A per joint (default nominal_current)
+    interpolation_supervision: bool = True        # the EPOS4's CSx rule (0x8250); off: old tests only
 
     def params(self) -> Params:
         return self.true_params if self.true_params is not None else default_params(self.model)
@@ -68,7 +71,8 @@ class RigConfig:
             out.append(DriveConfig(node_id=int(nid), family=self.family,
                                    nominal_current=float(noms[j]), current_limit=imax,
                                    torque_constant=kt, counts_per_rev=self.counts_per_rev,
-                                   gear_ratio=n, load_inertia=joint_inertia(p, j)))
+                                   gear_ratio=n, load_inertia=joint_inertia(p, j),
+                                   interpolation_supervision=self.interpolation_supervision))
         return out
 
 
@@ -222,6 +226,10 @@ def run_command(rig: SimRig, line: str) -> str:
             d.stop_heartbeat(args[1] == "off")
         elif cmd == "sdo":
             d.set_sdo_silent(args[1] == "off")
+        elif cmd == "supervision":
+            if args[1] not in ("on", "off"):
+                return f"error supervision takes on|off, got {args[1]!r}"
+            d.interpolation_supervision = args[1] == "on"
         elif cmd == "delay":
             d.set_delay(float(args[1]), *(args[2:3] or ["both"]))
         elif cmd == "drop":
@@ -236,6 +244,9 @@ def run_command(rig: SimRig, line: str) -> str:
             rx_by_id = {hex(k): v for k, v in d.frames_by_id().items()} if d.attached else None
             return (f"info node={d.node_id} nmt={d.nmt_state} state={d.state.value!r} "
                     f"fault=0x{d.fault_code:04X} error_t={d.last_error_time:.6f} "
+                    f"supervision={'on' if d.interpolation_supervision else 'off'} "
+                    f"interpolation_faults={d.interpolation_faults} "
+                    f"interpolation_unjudged={d.interpolation_unjudged} "
                     f"left_enabled_t={d.left_enabled_ns * 1e-9:.6f} "
                     f"zero_current_t={d.zero_current_ns * 1e-9:.6f} i={d.applied_current} "
                     f"last_sync_ns={d.last_sync_ns} "

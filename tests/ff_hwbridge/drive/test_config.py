@@ -23,6 +23,30 @@ def test_defaults_are_fail_safe():
     assert c.scaling_source == "check" and c.check_identity and c.boot_wait == 10.0
 
 
+def test_timeouts_are_derived_from_the_producers_periods_with_a_margin():
+    """3 periods of the producer + timeout_margin (0.1 s); SYNC and feedback at least as
+    patient as the heartbeat."""
+    c = load_config(BASE)
+    assert c.sync_period == 0.01                                  # the supported default
+    assert c.heartbeat_timeout == pytest.approx(3 * 0.010 + 0.1)  # 10 ms heartbeat producer
+    assert c.sync_timeout == pytest.approx(3 * 0.01 + 0.1)
+    assert c.feedback_timeout == pytest.approx(3 * 0.01 + 0.1)
+    slow = load_config({**BASE, "heartbeat_producer_ms": 50, "feedback_every": 10, "timeout_margin": 0.2})
+    assert slow.heartbeat_timeout == pytest.approx(3 * 0.05 + 0.2)
+    assert slow.feedback_timeout == pytest.approx(3 * 0.01 * 10 + 0.2)
+    assert slow.sync_timeout == pytest.approx(slow.heartbeat_timeout)      # as patient
+    set_ = load_config({**BASE, "heartbeat_timeout": 0.5, "sync_timeout": 0.2})
+    assert (set_.heartbeat_timeout, set_.sync_timeout) == (0.5, 0.2)      # given: kept
+    with pytest.raises(ConfigError, match="timeout_margin must be 0 .. 10 s"):
+        load_config({**BASE, "timeout_margin": -1})
+
+
+def test_the_shipped_robot_config_runs_the_supported_mode():
+    c = load_config("config/bridge_epos4_1dof.yaml")
+    assert c.sync_period == 0.01 and c.synchronous and not c.player_process
+    assert c.heartbeat_timeout >= 0.1 and c.sync_timeout >= 0.1 and c.feedback_timeout >= 0.1
+
+
 @pytest.mark.parametrize("path", ["config/bridge_epos4_1dof.yaml", "config/bridge_sim_scara2.yaml"])
 def test_shipped_configs_stop_the_drive_when_the_bridge_dies(path):
     c = load_config(path)

@@ -56,7 +56,8 @@ def test_configure_sets_mode_heartbeat_and_pdo_maps(rig):
         assert int(d.node.sdo[0x1400][2].raw) == 1             # synchronous: latched at SYNC
         assert (int(d.node.sdo[0x60C2][1].raw), int(d.node.sdo[0x60C2][2].raw)) == (5, -3)  # 5 ms
         assert int(d.node.sdo[0x1800][2].raw) == 1 and int(d.node.sdo[0x1801][2].raw) == 1
-        assert d.rpdo_cob == 0x200 + d.id and d.tpdo_cobs == [0x180 + d.id, 0x280 + d.id]
+        # TxPDO COB-IDs with bit 30 set (no RTR), as maxon's EDS has them
+        assert d.rpdo_cob == 0x200 + d.id and d.tpdo_cobs == [0x40000180 + d.id, 0x40000280 + d.id]
         limit = int(d.node.sdo[0x3001][2].raw if fam == "epos4" else d.node.sdo[0x6410][2].raw)
         assert limit == 10000
     assert _wait(lambda: all(s is State.SWITCH_ON_DISABLED for s in master.states()))
@@ -390,7 +391,9 @@ def test_feedback_every_sets_the_tpdos_transmission_type():
     and the feedback watchdog's default grows with it."""
     channel = unique_channel("ff-test")
     cfg = mini_config(channel, "epos4", 1, feedback_every=4)
-    assert cfg.feedback_timeout == pytest.approx(max(0.3, 20 * 0.005 * 4))
+    assert cfg.feedback_timeout == pytest.approx(0.3)           # the heartbeat's patience
+    slow = mini_config(channel, "epos4", 1, feedback_every=40)
+    assert slow.feedback_timeout == pytest.approx(3 * 0.005 * 40 + 0.1)   # 3 TPDO periods + margin
     drives = [MiniEpos(channel, j.node_id, j.units) for j in cfg.joints]
     master = EposMaster(cfg)
     try:

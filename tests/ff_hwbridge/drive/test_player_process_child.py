@@ -1,16 +1,16 @@
-"""The player process's send path without a process: its RPDO refresh never goes out between a
-new setpoint and the record of it, so the drive's last RPDO before a SYNC is always the newest
-setpoint (a refresh of the previous one after it would be what the drive latches)."""
+"""The player process's send path without a process: its per-cycle repeat never goes out between
+a new setpoint and the record of it, so the drive's last RPDO before a SYNC is always the newest
+setpoint (a repeat of the previous one after it would be what the drive latches)."""
 from __future__ import annotations
 
 import struct
 import threading
+import time
 import uuid
 
 import can
 import pytest
 
-from ff_hwbridge.drive import player_process
 from ff_hwbridge.drive.player_process import _Child, _Joint, _Spec
 from ff_hwbridge.protocol.epos_od import rpdo_layout, struct_format
 from ff_hwbridge.protocol.units import DriveUnits
@@ -46,34 +46,26 @@ def prepared(raw: int) -> tuple:
     return ((0, (0.0,), 0, "p", False), (raw,), "", False)
 
 
-def test_a_refresh_repeats_the_newest_setpoint_and_only_when_one_is_due(child):
+def test_repeats_racing_new_setpoints_never_send_an_older_one_after_a_newer(child):
+    """A SYNC's repeat (receiver thread) racing new setpoints (scheduler thread)."""
     c, listener = child
-    c._send(0, prepared(500))
-    c._refresh(0)                                   # just sent: nothing is due
-    assert setpoints(listener) == [500]
-    c.last_tx[0] -= player_process.REFRESH_PERIOD   # as if a period had passed
-    c._refresh(0)
-    assert setpoints(listener) == [500]
-
-
-def test_refreshes_racing_new_setpoints_never_send_an_older_one_after_a_newer(child, monkeypatch):
-    c, listener = child
-    monkeypatch.setattr(player_process, "REFRESH_PERIOD", 0.0)    # every refresh is due
     stop = threading.Event()
 
-    def refresher() -> None:
+    def receiver() -> None:
+        t = time.time()
         while not stop.is_set():
-            c._refresh(0)
+            t += 0.01
+            c.watch.observe(t)
 
-    t = threading.Thread(target=refresher, daemon=True)
-    t.start()
+    thread = threading.Thread(target=receiver, daemon=True)
+    thread.start()
     try:
         for raw in range(1, 400):
             c._send(0, prepared(raw))
     finally:
         stop.set()
-        t.join(2.0)
+        thread.join(2.0)
     seen = setpoints(listener)
     assert seen and seen[-1] == 399
     back = [(a, b) for a, b in zip(seen, seen[1:]) if b < a]
-    assert not back, f"a refresh sent an older setpoint after a newer one: {back[:5]}"
+    assert not back, f"a repeat sent an older setpoint after a newer one: {back[:5]}"

@@ -76,6 +76,9 @@ def test_master_writes_transmission_type_1_and_the_interpolation_period(bench):
     sdo = bench.master.network[1].sdo
     assert int(sdo[0x1400][2].raw) == 1                       # RxPDO1 synchronous
     assert int(sdo[0x60C2][1].raw) == 10 and int(sdo[0x60C2][2].raw) == -3   # 10 ms = 10 · 10^-3 s
+    # TxPDO COB-IDs with bit 30 set (no RTR), as maxon's EDS has them
+    assert int(sdo[0x1800][1].raw) == 0x40000181 and int(sdo[0x1801][1].raw) == 0x40000281
+    assert int(sdo[0x1400][1].raw) == 0x201
     assert bench.master.echo                                  # sees its own RPDOs on the bus
 
 
@@ -152,7 +155,9 @@ def _assigns_cycles(bench: SyncBench) -> None:
     # the master's receiver may see a SYNC before the drive's thread has handled it
     raws = {bench.drive.current_to_setpoint(0.5 + 0.1 * k) for k in range(5)}
     assert wait_for(lambda: raws <= {r.raw for r in bench.drive.setpoint_log()}), bench.drive.setpoint_log()
-    log = {r.raw: r for r in bench.drive.setpoint_log()}
+    log = {}
+    for r in bench.drive.setpoint_log():
+        log.setdefault(r.raw, r)           # the first: every SYNC cycle repeats the value in force
     for k, (s, rep) in enumerate(zip(stamps, reports)):
         assert rep.stamp_ns == s
         # sent during the cycle before (or, missed, later), applied at a SYNC: never before the

@@ -118,13 +118,16 @@ def test_a_zero_of_another_profile_stays_after_the_step_it_follows(bench):
 
 
 def test_with_an_external_player_the_master_sends_no_current_and_tells_the_gate_first():
-    """``external_player``: the master's RPDOs carry 0 A only, no refresh of an enabled drive of
-    its own, and the gate (what the player may send) changes before the safe-state reaction."""
+    """``external_player``: the master's RPDOs carry 0 A only, no per-cycle repeat for an
+    enabled drive of its own (the player's), and the gate (what the player may send) changes
+    before the safe-state reaction."""
     from ff_hwbridge.drive.player_process import ProcessPlayer, make_player
 
     b = SyncBench(heartbeat_timeout=3.0, feedback_timeout=3.0, sync_timeout=3.0, rpdo_timeout_ms=0)
     try:
         b.enable()
+        # no player feeds the enabled drive here: its interpolation supervision would fault it
+        b.drive.interpolation_supervision = False
         m = b.master
         seen: list[list] = []
         m.gate_listener = lambda: seen.append([m.gate(), m.applied_currents()[0], m.latched])

@@ -19,6 +19,32 @@ SYNC_S = 0.01
 CST = "CYCLIC SYNCHRONOUS TORQUE"
 
 
+class _Cycle:
+    """The master's cycle, from one user-space thread: SYNC, then RxPDO1 with the values in
+    force, every ``period`` s (CiA 402 cyclic synchronous modes: a new target every
+    interpolation period; one thread, so every SYNC interval carries one RPDO)."""
+
+    def __init__(self, net: canopen.Network, rpdo: Any, period: float) -> None:
+        self._net, self._rpdo, self._period = net, rpdo, period
+        self._stop = threading.Event()
+        self.cycles = 0
+        self._thread = threading.Thread(target=self._run, name="stranger-cycle", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        nxt = time.monotonic()
+        while not self._stop.is_set():
+            self._net.sync.transmit()
+            self._rpdo.transmit()
+            self.cycles += 1
+            nxt += self._period
+            self._stop.wait(max(0.0, nxt - time.monotonic()))
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2.0)
+
+
 def _wait(pred: Callable[[], bool], timeout: float, what: str) -> float:
     t0 = time.monotonic()
     while not pred():
@@ -42,7 +68,8 @@ def run(bus_kwargs: dict[str, Any], node_id: int, eds_path: str) -> dict[str, An
     node.TIMEOUT_CHECK_TPDO = 1.0
     node.TIMEOUT_SWITCH_OP_MODE = 2.0
     net.add_node(node)
-    hb = sync = None
+    hb: Any = None
+    sync: _Cycle | None = None
     try:
         # boot: reset communication, wait for the boot-up frame. The callback is in place before
         # the command: canopen's wait_for_bootup only sees a boot-up that comes after it is
@@ -101,10 +128,9 @@ def run(bus_kwargs: dict[str, Any], node_id: int, eds_path: str) -> dict[str, An
         # mode CST (BaseNode402 checks 0x6502 first), read back on 0x6061
         node.op_mode = CST
         seen["mode_display"] = sdo[0x6061].raw
-        # NMT start, SYNC, the CiA 402 state machine up to OPERATION ENABLED
+        # NMT start, the cycle (SYNC + RxPDO1), the CiA 402 state machine up to OPERATION ENABLED
         node.nmt.state = "OPERATIONAL"
-        net.sync.start(SYNC_S)
-        sync = net.sync
+        sync = _Cycle(net, node.rpdo[1], SYNC_S)
         _wait(lambda: 0x6041 in node.tpdo_values and node.tpdo[1].timestamp is not None, 5.0,
               "the first TxPDO1")
         node.rpdo[1]["Target torque"].raw = 0
@@ -149,8 +175,8 @@ def run(bus_kwargs: dict[str, Any], node_id: int, eds_path: str) -> dict[str, An
         err = node.emcy.wait(0x8130, timeout=3.0)
         seen["heartbeat_emcy"] = None if err is None else err.code
         seen["heartbeat_emcy_after_s"] = time.monotonic() - t_stop
-        sync.stop()                   # once: python-can-remote's hub drops a client that
-        sync = None                   # stops a periodic frame twice
+        sync.stop()
+        sync = None
         _wait(lambda: sdo[0x6077].raw == 0, 10.0, "zero torque after the heartbeat stopped")
         seen["statusword_after_heartbeat_loss"] = sdo[0x6041].raw
         seen["error_code_after_heartbeat_loss"] = sdo[0x603F].raw

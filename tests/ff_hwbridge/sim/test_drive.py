@@ -13,7 +13,8 @@ from canopen.sdo import SdoAbortedError, SdoCommunicationError
 from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.protocol.epos_od import SUPPORTED_MODES, VELOCITY_UNIT_RPM
 from ff_hwbridge.sim.arm import SimArm
-from ff_hwbridge.sim.drive import DriveConfig, SimConfigError, SimEpos, build_object_dictionary
+from ff_hwbridge.sim.drive import (SUPERVISION_SLACK_NS, DriveConfig, SimConfigError, SimEpos,
+                                  build_object_dictionary)
 from ff_planner.model.params import Arm1DofParams, default_params
 from tests.support.canopen_helpers import open_network, waiter
 
@@ -446,24 +447,190 @@ def test_communication_error_follows_abort_connection_option(rig, option, state)
     assert rig.drive.applied_current == (pytest.approx(1.5) if option == 0 else 0.0)
 
 
-def test_rpdo_timeout_faults_a_drive_whose_master_hangs(rig):
-    """RxPDO1 event timer 0x1400:05: armed by the first RPDO; RPDOs that stop (a hung master,
-    heartbeat or not) fault the drive with EMCY 0x8250 (0x6007 = 1)."""
+def test_no_rxpdo_event_timer_as_in_maxons_eds(rig):
+    """maxon's EPOS4 EDS has no RxPDO event timer: 0x1400:05 is refused, not silently stored."""
+    for index in (0x1400, 0x1401):
+        with pytest.raises(SdoAbortedError) as e:
+            rig.node.sdo.download(index, 5, struct.pack("<H", 80))
+        assert e.value.code == 0x06090011                 # sub-index does not exist
+        with pytest.raises(SdoAbortedError) as e:
+            rig.node.sdo.upload(index, 5)
+        assert e.value.code == 0x06090011
+    assert rig.node.sdo.upload(0x1400, 0) == b"\x02"      # highest sub-index: 2
+
+
+class CstCycle:
+    """Frames handed to the drive's network in the calling thread, with chosen bus instants (s,
+    wall clock): a master that sends RPDO1 (synchronous, type 1) and a SYNC every ``period``."""
+
+    def __init__(self, rig, period: float = 0.01, ip_ms: int = 10):
+        self.rig, self.period = rig, period
+        rig.configure_contract_pdos()
+        rig.node.rpdo[1].trans_type = 1
+        rig.node.rpdo[1].save()
+        rig.node.sdo[0x60C2][1].raw = ip_ms
+        rig.node.sdo[0x60C2][2].raw = -3
+        rig.node.sdo[0x6060].raw = 10
+        rig.node.nmt.send_command(0x01)
+        assert wait_for(lambda: rig.drive.nmt_state == "OPERATIONAL")
+        # bus instants ahead of the wall clock: every frame is handled "on time" (before its
+        # bus instant), however slowly this thread runs
+        self.t = time.time() + 1.0
+
+    def rpdo(self, cw: int, sp: int = 0, at: float | None = None) -> None:
+        t = self.t + self.period / 2 if at is None else at
+        self.rig.net_s.notify(0x201, bytearray(struct.pack("<Hh", cw, sp)), t)
+
+    def sync(self) -> None:
+        self.t += self.period
+        self.rig.net_s.notify(0x80, bytearray(), self.t)
+
+    def cycle(self, cw: int = 0x0F, sp: int = 300) -> None:
+        """One cycle: the RPDO, then the SYNC that latches it."""
+        self.rpdo(cw, sp)
+        self.sync()
+
+    def enable(self) -> None:
+        for cw in (0x06, 0x07, 0x0F):
+            self.cycle(cw)
+        assert self.rig.drive.state is State.OPERATION_ENABLED
+
+
+def _lag(period_s: float) -> int:
+    """SYNCs after an interval at which the drive judges it (``SUPERVISION_SLACK_NS``)."""
+    return max(1, -(-SUPERVISION_SLACK_NS // int(round(period_s * 1e9))))
+
+
+def test_a_sync_interval_without_rpdo_faults_0x8250_in_cst(rig):
+    """EPOS4 in CST with 0x60C2 set: a SYNC interval that brings no new target RPDO faults the
+    drive (EMCY 0x8250 RPDO timeout, current 0); judged ``_lag`` SYNCs after the interval."""
+    c = CstCycle(rig)
+    c.enable()
+    for _ in range(20):
+        c.cycle()
+    d = rig.drive
+    assert d.state is State.OPERATION_ENABLED and d.applied_current == pytest.approx(0.9)
+    for _ in range(_lag(c.period)):                       # the empty interval, not judged yet
+        c.sync()
+        assert d.state is State.OPERATION_ENABLED
+    c.sync()                                              # now it is
+    assert d.state is State.FAULT and d.fault_code == 0x8250 and d.interpolation_faults == 1
+    assert d.applied_current == 0.0
+    assert rig.node.sdo[0x603F].raw == 0x8250 and rig.node.sdo[0x1003][1].raw == 0x8250
+    assert wait_for(lambda: any(f[:2] == b"\x50\x82" for f in rig.seen(0x81)))   # EMCY 0x8250
+
+
+def test_a_target_every_cycle_keeps_the_drive_enabled(rig):
+    """500 cycles with an RPDO each, some of them delivered after the next SYNC though on the bus
+    before it (a virtual channel's order): no fault. The asynchronous RxPDO (type 255) counts
+    too."""
+    c = CstCycle(rig)
+    c.enable()
+    d = rig.drive
+    for k in range(500):
+        if k % 50 == 7:                                   # on the bus before SYNC, handled after
+            at = c.t + c.period / 2
+            c.sync()
+            c.rpdo(0x0F, 300, at=at)
+        else:
+            c.cycle()
+        assert d.state is State.OPERATION_ENABLED, k
+    assert d.applied_current == pytest.approx(0.9)
+    rig.node.rpdo[1].trans_type = 255                     # change the map: disable it first
+    rig.node.rpdo[1].save()
+    for _ in range(50):
+        c.cycle()
+    assert d.state is State.OPERATION_ENABLED and d.fault_code == 0
+
+
+def test_enable_again_after_an_interpolation_fault_and_a_reset(rig):
+    c = CstCycle(rig)
+    c.enable()
+    d = rig.drive
+    for _ in range(_lag(c.period) + 1):
+        c.sync()
+    assert d.state is State.FAULT and d.fault_code == 0x8250
+    c.cycle(0x80)                                         # fault reset, latched at the SYNC
+    assert d.state is State.SWITCH_ON_DISABLED and d.fault_code == 0
+    c.enable()
+    for _ in range(200):
+        c.cycle(0x0F, 500)
+    assert d.state is State.OPERATION_ENABLED and d.applied_current == pytest.approx(1.5)
+
+
+def test_an_interval_opened_by_a_sync_the_bus_delivered_late_is_not_judged(rig):
+    """A SYNC handled more than half a period after its bus instant (the simulated bus was late,
+    which a real one is not, and the master answering it too): the interval it opens is counted
+    as unjudged, not faulted. SYNCs on time again: an empty interval faults as before."""
+    c = CstCycle(rig)
+    c.t = time.time() - 2.0                               # every frame handled ~2 s late
+    c.enable()
+    for _ in range(20):
+        c.cycle()
+    n = 3 * _lag(c.period)
+    for _ in range(n):
+        c.sync()
+    d = rig.drive
+    assert d.state is State.OPERATION_ENABLED and d.interpolation_unjudged >= n - _lag(c.period) - 1
+    assert d.interpolation_faults == 0
+    c.t = time.time() + 1.0                               # on time from here (ahead of the clock)
+    for _ in range(_lag(c.period) + 2):
+        c.sync()
+    assert d.state is State.FAULT and d.fault_code == 0x8250 and d.interpolation_faults == 1
+
+
+@pytest.mark.parametrize("case", ["option_off", "no_interpolation_period", "not_enabled"])
+def test_no_interpolation_supervision_where_it_does_not_apply(case):
+    """Off by the simulator's option (tests of old masters), with 0x60C2 = 0 (the factory
+    value), or outside OPERATION ENABLED: SYNCs without RPDOs do not fault the drive."""
+    r = Rig(interpolation_supervision=case != "option_off")
+    r.drive.boot()
+    try:
+        c = CstCycle(r, ip_ms=0 if case == "no_interpolation_period" else 10)
+        if case == "not_enabled":
+            c.cycle(0x06)
+            c.cycle(0x07)
+            want = State.SWITCHED_ON
+        else:
+            c.enable()
+            want = State.OPERATION_ENABLED
+        for _ in range(3 * _lag(c.period) + 5):
+            c.sync()
+        assert r.drive.state is want and r.drive.fault_code == 0
+    finally:
+        r.close()
+
+
+def test_interpolation_supervision_on_the_bus_in_real_time(rig):
+    """A master thread sending RPDO1 then SYNC every 10 ms over the virtual bus keeps the drive
+    enabled; SYNC alone (a frozen master whose SYNC goes on) faults it 0x8250."""
     rig.configure_contract_pdos()
-    rig.node.sdo[0x6007].raw = 1
-    rig.node.sdo[0x1400][5].raw = 80                      # ms
-    rig.enable()
-    t_end = time.monotonic() + 0.3
-    while time.monotonic() < t_end:                       # a live master: RPDOs every 10 ms
-        t_last = time.monotonic()
+    rig.node.rpdo[1].trans_type = 1
+    rig.node.rpdo[1].save()
+    rig.node.sdo[0x60C2][1].raw = 10
+    rig.node.sdo[0x6060].raw = 10
+    rig.node.nmt.send_command(0x01)
+    assert wait_for(lambda: rig.drive.nmt_state == "OPERATIONAL")
+    d = rig.drive
+    for cw in (0x06, 0x07, 0x0F):
+        rig.rpdo(cw, 0)
+        rig.net_m.sync.transmit()
+    assert wait_for(lambda: d.state is State.OPERATION_ENABLED)
+    t_end = time.monotonic() + 1.0
+    while time.monotonic() < t_end:
         rig.rpdo(0x0F, 300)
+        rig.net_m.sync.transmit()
         time.sleep(0.01)
-    assert rig.drive.state is State.OPERATION_ENABLED
-    assert wait_for(lambda: rig.drive.state is State.FAULT)
-    assert time.monotonic() - t_last >= 0.08              # not before the timer ran out
-    assert rig.drive.applied_current == 0.0
-    assert rig.node.sdo[0x603F].raw == 0x8250
-    assert rig.node.sdo[0x1003][1].raw == 0x8250
+    assert wait_for(lambda: d.applied_current == pytest.approx(0.9))
+    assert d.state is State.OPERATION_ENABLED and d.fault_code == 0
+    n_sync = 0
+    while d.state is State.OPERATION_ENABLED and n_sync < 200:
+        rig.net_m.sync.transmit()
+        n_sync += 1
+        time.sleep(0.01)
+    assert d.state is State.FAULT and d.fault_code == 0x8250
+    assert n_sync >= _lag(0.01) + 1                       # not before the interval was judged
+    assert d.applied_current == 0.0
 
 
 def test_warning_emcy_does_not_fault(rig):
@@ -718,3 +885,47 @@ def test_a_synchronous_rpdo_delivered_late_latches_at_the_sync_it_was_on_the_bus
     assert d._setpoint_raw == 222                        # ...and B's newer one is still in force
     rpdo(333, tc + 0.001)                                # after the last SYNC: waits for the next
     assert d._setpoint_raw == 222 and len(d.setpoint_log()) == 3
+
+
+def test_txpdo_cob_ids_carry_bit_30_as_in_maxons_eds(rig):
+    """TxPDO COB-IDs at power-on: 0x40000180 + id (bit 30: no RTR; TxPDO2-4 also bit 31, not
+    valid). Written with bit 30 set they are accepted, and the PDO goes out on the low 11 bits;
+    a 29-bit id is refused."""
+    sdo = rig.node.sdo
+    assert [sdo[0x1800 + n][1].raw for n in range(4)] == [
+        0x40000181, 0xC0000281, 0xC0000381, 0xC0000481]
+    assert sdo[0x1400][1].raw == 0x201                         # RxPDO1: no bit 30
+    rig.configure_contract_pdos()
+    sdo[0x1801][1].raw = 0xC0000281                           # not valid, then remap + enable
+    sdo[0x1A01][0].raw = 0
+    sdo[0x1A01][1].raw = 0x60410010
+    sdo[0x1A01][0].raw = 1
+    sdo[0x1801][2].raw = 1
+    sdo[0x1801][1].raw = 0x40000281                           # valid, no RTR
+    assert sdo[0x1801][1].raw == 0x40000281
+    with pytest.raises(SdoAbortedError) as e:
+        sdo[0x1802][1].raw = 0xA0000381                       # bit 29: a 29-bit CAN-ID
+    assert e.value.code == 0x06090030
+    rig.node.nmt.send_command(0x01)
+    assert wait_for(lambda: rig.drive.nmt_state == "OPERATIONAL")
+    rig.net_m.sync.transmit()
+    assert wait_for(lambda: len(rig.seen(0x281)) == 1)
+    assert struct.unpack("<H", rig.seen(0x281)[0])[0] & 0x4F == 0x40   # statusword
+    assert not [i for _, i, _ in rig.frames if i & 0x40000000]
+
+
+def test_the_rig_turns_the_supervision_off_and_says_so():
+    from ff_hwbridge.sim.rig import RigConfig, SimRig, run_command
+
+    rig = SimRig(RigConfig(bus={"interface": "virtual", "channel": f"test-sim-rig-{next(_chan)}"},
+                           clock_period=0.0))
+    try:
+        d = rig.drive(1)
+        assert d.interpolation_supervision and "supervision=on" in run_command(rig, "info 1")
+        assert run_command(rig, "supervision 1 off") == "ok supervision"
+        assert not d.interpolation_supervision and "supervision=off" in run_command(rig, "info 1")
+        assert run_command(rig, "supervision 1 maybe").startswith("error")
+    finally:
+        rig.close()
+    off = RigConfig(interpolation_supervision=False).drive_configs()[0]
+    assert off.interpolation_supervision is False

@@ -7,9 +7,12 @@ from importlib import resources
 
 import canopen
 import pytest
-from canopen.objectdictionary import ODVariable
+from canopen.objectdictionary import UNSIGNED16, ODVariable
+from canopen.sdo import SdoAbortedError
 
-from ff_hwbridge.sim.drive import DriveConfig, build_object_dictionary
+from ff_hwbridge.protocol import epos_od
+from ff_hwbridge.sim.drive import DriveConfig, SimEpos, build_object_dictionary, eds_objects
+from tests.support.canopen_helpers import open_network
 
 EDS = resources.files("ff_hwbridge.sim") / "epos4.eds"
 
@@ -59,3 +62,55 @@ def test_the_simulated_drive_powers_on_with_the_eds_reactions(eds):
         s, e = (sim[index] if sub == 0 and isinstance(sim[index], ODVariable) else sim[index][sub],
                 eds[index] if sub == 0 and isinstance(eds[index], ODVariable) else eds[index][sub])
         assert s.default == e.default, f"0x{index:04X}:{sub:02X}"
+
+
+def test_every_object_the_simulated_drive_serves_is_in_the_eds_with_its_data_type(eds):
+    """What the simulated EPOS4 serves is checked against the EDS (canopen's import), not against
+    the suite's own table: an object the EDS lacks is refused by its SDO server."""
+    served = eds_objects()
+    assert served == {(v.index, v.subindex): v.data_type for v in _variables(eds)}
+    sim = build_object_dictionary(DriveConfig(node_id=5))
+    for v in _variables(sim):
+        assert served.get((v.index, v.subindex)) == v.data_type, f"0x{v.index:04X}:{v.subindex:02X}"
+
+
+def test_no_rxpdo_event_timer_in_the_eds_but_in_the_masters_view(eds):
+    """maxon's EPOS4 EDS lists no RxPDO event timer (0x1400+n:05): neither does the simulated
+    drive; the master's view keeps 0x1400:05 (written where a drive has it, optional)."""
+    for n in range(4):
+        assert 5 not in eds[0x1400 + n].subindices and eds[0x1400 + n][0].default == 2
+        assert 5 in eds[0x1800 + n].subindices                  # TxPDO event timer: listed
+    assert 5 in epos_od.build_object_dictionary("epos4", 1)[0x1400].subindices
+
+
+def test_the_sdo_server_refuses_what_the_eds_lacks_even_if_the_dictionary_had_it():
+    """The EDS is the gate: an object slipped into the simulated drive's dictionary but absent
+    from the EDS answers abort 0x06020000 (object) / 0x06090011 (sub-index)."""
+    chan = "test-eds-gate"
+    net_s, net_m = open_network(chan), open_network(chan)
+    drive = SimEpos(DriveConfig(node_id=5))
+    extra = ODVariable("Not in the EDS", 0x2100, 0)
+    extra.data_type, extra.access_type, extra.default = UNSIGNED16, "rw", 7
+    drive.node.object_dictionary.add_object(extra)
+    rec = drive.node.object_dictionary[0x1400]
+    sub5 = ODVariable("Event timer", 0x1400, 5)
+    sub5.data_type, sub5.access_type, sub5.default = UNSIGNED16, "rw", 0
+    rec.add_member(sub5)
+    drive.attach(net_s)
+    drive.boot()
+    node = canopen.RemoteNode(5, canopen.ObjectDictionary())
+    node.sdo.RESPONSE_TIMEOUT = 2.0
+    net_m.add_node(node)
+    try:
+        for (index, sub), code in (((0x2100, 0), 0x06020000), ((0x1400, 5), 0x06090011)):
+            with pytest.raises(SdoAbortedError) as e:
+                node.sdo.upload(index, sub)
+            assert e.value.code == code
+            with pytest.raises(SdoAbortedError) as e:
+                node.sdo.download(index, sub, b"\x01\x00")
+            assert e.value.code == code
+        assert node.sdo.upload(0x1000, 0)[:2] == b"\x92\x01"      # 402: served as before
+    finally:
+        drive.close()
+        net_m.disconnect()
+        net_s.disconnect()
