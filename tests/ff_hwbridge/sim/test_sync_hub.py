@@ -23,7 +23,8 @@ from tests.support.canopen_helpers import configure_and_enable, waiter
 
 pytestmark = pytest.mark.integration
 
-PERIOD = 0.005       # s; protocol checks only: they must hold on a loaded 2-core machine
+PERIOD = 0.01        # s, the supported rate: the simulated drive supervises it (0x8250), and
+#                     these protocol checks must hold on a loaded 2-core machine
 wait_for = waiter(5.0)
 
 
@@ -119,7 +120,7 @@ def test_setpoints_latch_at_the_hub_sync_and_the_hub_reports_its_jitter(ros_env,
     st = json.loads(line)["sync"]
     assert st["count"] > 50 and st["period_us"] == PERIOD * 1e6
     assert 0.0 <= st["jitter_p50_us"] <= st["jitter_p99_us"] <= st["jitter_max_us"]
-    assert re.search(r"SYNC every 5 ms", hub.output())
+    assert re.search(rf"SYNC every {PERIOD * 1000.0:g} ms", hub.output())
 
 
 def test_a_dead_player_process_latches_the_safe_state_and_the_drive_stops(ros_env):
