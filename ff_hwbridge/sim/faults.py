@@ -170,6 +170,26 @@ def _master_latch(m: EposMaster, timeout: float = 3.0) -> str:
     return m.fault_reason or ""
 
 
+def _holding_epos(config_path: str) -> subprocess.Popen:
+    """An ``ff-epos`` process that enables the drive and holds ``HOLD_A`` for up to 60 s."""
+    return subprocess.Popen([sys.executable, "-u", "-m", "ff_hwbridge.cli.epos", "--config",
+                             config_path, "--enable", "--current", str(HOLD_A), "--hold", "60"],
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+
+
+def _await_hold(p: subprocess.Popen, rig: RigProcess) -> None:
+    """Until ``p`` says it enabled the drive and the rig's drive holds ``HOLD_A``; RuntimeError if
+    it does not within 5 s after that."""
+    assert p.stdout is not None
+    end = time.monotonic() + START_TIMEOUT
+    while time.monotonic() < end:
+        line = p.stdout.readline()
+        if '"enabled": true' in line or (not line and p.poll() is not None):
+            break
+    if not _wait(lambda: abs(float(drive_info(rig)["i"]) - HOLD_A) < 0.003, 5.0):
+        raise RuntimeError(f"ff-epos did not make the drive hold {HOLD_A} A: {drive_info(rig)}")
+
+
 # --- scenarios -----------------------------------------------------------------------------------
 def master_signal(sig: int) -> Outcome:
     """An ``ff-epos`` process holding 0.5 A gets ``sig`` (SIGKILL: dead; SIGSTOP: hung, its
@@ -179,18 +199,9 @@ def master_signal(sig: int) -> Outcome:
     rig = RigProcess(RIG_ARGS, stderr=log_file, ready_timeout=START_TIMEOUT)
     with tempfile.NamedTemporaryFile("w", suffix=".yaml", delete=False) as fh:
         json.dump(rig_master_data(rig.url, **HARDWARE_TIMING), fh)     # JSON is YAML
-    p = subprocess.Popen([sys.executable, "-u", "-m", "ff_hwbridge.cli.epos", "--config", fh.name,
-                          "--enable", "--current", str(HOLD_A), "--hold", "60"],
-                         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    p = _holding_epos(fh.name)
     try:
-        assert p.stdout is not None
-        end = time.monotonic() + START_TIMEOUT
-        while time.monotonic() < end:
-            line = p.stdout.readline()
-            if '"enabled": true' in line or (not line and p.poll() is not None):
-                break
-        if not _wait(lambda: abs(float(drive_info(rig)["i"]) - HOLD_A) < 0.003, 5.0):
-            raise RuntimeError(f"ff-epos did not make the drive hold {HOLD_A} A: {drive_info(rig)}")
+        _await_hold(p, rig)
         time.sleep(0.3)
         before = drive_info(rig)["state"]
         t0 = _inject(lambda: os.kill(p.pid, sig))
@@ -259,19 +270,10 @@ def frozen_master(sig: int, supervision: bool = True, watch_s: float = 1.0) -> O
     timing = {**HARDWARE_TIMING, "sync_period": FROZEN_SYNC_S, "sync_producer": "external"}
     with tempfile.NamedTemporaryFile("w", suffix=".yaml", delete=False) as fh:
         json.dump(rig_master_data(rig.url, **timing), fh)              # JSON is YAML
-    p = subprocess.Popen([sys.executable, "-u", "-m", "ff_hwbridge.cli.epos", "--config", fh.name,
-                          "--enable", "--current", str(HOLD_A), "--hold", "60"],
-                         stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    p = _holding_epos(fh.name)
     keeper: Optional[HeartbeatKeeper] = None
     try:
-        assert p.stdout is not None
-        end = time.monotonic() + START_TIMEOUT
-        while time.monotonic() < end:
-            line = p.stdout.readline()
-            if '"enabled": true' in line or (not line and p.poll() is not None):
-                break
-        if not _wait(lambda: abs(float(drive_info(rig)["i"]) - HOLD_A) < 0.003, 5.0):
-            raise RuntimeError(f"ff-epos did not make the drive hold {HOLD_A} A: {drive_info(rig)}")
+        _await_hold(p, rig)
         keeper = HeartbeatKeeper(rig.url, int(timing.get("master_node_id", 127)),
                                  timing["master_heartbeat_ms"] / 1000.0)
         if not supervision:
