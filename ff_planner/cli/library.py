@@ -30,7 +30,7 @@ from typing import Any, Optional, Sequence
 
 import numpy as np
 
-from ff_planner.library.cluster import SchedulerSettings, merge
+from ff_planner.library.cluster import DEFAULT_WORKER_WAIT, SchedulerSettings, merge
 from ff_planner.library.grid import GridError, describe, expand, load_grid
 from ff_planner.library.store import LibraryError, MotionLibrary, MotionRecord
 from ff_planner.model.params import ParameterError, n_joints
@@ -198,7 +198,8 @@ def cmd_build(a: argparse.Namespace) -> int:
     try:
         rep = build_library(grid, a.library, workers=a.workers, scheduler=settings, client=client,
                             serial=a.serial, continuation=not a.no_continuation, roots=a.roots,
-                            local_starts=a.local_starts, progress=not a.quiet)
+                            local_starts=a.local_starts, progress=not a.quiet,
+                            worker_wait=a.worker_wait)
     finally:
         if client is not None:
             client.close()
@@ -266,6 +267,9 @@ def parser() -> argparse.ArgumentParser:
     b.add_argument("--tls-ca-file", default=None, help="tls://: the CA that signed the cluster's certificates (PEM)")
     b.add_argument("--tls-cert", default=None, help="tls://: this client's certificate, signed by that CA (PEM)")
     b.add_argument("--tls-key", default=None, help="tls://: this client's private key (PEM, unencrypted)")
+    b.add_argument("--worker-wait", type=float, default=DEFAULT_WORKER_WAIT, metavar="S",
+                   help="--scheduler: give up when the cluster has no worker after S seconds "
+                        f"(default {DEFAULT_WORKER_WAIT:g})")
     b.add_argument("--serial", action="store_true", help="no Dask: solve in this process")
     b.add_argument("--no-continuation", action="store_true",
                    help="solve every task cold (multistart), ignoring neighbours")

@@ -47,7 +47,8 @@ from typing import Any, Callable, Optional, TextIO
 import numpy as np
 
 from ff_planner.core.errors import ParameterError, PlanningError, WarmStartUnavailable, error_code_of
-from ff_planner.library.cluster import DEFAULT_CONNECT_TIMEOUT, SchedulerSettings, connect
+from ff_planner.library.cluster import (DEFAULT_CONNECT_TIMEOUT, DEFAULT_WORKER_WAIT, ClusterError, SchedulerSettings,
+                                        connect, wait_for_workers)
 from ff_planner.library.grid import Grid, GridSpec, GridTask, continuation_tree, describe, expand, load_grid
 from ff_planner.library.refusal import failure
 from ff_planner.library.store import MotionLibrary, MotionRecord, record_from_result
@@ -382,7 +383,8 @@ def build_library(grid: Grid | GridSpec | str | os.PathLike, library: str | os.P
                   plan_fn: PlanFn = plan, local_starts: int = 16, progress: bool = True,
                   stream: Optional[TextIO] = None,
                   on_result: Optional[Callable[[int, MotionRecord], None]] = None,
-                  connect_timeout: float = DEFAULT_CONNECT_TIMEOUT) -> BuildReport:
+                  connect_timeout: float = DEFAULT_CONNECT_TIMEOUT,
+                  worker_wait: float = DEFAULT_WORKER_WAIT) -> BuildReport:
     """Solve every task of ``grid`` not yet stored in ``library``; see the module docstring.
 
     Executor: ``client`` (a distributed.Client) if given; else ``scheduler``, an existing cluster
@@ -391,7 +393,8 @@ def build_library(grid: Grid | GridSpec | str | os.PathLike, library: str | os.P
     process); else a LocalCluster on 127.0.0.1 with ``workers`` processes (default one per core).
     The grid's own ``scheduler`` keys are not read here (``ff-library build`` reads them). The
     executor is set up before the library file is opened: a scheduler that cannot be reached or
-    refuses this client raises ClusterError (a ValueError) and nothing is written.
+    refuses this client raises ClusterError (a ValueError) and nothing is written; so does one
+    that has no worker within ``worker_wait`` s.
     ``continuation=False`` solves every task cold
     (multistart) in grid order (for comparison); ``local_starts`` = single-start solves from the
     neighbour's currents and perturbations of them before falling back to multistart. ``plan_fn``
@@ -417,6 +420,11 @@ def build_library(grid: Grid | GridSpec | str | os.PathLike, library: str | os.P
                 settings = scheduler if isinstance(scheduler, SchedulerSettings) else SchedulerSettings(str(scheduler))
                 client = own_client = connect(settings, timeout=connect_timeout)
                 address = settings.parsed.url
+                try:
+                    wait_for_workers(client, address, worker_wait)
+                except ClusterError:
+                    client.close()
+                    raise
             else:
                 own_cluster, client = start_local_cluster(workers)
         runner = _DaskRunner(client)

@@ -22,6 +22,7 @@ SCHEMES = ("tcp", "tls")
 TLS_KEYS = ("tls_ca_file", "tls_cert", "tls_key")
 CONFIG_KEYS = ("scheduler", *TLS_KEYS)
 DEFAULT_CONNECT_TIMEOUT = 30.0      # s, to reach the scheduler (distributed retries within it)
+DEFAULT_WORKER_WAIT = 120.0         # s, for a cluster's first worker before a build gives up
 
 
 class ClusterError(ValueError):
@@ -222,3 +223,18 @@ def connect(settings: SchedulerSettings, timeout: float = DEFAULT_CONNECT_TIMEOU
                 f"--tls-ca-file is that CA") from None
         raise ClusterError(f"cannot use the Dask scheduler at {addr.url} ({reason}); check the address and "
                            f"that it runs (a TLS scheduler needs tls:// and certificates)") from None
+
+
+def wait_for_workers(client: Any, address: str, timeout: float = DEFAULT_WORKER_WAIT) -> int:
+    """Block until the scheduler behind ``client`` has at least one worker; returns how many it
+    has. Raises ClusterError after ``timeout`` s (a scheduler without workers would otherwise hold
+    a build forever, its tasks queued)."""
+    if timeout <= 0:
+        raise ClusterError(f"the worker wait must be > 0 s, got {timeout}")
+    try:
+        client.wait_for_workers(1, timeout=timeout)
+    except (TimeoutError, OSError) as exc:
+        raise ClusterError(f"the Dask scheduler {address} has no workers after {timeout:g} s "
+                           f"({_one_line(exc)}); start some with 'dask worker {address} ...' "
+                           f"(docs/security.md) or raise --worker-wait") from None
+    return len(client.scheduler_info().get("workers", {}))

@@ -12,6 +12,7 @@ import time
 import numpy as np
 import psutil  # a dependency of dask.distributed
 import pytest
+import yaml
 
 from ff_planner.cli.library import main as cli_main
 from ff_planner.library.build import build_library, start_local_cluster
@@ -246,3 +247,25 @@ def test_cli_show_and_errors(tmp_path, serial_library, capsys):
     bad.write_text("model: arm1dof\nq0: 0\nqf: {start: 0, stop: 1}\ntf: 1\n")
     assert cli_main(["build", str(bad), "--library", str(tmp_path / "x.sqlite"), "--serial"]) == 2
     assert "start, stop, step" in capsys.readouterr().err
+
+
+def test_a_scheduler_without_workers_is_given_up_on_with_one_line(tmp_path, capsys):
+    """A cluster with no worker: the build stops after --worker-wait, says so in one line and
+    writes no library (without the wait its tasks would queue forever)."""
+    from distributed import LocalCluster
+
+    grid = tmp_path / "grid.yaml"
+    grid.write_text(yaml.safe_dump({**GRID, "qf": [0.5], "q0": [0.0], "tf": [1.0]}))
+    lib = tmp_path / "lib.sqlite"
+    with LocalCluster(n_workers=0, processes=False, protocol="tcp://", host="127.0.0.1", scheduler_port=0,
+                      dashboard_address=None) as cluster:
+        capsys.readouterr()
+        t0 = time.monotonic()
+        rc = cli_main(["build", str(grid), "--library", str(lib), "--scheduler", cluster.scheduler_address,
+                       "--worker-wait", "1.5", "--quiet"])
+        waited = time.monotonic() - t0
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("ff-library: error:")]
+    assert rc == 2 and len(err) == 1, err
+    assert "no workers after 1.5 s" in err[0] and "dask worker" in err[0], err[0]
+    assert 1.5 <= waited < 30.0, waited
+    assert not lib.exists()
