@@ -26,7 +26,7 @@ import struct
 import threading
 import time
 from collections import deque
-from typing import Any, Optional, Sequence
+from typing import Any, Optional, Protocol, Sequence
 
 import numpy as np
 
@@ -82,17 +82,25 @@ class SyncPairing:
         return sync if backlog == 1 and t - sync <= self.max_latency else None
 
 
+class FrameSink(Protocol):
+    """More readers of the monitor's frames, called in its receive thread under its lock."""
+
+    def on_frame(self, t: float, cid: int, data: bytes) -> None:
+        """A data frame with COB-ID ``cid`` on the bus at ``t`` s."""
+
+
 class BusMonitor:
     """Receive-only client of the CAN hub at ``hub_url`` for drive ``node_id``; a context manager.
 
     ``family``/``nominal_current`` (A) decode the RPDO setpoint: "epos4" per mille of the nominal
     current, "epos2" mA. ``latched``: the drive latches setpoints at SYNC (the default of
-    ``current_changes``). ``max_latency`` (s): the longest a TPDO may follow its SYNC.
+    ``current_changes``). ``max_latency`` (s): the longest a TPDO may follow its SYNC. ``sinks``
+    see every data frame too (one connection and one receive thread for all of them).
     """
 
     def __init__(self, hub_url: str, node_id: int = 1, family: str = "epos4", nominal_current: float = 3.0,
                  latched: bool = True, max_latency: float = 0.009, max_age: float = 1.0,
-                 keep: int = 200_000) -> None:
+                 keep: int = 200_000, sinks: Sequence[FrameSink] = ()) -> None:
         if family not in ("epos4", "epos2"):
             raise ValueError(f"family must be 'epos4' or 'epos2', got {family!r}")
         self.node_id = int(node_id)
@@ -106,6 +114,7 @@ class BusMonitor:
         self.syncs = 0
         self.unpaired = 0               # TPDO1s not placed (no SYNC, or not certainly theirs)
         self.latest = 0.0               # bus s of the newest frame received
+        self._sinks = tuple(sinks)
         self._stop = threading.Event()
         self._bus: Any = open_bus({"interface": "remote", "channel": hub_url, "bitrate": 1_000_000})
         self._thread = threading.Thread(target=self._run, name="bus-monitor", daemon=True)
@@ -122,8 +131,7 @@ class BusMonitor:
                 continue
             if m is None or m.is_remote_frame:
                 continue
-            t = float(m.timestamp)
-            cid = m.arbitration_id
+            t, cid, data = float(m.timestamp), m.arbitration_id, bytes(m.data)
             with self._lock:
                 self.latest = max(self.latest, t)
                 if cid == SYNC_ID:
@@ -132,9 +140,11 @@ class BusMonitor:
                     self._sync_times.append(t)
                 elif cid == tpdo:
                     self._on_tpdo(t)
-                elif cid == rpdo and len(m.data) >= _RPDO1.size:
-                    _, raw = _RPDO1.unpack_from(bytes(m.data))
+                elif cid == rpdo and len(data) >= _RPDO1.size:
+                    _, raw = _RPDO1.unpack_from(data)
                     self._rpdo.append((t, raw * self._scale))
+                for sink in self._sinks:
+                    sink.on_frame(t, cid, data)
 
     def _on_tpdo(self, t: float) -> None:
         sync = self.pairing.answer(t)

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from ff_executor.bringup.bus_feedback import BusFeedback, StackBus
+from ff_executor.bringup.bus_monitor import BusMonitor
 from ff_executor.bringup.identify import StackFault, bus_samples, record_of
 from ff_hwbridge.sim.can_hub import start_hub
 from ff_planner.model.profile import CurrentProfile
@@ -74,15 +75,16 @@ def _play(hub, listener) -> list[tuple[int, float, int]]:
 def test_each_answer_is_placed_at_the_sync_it_answered_and_a_late_one_is_left_out():
     hub = start_hub(0)
     try:
-        fb = BusFeedback(hub.url, node_id=1, family="epos4", max_latency=1.0)   # pairing, not latency
+        fb = BusFeedback(node_id=1, family="epos4", max_latency=1.0)   # pairing, not latency
+        mon = BusMonitor(hub.url, node_id=1, family="epos4", max_latency=1.0, sinks=(fb,))
         try:
-            frames = _play(hub, fb)
+            frames = _play(hub, mon)
             syncs = {k: t for c, t, k in frames if c == 0x80}
             t, counts, amps = fb.samples(syncs[0] - 1e-6, syncs[CYCLES - 1] + 1.0)
             assert fb.sync_count(syncs[0] - 1e-6, syncs[CYCLES - 1] + 1e-6) == CYCLES
             assert fb.unplaced == 1
         finally:
-            fb.close()
+            mon.close()
     finally:
         hub.close()
     placed = [k for k in range(CYCLES) if k != LATE]
