@@ -21,8 +21,7 @@ from typing import Optional, Sequence
 
 from ff_hwbridge.drive.config import load_config, with_bus
 from ff_hwbridge.drive.epos import EposError, EposMaster
-from ff_hwbridge.drive.player import SWITCH_INTERVAL
-from ff_hwbridge.drive.scheduler import fifo_process
+from ff_hwbridge.drive.realtime import SWITCH_INTERVAL, RealtimeConfig, setup_process
 from ff_hwbridge.protocol.cia402 import State
 
 __all__ = ["main"]
@@ -112,8 +111,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             # thread here that may hold the GIL runs at normal priority (preempted, it would
             # hold the receiver off for longer than a cycle), and the GIL changes hands fast
             saved = _policies(), sys.getswitchinterval()
-            sys.setswitchinterval(SWITCH_INTERVAL)
-            fifo_process(cfg.rt_priority - 1, "ff-epos")
+            setup_process(RealtimeConfig(priority=cfg.rt_priority - 1, switch_interval=SWITCH_INTERVAL),
+                          "ff-epos")
         print(json.dumps({"configured": True, "joints": list(cfg.joint_names)}), flush=True)
         faulted = _faulted(master)
         if faulted:

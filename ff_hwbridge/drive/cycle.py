@@ -57,7 +57,7 @@ import numpy as np
 
 from ff_hwbridge.drive.ring import FloatRing
 from ff_hwbridge.drive.scheduler import StampedItem, StampedQueue, SwitchStats
-from ff_hwbridge.drive.stall_dump import StallDump
+from ff_hwbridge.drive.realtime import StallDump
 from ff_hwbridge.drive.sync_watch import SyncEvent, SyncWatch
 
 log = logging.getLogger(__name__)

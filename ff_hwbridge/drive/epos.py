@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 import struct
 import threading
 import time
@@ -55,6 +54,7 @@ import numpy as np
 from ff_hwbridge.drive.bus import open_bus
 from ff_hwbridge.drive.config import BridgeConfig, JointConfig
 from ff_hwbridge.drive.heartbeat import HeartbeatSender
+from ff_hwbridge.drive.realtime import use_fifo
 from ff_hwbridge.drive.safety import SafeCommand, SafetyGuard
 from ff_hwbridge.drive.sync_watch import SyncWatch
 from ff_hwbridge.protocol import cia402
@@ -650,12 +650,7 @@ class EposMaster:
                 threads.append(extra)
         ok = bool(threads)
         for t in threads:
-            try:
-                os.sched_setscheduler(t.native_id or 0, os.SCHED_FIFO, os.sched_param(priority))
-            except (AttributeError, OSError) as exc:
-                log.warning("bus receiver: cannot use SCHED_FIFO priority %d (%s); running at "
-                            "normal priority", priority, exc)
-                ok = False
+            ok = use_fifo(priority, f"master thread {t.name}", tid=t.native_id or 0) and ok
         return ok
 
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:

@@ -48,9 +48,10 @@ from ff_hwbridge.drive.config import BridgeConfig
 from ff_hwbridge.drive.cycle import CycleScheduler, Resolved
 from ff_hwbridge.drive.epos import EposMaster, PreparedCommand
 from ff_hwbridge.drive.placement import GridPlacement
+from ff_hwbridge.drive.realtime import SWITCH_INTERVAL
 from ff_hwbridge.drive.scheduler import StampScheduler, SwitchStats
 
-__all__ = ["AppliedSetpoint", "PlayerConfig", "SetpointPlayer", "SetpointRejected"]
+__all__ = ["SWITCH_INTERVAL", "AppliedSetpoint", "PlayerConfig", "SetpointPlayer", "SetpointRejected"]
 
 
 def _sync_keeps_time(master: EposMaster) -> bool:
@@ -68,7 +69,6 @@ class SetpointRejected(ValueError):
     """A setpoint the player does not queue (wrong number of currents, safe state latched)."""
 
 
-SWITCH_INTERVAL = 0.0002  # s, thread switch interval of a process running a synchronous player
 LATE_THRESHOLD = 0.0005   # s: a setpoint sent more than this after its stamp counts as late
 MAX_RECORDS = 200_000     # (stamp, sent) pairs the statistics keep
 MAX_REPORTS = 10_000      # applied setpoints waiting for ``take_applied()`` (oldest dropped)

@@ -39,7 +39,6 @@ from __future__ import annotations
 import logging
 import multiprocessing as mp
 import struct
-import sys
 import threading
 import time
 from collections import deque
@@ -50,13 +49,12 @@ import can
 
 from ff_hwbridge.drive.bus import send_at
 from ff_hwbridge.drive.cycle import CycleScheduler, Resolved
-from ff_hwbridge.drive.gc_pauses import IdleCollector, freeze_heap, hold_full_collections
 from ff_hwbridge.drive.epos import ECHO_INTERFACES, SYNC_COB_ID, EposMaster
 from ff_hwbridge.drive.placement import GridPlacement
-from ff_hwbridge.drive.player import (MAX_REPORTS, SWITCH_INTERVAL, AppliedSetpoint, PlayerBase, PlayerConfig,
-                                      SetpointPlayer)
+from ff_hwbridge.drive.player import MAX_REPORTS, AppliedSetpoint, PlayerBase, PlayerConfig, SetpointPlayer
 from ff_hwbridge.drive.safety import SafetyGuard
-from ff_hwbridge.drive.scheduler import SwitchStats, fifo_process, use_fifo
+from ff_hwbridge.drive.realtime import SWITCH_INTERVAL, IdleCollector, RealtimeConfig, setup_process, use_fifo
+from ff_hwbridge.drive.scheduler import SwitchStats
 from ff_hwbridge.protocol.epos_od import rpdo_layout, struct_format
 from ff_hwbridge.protocol.units import DriveUnits
 
@@ -425,13 +423,10 @@ class _Child:
                       self.repeats, self.repeats_late)
 
     def run(self) -> None:
-        sys.setswitchinterval(SWITCH_INTERVAL)
-        # a full collection would hold the scheduler thread off the GIL: the heap built so far
-        # is frozen, and later full collections run only while nothing is pending
-        freeze_heap()
-        hold_full_collections()
-        if self.spec.rt_priority > 1:     # no thread here holds the GIL at normal priority
-            fifo_process(self.spec.rt_priority - 1, "setpoint player process")
+        # the heap built so far frozen (later full collections only while nothing is pending:
+        # ``status``), and no thread here holding the GIL at normal priority
+        setup_process(RealtimeConfig(priority=max(0, self.spec.rt_priority - 1), switch_interval=SWITCH_INTERVAL,
+                                     freeze_gc=True), "setpoint player process")
         threading.Thread(target=self.receive, name="ff-player-rx", daemon=True).start()
         threading.Thread(target=self.status, name="ff-player-status", daemon=True).start()
         self.sched.start()
