@@ -47,8 +47,9 @@ Example (``config/bridge_epos4_1dof.yaml``)::
     setpoint_timing: sync         # 'sync': setpoint RPDO transmission type 1, latched by the drive
                                   #   at the next SYNC, sent during the cycle before (0x60C2 =
                                   #   sync_period); 'on_receipt': type 255, applied on arrival
-    sync_producer: master         # 'master': this bridge produces SYNC (canopen network.sync:
-                                  #   the kernel's broadcast manager on socketcan); 'external':
+    sync_producer: master         # 'master': this bridge produces SYNC (the kernel's broadcast
+                                  #   manager on socketcan, else a slot-keeping thread,
+                                  #   drive.sync_sender); 'external':
                                   #   another node does (the simulation's CAN hub, a PLC)
     sync_timeout: 0               # s, no SYNC seen this long -> safe state
                                   #   (0: max(3 x sync_period + timeout_margin, heartbeat_timeout))

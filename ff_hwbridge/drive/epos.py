@@ -53,9 +53,11 @@ import numpy as np
 
 from ff_hwbridge.drive.bus import open_bus
 from ff_hwbridge.drive.config import BridgeConfig, JointConfig
+from ff_hwbridge.drive.feedback import JointFeedback, SamplePairing
 from ff_hwbridge.drive.heartbeat import HeartbeatSender
 from ff_hwbridge.drive.realtime import use_fifo
 from ff_hwbridge.drive.safety import SafeCommand, SafetyGuard
+from ff_hwbridge.drive.sync_sender import SyncSender
 from ff_hwbridge.drive.sync_watch import SyncWatch
 from ff_hwbridge.protocol import cia402
 from ff_hwbridge.protocol.cia402 import SW_INTERNAL_LIMIT, SW_WARNING, State
@@ -100,24 +102,6 @@ class EposError(RuntimeError):
 
 
 @dataclass
-class JointFeedback:
-    """Latest measured values of one joint (rad, rad/s, A) and its drive state."""
-
-    position: float = 0.0
-    velocity: float = 0.0
-    current: float = 0.0
-    statusword: int = 0
-    state: Optional[State] = None
-    position_raw: int = 0
-    velocity_raw: int = 0
-    current_raw: int = 0
-    stamp: float = 0.0            # monotonic s of the latest TPDO1
-    sample_ns: int = 0            # wall-clock ns the latest TPDO1's values were sampled: the
-                                  #   SYNC it answers, else its bus timestamp (or arrival time)
-    stamp_motion: float = 0.0     # monotonic s of the latest TPDO2
-
-
-@dataclass
 class _Drive:
     cfg: JointConfig
     units: DriveUnits
@@ -143,7 +127,7 @@ class _Drive:
     cycle_repeats: int = 0        # RPDOs repeated because nothing new went out in a cycle
     tx_seq: int = 0               # setpoint RPDOs handed to the bus
     tx_failing: int = 0           # setpoint RPDOs failed since the last that went through
-    sample_unmatched_ns: int = 0  # bus ns of the latest TPDO1 whose SYNC was not seen yet (0: none)
+    pairing: Optional[SamplePairing] = None   # TPDO1 <-> SYNC (the sample instant)
     echo_seq: int = 0             # of those, echoed back by the bus (receive_own_messages)
     echo_log: deque = field(default_factory=lambda: deque(maxlen=1024))  # (echo_seq, bus ns)
     emcy: deque = field(default_factory=lambda: deque(maxlen=20))   # recent EMCY texts
@@ -178,6 +162,8 @@ class EposMaster:
         self._monitor: Optional[threading.Thread] = None
         self._monitor_stop = threading.Event()
         self._sync_running = False
+        self._sync_sender: Optional[SyncSender] = None
+        self._fb_lock = threading.Lock()
         self._master_hb: Any = None
         self._configured = False
         self._sdo_lock = threading.RLock()     # one SDO user at a time (configure, error history)
@@ -224,8 +210,14 @@ class EposMaster:
         return [d.seen_operational for d in self._drives]
 
     def feedback(self) -> list[JointFeedback]:
-        """A copy of the latest feedback per joint."""
-        return [replace(d.feedback) for d in self._drives]
+        """The latest feedback per joint (immutable snapshots, each from one TPDO1 / TPDO2)."""
+        return [d.feedback for d in self._drives]
+
+    def _publish(self, d: _Drive, **changes: Any) -> JointFeedback:
+        """Swap in a new feedback snapshot of ``d`` with ``changes``."""
+        with self._fb_lock:
+            d.feedback = fb = replace(d.feedback, **changes)
+        return fb
 
     def status(self) -> dict[str, Any]:
         """A flat summary for diagnostics."""
@@ -515,7 +507,8 @@ class EposMaster:
         node.nmt.send_command(0x01)          # NMT start -> OPERATIONAL
         d.operational = True
         d.last_heartbeat = self.clock()      # the heartbeat timeout counts from here
-        d.feedback.stamp = self.clock()
+        d.pairing = SamplePairing(self.sync_watch.period_ns, c.feedback_every)
+        self._publish(d, stamp=self.clock())
 
     def _apply_scaling(self, d: _Drive, sdo_read: Callable[..., int], sdo_write: Callable[..., None],
                        optional: Callable[..., Optional[int]]) -> None:
@@ -622,7 +615,14 @@ class EposMaster:
         if self.network is None:
             return
         if self.config.sync_producer == "master" and not self._sync_running:
-            self.network.sync.start(self.config.sync_period)
+            if type(self.network.bus).__name__ == "SocketcanBus":
+                # the kernel's broadcast manager keeps the period whatever this process does
+                self.network.sync.start(self.config.sync_period)
+            else:
+                # python-can's thread-based periodic sender would burst after a stall
+                net = self.network
+                self._sync_sender = SyncSender(lambda: net.send_message(SYNC_COB_ID, b""),
+                                               self.config.sync_period)
             self._sync_running = True
         if self._sync_expected_since is None:
             self._sync_expected_since = self.clock()
@@ -641,11 +641,9 @@ class EposMaster:
         net = self.network
         notifier = getattr(net, "notifier", None)
         threads = [t for t in getattr(notifier, "_readers", []) if isinstance(t, threading.Thread)]
-        # this master's SYNC producer where python-can runs it in a thread (not the kernel's
-        # broadcast manager): canopen's PeriodicMessageTask around python-can's task
-        sync_task = getattr(getattr(getattr(net, "sync", None), "_task", None), "_task", None)
+        # this master's SYNC producer where it is a thread here (not the kernel's broadcast manager)
         for extra in (self._monitor, getattr(self._master_hb, "thread", None),
-                      getattr(sync_task, "thread", None)):
+                      getattr(self._sync_sender, "thread", None)):
             if isinstance(extra, threading.Thread) and extra.is_alive():
                 threads.append(extra)
         ok = bool(threads)
@@ -658,13 +656,9 @@ class EposMaster:
         echoes = tuple(d.echo_seq for d in self._drives) if self.echo else None
         ev = self.sync_watch.observe(timestamp, echoes)
         for d in self._drives:
-            # a TPDO can be received before the SYNC it answers: a bus that fans one frame out
-            # to its receivers one after another (python-can's virtual bus, the hub) may queue
-            # the drive's copy, and so its answer, before the sender's own
-            t = d.sample_unmatched_ns
-            if t and 0 <= t - ev.bus_ns < self.sync_watch.period_ns:
-                d.feedback.sample_ns = ev.bus_ns
-                d.sample_unmatched_ns = 0
+            at = d.pairing.on_sync(ev.bus_ns) if d.pairing is not None else None
+            if at is not None:           # a TPDO received before the SYNC it answers
+                self._publish(d, sample_ns=at)
 
     def _on_cycle(self, ev: Any) -> None:
         """A SYNC seen (bus receiver's thread; ``ev`` a SyncEvent): the cycle it opens gets each
@@ -706,9 +700,15 @@ class EposMaster:
         self._sync_expected_since = None
         if self.network is not None and self._sync_running:
             try:
-                self.network.sync.stop()
+                if self._sync_sender is not None:
+                    self._sync_sender.stop()
+                else:
+                    self.network.sync.stop()
             finally:
+                self._sync_sender = None
                 self._sync_running = False
+        self._sync_sender: Optional[SyncSender] = None
+        self._fb_lock = threading.Lock()
 
     def _start_monitor(self) -> None:
         if self._monitor is None or not self._monitor.is_alive():
@@ -946,21 +946,18 @@ class EposMaster:
             if len(data) < size:
                 return
             sw, pos = struct.unpack_from(fmt, data)
-            fb = d.feedback
-            fb.statusword, fb.position_raw = sw, pos
-            fb.position = d.units.increments_to_rad(pos)
-            before = fb.state
             try:
-                fb.state = cia402.decode_statusword(sw)
+                state: Optional[State] = cia402.decode_statusword(sw)
             except cia402.StatuswordError:
-                fb.state = None
-            if fb.state is not before and self.external_player:
-                self._gate_changed()
+                state = None
             now = self.clock()
-            fb.stamp = now
             tpdo_ns = int(round(timestamp * 1e9)) if timestamp else time.time_ns()
-            fb.sample_ns = self._sample_instant(tpdo_ns)
-            d.sample_unmatched_ns = tpdo_ns if fb.sample_ns == tpdo_ns and not proxy else 0
+            sample_ns = self._sample_instant(d, tpdo_ns, proxy)
+            before = d.feedback.state
+            fb = self._publish(d, statusword=sw, position_raw=pos, position=d.units.increments_to_rad(pos),
+                               state=state, stamp=now, sample_ns=sample_ns)
+            if state is not before and self.external_player:
+                self._gate_changed()
             d.tpdo_seen = True
             if sw & SW_INTERNAL_LIMIT and self.guard.motion_running:
                 if not d.limited_count:
@@ -999,16 +996,12 @@ class EposMaster:
                             f"master uses: {', '.join(missing[:12])}" + (" ..." if len(missing) > 12 else ""))
         return od
 
-    def _sample_instant(self, tpdo_ns: int) -> int:
-        """Wall ns at which a synchronous TPDO's values were sampled: the SYNC it answers (the
-        latest one seen, if the TPDO came within one period after it), else its own bus time
-        (corrected by ``_on_sync`` when that SYNC is received after the TPDO)."""
-        if self.config.sync_producer == "master" and not self.echo:
+    def _sample_instant(self, d: _Drive, tpdo_ns: int, proxy: bool) -> int:
+        """Wall ns at which a synchronous TPDO's values were sampled: the SYNC it answers when
+        the pairing is certain (``SamplePairing``), else its own bus instant."""
+        if proxy or d.pairing is None or (self.config.sync_producer == "master" and not self.echo):
             return tpdo_ns              # our own SYNC is not seen on this bus: no better instant
-        ev = self.sync_watch.latest()
-        if ev is not None and 0 <= tpdo_ns - ev.bus_ns < self.sync_watch.period_ns:
-            return ev.bus_ns
-        return tpdo_ns
+        return d.pairing.on_tpdo(tpdo_ns)
 
     def _make_tpdo2_cb(self, d: _Drive) -> Callable[[int, bytearray, float], None]:
         fmt = d.tx2_fmt
@@ -1018,11 +1011,8 @@ class EposMaster:
             if len(data) < size:
                 return
             rpm, cur = struct.unpack_from(fmt, data)
-            fb = d.feedback
-            fb.velocity_raw, fb.current_raw = rpm, cur
-            fb.velocity = d.units.rpm_to_rad_s(rpm)
-            fb.current = d.units.ma_to_amps(cur)
-            fb.stamp_motion = self.clock()
+            self._publish(d, velocity_raw=rpm, current_raw=cur, velocity=d.units.rpm_to_rad_s(rpm),
+                          current=d.units.ma_to_amps(cur), stamp_motion=self.clock())
         return on_tpdo2
 
     def _step(self, d: _Drive, now: float) -> None:
@@ -1184,8 +1174,7 @@ class EposMaster:
                 # make sure the reset bit rises even if it was left set
                 self._send_rpdo(d, 0x0000, 0)
             d.last_heartbeat = now if d.operational else d.last_heartbeat
-            d.feedback.stamp = now
-            d.feedback.state = None          # wait for a fresh statusword before judging
+            self._publish(d, stamp=now, state=None)    # wait for a fresh statusword before judging
         old = self.guard.reset()
         for d in self._drives:
             if not d.operational and self.network is not None and self._configured:
