@@ -707,8 +707,6 @@ class EposMaster:
             finally:
                 self._sync_sender = None
                 self._sync_running = False
-        self._sync_sender: Optional[SyncSender] = None
-        self._fb_lock = threading.Lock()
 
     def _start_monitor(self) -> None:
         if self._monitor is None or not self._monitor.is_alive():

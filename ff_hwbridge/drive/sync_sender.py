@@ -28,7 +28,8 @@ __all__ = ["SyncSender"]
 class SyncSender:
     """Calls ``send()`` once per slot of ``period`` s from a thread of this process until
     ``stop()``; a slot passed while the thread was held off is skipped (``skipped``), never sent
-    late; two sends are at least half a period apart. ``send`` failures are logged once and counted (``failures``) until one goes through."""
+    late; two sends are at least half a period apart. ``send`` failures are logged once and
+    counted (``failures``) until one goes through."""
 
     def __init__(self, send: Callable[[], None], period: float, name: str = "ff-sync-producer",
                  clock_ns: Callable[[], int] = time.monotonic_ns) -> None:
