@@ -251,9 +251,13 @@ class ChildLink:
                 self.repeats += 1
                 self._tx(i, cw, self.raw[i])
 
+    def start_receiver(self) -> None:
+        """Start the receiver thread (``receive``)."""
+        self._rx_thread = threading.Thread(target=self.receive, name="ff-player-rx", daemon=True)
+        self._rx_thread.start()
+
     def receive(self) -> None:
         """The receiver thread: SYNC into the watch, our own RPDOs' echoes (their bus instants)."""
-        self._rx_thread = threading.current_thread()
         failures = 0
         while not self.stopped.is_set():
             try:
@@ -322,7 +326,7 @@ def _child_main(config: BridgeConfig, player_config: PlayerConfig, conn: Any, ga
     # no thread here holding the GIL at normal priority
     setup_process(RealtimeConfig(priority=max(0, player_config.rt_priority - 1), switch_interval=SWITCH_INTERVAL,
                                  freeze_gc=True), "setpoint player process")
-    threading.Thread(target=link.receive, name="ff-player-rx", daemon=True).start()
+    link.start_receiver()           # before the player's start: it raises the receiver's priority
     threading.Thread(target=_status, args=(link, player, tell), name="ff-player-status", daemon=True).start()
     player.start()
     tell("ready")
