@@ -130,16 +130,17 @@ class EposMaster(StateMachine, RpdoWriter, FeedbackReceiver, Watchdogs, Boot):
         for d in self._drives:
             p = f"{d.cfg.name}."
             out[p + "node_id"] = d.node_id
-            out[p + "state"] = d.feedback.state.value if d.feedback.state else "unknown"
+            fb = d.feedback               # one snapshot: state and statusword of the same TPDO
+            out[p + "state"] = fb.state.value if fb.state else "unknown"
             out[p + "target"] = d.target.value
-            out[p + "statusword"] = f"0x{d.feedback.statusword:04X}"
+            out[p + "statusword"] = f"0x{fb.statusword:04X}"
             out[p + "nmt"] = d.nmt_state or "unknown"
             out[p + "heartbeat_age_ms"] = (round((now - d.last_heartbeat) * 1000.0, 1)
                                            if d.last_heartbeat is not None else -1.0)
             out[p + "setpoint_raw"] = d.setpoint
             out[p + "cycle_repeats"] = d.cycle_repeats     # RPDOs repeating the value in force
             out[p + "last_emcy"] = d.emcy[-1] if d.emcy else ""
-            sw = d.feedback.statusword
+            sw = fb.statusword
             out[p + "warning"] = bool(sw & SW_WARNING)                # statusword bit 7
             out[p + "internal_limit_active"] = bool(sw & SW_INTERNAL_LIMIT)   # bit 11
             # latched per motion: the drive clipped the command (a failed feedforward move)
