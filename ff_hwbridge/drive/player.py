@@ -44,7 +44,6 @@ system clock).
 """
 from __future__ import annotations
 
-import sys
 import time
 from collections import deque
 from dataclasses import dataclass, replace
@@ -57,7 +56,7 @@ from ff_hwbridge.drive.cycle import CycleScheduler, Resolved
 from ff_hwbridge.drive.node import PreparedCommand
 from ff_hwbridge.drive.safety import SafetyGuard
 from ff_hwbridge.drive.placement import GridPlacement
-from ff_hwbridge.drive.realtime import SWITCH_INTERVAL
+from ff_hwbridge.drive.realtime import SWITCH_INTERVAL, RealtimeConfig, setup_process
 from ff_hwbridge.drive.scheduler import StampScheduler, SwitchStats
 from ff_hwbridge.drive.sync_watch import SyncWatch
 from ff_hwbridge.protocol.units import DriveUnits
@@ -304,8 +303,7 @@ class SetpointPlayer(PlayerBase):
         interval at most ``SWITCH_INTERVAL`` (the bus receiver and this thread get the GIL back
         from busy threads that fast) and the bus receiver under the thread's SCHED_FIFO."""
         if self._cycle is not None:
-            if sys.getswitchinterval() > SWITCH_INTERVAL:
-                sys.setswitchinterval(SWITCH_INTERVAL)
+            setup_process(RealtimeConfig(switch_interval=SWITCH_INTERVAL), "setpoint player")
             if self.config.rt_priority > 0:
                 self.master.set_receiver_priority(self.config.rt_priority)
         self._scheduler.start()

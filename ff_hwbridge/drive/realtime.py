@@ -248,7 +248,8 @@ class StallDump:
 @dataclass(frozen=True)
 class RealtimeConfig:
     """What :func:`setup_process` does: ``priority`` 1..99 SCHED_FIFO for every thread (0: none),
-    ``switch_interval`` s (0: unchanged), ``lock_memory``, ``cpus`` (empty: unchanged),
+    ``switch_interval`` s at most (lowered to it, never raised; 0: unchanged), ``lock_memory``,
+    ``cpus`` (empty: unchanged),
     ``freeze_gc`` (freeze the heap and hold the automatic full collections)."""
 
     priority: int = 0
@@ -262,8 +263,9 @@ def setup_process(config: RealtimeConfig, who: str) -> dict[str, object]:
     """Apply ``config`` to this process; returns what was granted (for the log / diagnostics).
     Whatever is refused is logged as a warning and the process goes on without it."""
     out: dict[str, object] = {}
-    if config.switch_interval > 0:
+    if 0 < config.switch_interval < sys.getswitchinterval():
         sys.setswitchinterval(config.switch_interval)
+    if config.switch_interval > 0:
         out["switch_interval"] = sys.getswitchinterval()
     if config.cpus:
         out["affinity"] = set_affinity(config.cpus, who)

@@ -155,10 +155,14 @@ def test_fifo_process_puts_every_thread_and_later_ones_under_sched_fifo():
 def test_setup_process_sets_the_switch_interval_and_freezes_the_heap():
     before, thresholds = sys.getswitchinterval(), gc.get_threshold()
     try:
+        sys.setswitchinterval(0.005)                 # Python's default
         got = setup_process(RealtimeConfig(priority=0, switch_interval=0.0003, freeze_gc=True), "test")
         assert sys.getswitchinterval() == pytest.approx(0.0003)
         assert int(got["frozen"]) > 0 and gc.get_freeze_count() > 0  # type: ignore[call-overload]
         assert gc.get_threshold()[2] == FULL_HELD and "fifo_threads" not in got
+        sys.setswitchinterval(0.0001)
+        setup_process(RealtimeConfig(switch_interval=0.0003), "test")
+        assert sys.getswitchinterval() == pytest.approx(0.0001)     # lowered to it, never raised
     finally:
         sys.setswitchinterval(before)
         gc.set_threshold(*thresholds)
