@@ -42,9 +42,9 @@ from typing import Any, Callable, Optional, Sequence, TextIO
 
 log = logging.getLogger(__name__)
 
-__all__ = ["FULL_HELD", "SWITCH_INTERVAL", "GcPauses", "IdleCollector", "RealtimeConfig", "StallDump",
-           "freeze_heap", "fifo_process", "hold_full_collections", "lock_memory", "pauses",
-           "set_affinity", "setup_process", "use_fifo"]
+__all__ = ["FULL_HELD", "SWITCH_INTERVAL", "GcPauses", "IdleCollector", "ProcessTiming", "RealtimeConfig",
+           "StallDump", "freeze_heap", "fifo_process", "hold_full_collections", "lock_memory", "pauses",
+           "restore_process", "set_affinity", "setup_process", "use_fifo"]
 
 #: s, thread switch interval of a process that plays setpoints
 SWITCH_INTERVAL = 0.0002
@@ -257,6 +257,39 @@ class RealtimeConfig:
     lock_memory: bool = False
     cpus: tuple[int, ...] = ()
     freeze_gc: bool = False
+
+
+@dataclass(frozen=True)
+class ProcessTiming:
+    """Scheduling policy and priority of every thread of this process and its switch interval,
+    as they were (``now()``), for :func:`restore_process` (a CLI called in a longer-lived process)."""
+
+    policies: dict[int, tuple[int, int]]
+    switch_interval: float
+
+    @classmethod
+    def now(cls) -> "ProcessTiming":
+        out: dict[int, tuple[int, int]] = {}
+        try:
+            tids = [int(t) for t in os.listdir("/proc/self/task")]
+        except OSError:
+            tids = []
+        for tid in tids:
+            try:
+                out[tid] = (os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority)
+            except OSError:
+                continue
+        return cls(out, sys.getswitchinterval())
+
+
+def restore_process(saved: ProcessTiming) -> None:
+    """Put the threads that still run and the switch interval back as ``saved``."""
+    sys.setswitchinterval(saved.switch_interval)
+    for tid, (policy, prio) in saved.policies.items():
+        try:
+            os.sched_setscheduler(tid, policy, os.sched_param(prio))
+        except OSError:
+            continue
 
 
 def setup_process(config: RealtimeConfig, who: str) -> dict[str, object]:
