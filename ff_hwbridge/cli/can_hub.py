@@ -26,8 +26,7 @@ import threading
 from typing import Optional, Sequence
 
 from ff_hwbridge.drive.bus import LOOPBACK, CanConfigError
-from ff_hwbridge.drive.gc_pauses import freeze_heap
-from ff_hwbridge.drive.scheduler import fifo_process
+from ff_hwbridge.drive.realtime import fifo_process, freeze_heap
 from ff_hwbridge.sim.time_keeper import keeper_stats
 from ff_hwbridge.sim.can_hub import CanHub, start_hub
 from ff_hwbridge.sim.sync import STAMPS

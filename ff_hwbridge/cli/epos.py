@@ -14,15 +14,13 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import os
 import sys
 import time
 from typing import Optional, Sequence
 
 from ff_hwbridge.drive.config import load_config, with_bus
 from ff_hwbridge.drive.epos import EposError, EposMaster
-from ff_hwbridge.drive.player import SWITCH_INTERVAL
-from ff_hwbridge.drive.scheduler import fifo_process
+from ff_hwbridge.drive.realtime import SWITCH_INTERVAL, ProcessTiming, RealtimeConfig, restore_process, setup_process
 from ff_hwbridge.protocol.cia402 import State
 
 __all__ = ["main"]
@@ -53,32 +51,6 @@ def _fresh_state(master: EposMaster) -> list[Optional[str]]:
             for f in master.feedback()]
 
 
-def _policies() -> dict[int, tuple[int, int]]:
-    """Scheduling policy and priority of every thread of this process now (Linux)."""
-    out: dict[int, tuple[int, int]] = {}
-    try:
-        tids = [int(t) for t in os.listdir("/proc/self/task")]
-    except OSError:
-        return out
-    for tid in tids:
-        try:
-            out[tid] = (os.sched_getscheduler(tid), os.sched_getparam(tid).sched_priority)
-        except OSError:
-            continue
-    return out
-
-
-def _restore(policies: dict[int, tuple[int, int]], switch_interval: float) -> None:
-    """Put the threads that still run back to ``policies`` (``_policies()``) and the switch
-    interval (s) back."""
-    sys.setswitchinterval(switch_interval)
-    for tid, (policy, prio) in policies.items():
-        try:
-            os.sched_setscheduler(tid, policy, os.sched_param(prio))
-        except OSError:
-            continue
-
-
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """Exit code 0 when the drives were disabled cleanly, 1 on a drive error, a drive in Fault at
     start (without ``--fault-reset``) or a latched safe state, 2 on a configuration or bus error."""
@@ -104,16 +76,16 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except (ValueError, OSError) as exc:
         print(f"ff-epos: {exc}", file=sys.stderr)
         return 2
-    saved: Optional[tuple[dict[int, tuple[int, int]], float]] = None
+    saved: Optional[ProcessTiming] = None
     try:
         master.configure()
         if cfg.rt_priority > 1:
             # the bus receiver (SCHED_FIFO since configure) writes every SYNC cycle's RPDO: no
             # thread here that may hold the GIL runs at normal priority (preempted, it would
             # hold the receiver off for longer than a cycle), and the GIL changes hands fast
-            saved = _policies(), sys.getswitchinterval()
-            sys.setswitchinterval(SWITCH_INTERVAL)
-            fifo_process(cfg.rt_priority - 1, "ff-epos")
+            saved = ProcessTiming.now()
+            setup_process(RealtimeConfig(priority=cfg.rt_priority - 1, switch_interval=SWITCH_INTERVAL),
+                          "ff-epos")
         print(json.dumps({"configured": True, "joints": list(cfg.joint_names)}), flush=True)
         faulted = _faulted(master)
         if faulted:
@@ -153,7 +125,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     finally:
         master.disconnect()
         if saved is not None:           # main() called in a longer-lived process (tests)
-            _restore(*saved)
+            restore_process(saved)
 
 
 if __name__ == "__main__":

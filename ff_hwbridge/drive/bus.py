@@ -10,9 +10,6 @@ the one websocket. A frame sent on a ``remote`` bus carries its send instant as 
 (``preserve_timestamps`` on the hub's side): on a real bus the controller puts a frame on the
 wire microseconds after the send, while the hub's own scheduling (it may be descheduled for
 milliseconds on a busy machine) is no part of the bus. Receivers order frames by these stamps.
-A ``remote`` bus also gets ``send_at(msg, at_ns)``: the frame is stamped with the future wall
-instant ``at_ns``, which the simulation's hub takes as a transmit schedule
-(``ff_hwbridge.sim.time_keeper``: held, and put on the bus at that instant).
 """
 from __future__ import annotations
 
@@ -31,7 +28,7 @@ DEFAULT_BITRATE = 1_000_000
 LOOPBACK = "127.0.0.1"
 
 __all__ = ["DEFAULT_BITRATE", "LOOPBACK", "CanConfigError", "check_loopback",
-           "normalise_bus_config", "open_bus", "open_network", "send_at"]
+           "normalise_bus_config", "open_bus", "open_network"]
 
 
 class CanConfigError(ValueError):
@@ -89,28 +86,7 @@ def _fix_remote_bus(bus: can.BusABC) -> None:
             msg.timestamp = time.time()     # the frame's bus instant: its send (see the module doc)
             send(msg, timeout)
 
-    def send_at(msg: can.Message, at_ns: int, timeout: Optional[float] = None) -> bool:
-        """Hand ``msg`` to the hub's transmit schedule for wall instant ``at_ns`` (ns); True when
-        scheduled, False when that instant had passed: then it is sent now, stamped now."""
-        with lock:
-            now = time.time_ns()
-            msg.timestamp = (at_ns if at_ns > now else now) / 1e9
-            send(msg, timeout)
-        return at_ns > now
-
     bus.send = locked_send  # type: ignore[method-assign]
-    bus.send_at = send_at  # type: ignore[attr-defined]
-
-
-def send_at(bus: can.BusABC, msg: can.Message, at_ns: int) -> bool:
-    """Hand ``msg`` to ``bus``'s transmit schedule for wall instant ``at_ns`` (ns): True when
-    scheduled, False when the instant had passed (sent now). CanConfigError on a bus without one
-    (only a ``remote`` bus opened by ``open_bus`` has it, for the simulation's hub)."""
-    fn = getattr(bus, "send_at", None)
-    if fn is None:
-        raise CanConfigError(f"{bus.channel_info}: no transmit schedule (setpoint_lead needs "
-                             "the simulation's CAN hub)")
-    return bool(fn(msg, at_ns))
 
 
 def open_bus(config: Mapping[str, Any]) -> can.BusABC:

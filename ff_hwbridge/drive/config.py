@@ -47,8 +47,9 @@ Example (``config/bridge_epos4_1dof.yaml``)::
     setpoint_timing: sync         # 'sync': setpoint RPDO transmission type 1, latched by the drive
                                   #   at the next SYNC, sent during the cycle before (0x60C2 =
                                   #   sync_period); 'on_receipt': type 255, applied on arrival
-    sync_producer: master         # 'master': this bridge produces SYNC (canopen network.sync:
-                                  #   the kernel's broadcast manager on socketcan); 'external':
+    sync_producer: master         # 'master': this bridge produces SYNC (the kernel's broadcast
+                                  #   manager on socketcan, else a slot-keeping thread,
+                                  #   drive.sync_sender); 'external':
                                   #   another node does (the simulation's CAN hub, a PLC)
     sync_timeout: 0               # s, no SYNC seen this long -> safe state
                                   #   (0: max(3 x sync_period + timeout_margin, heartbeat_timeout))
@@ -57,11 +58,8 @@ Example (``config/bridge_epos4_1dof.yaml``)::
     player_process: false         # sync: the setpoint player (guard, units, RPDO, SYNC watch) in
                                   #   its own process with its own bus connection
                                   #   (ff_hwbridge.drive.player_process); false: a thread here
-    setpoint_lead: 0.0            # s: with player_process on the simulation's CAN hub, each
-                                  #   setpoint is handed to the hub's transmit schedule up to
-                                  #   this long before its cycle (ff_hwbridge.sim.time_keeper),
-                                  #   put on the bus mid-cycle before its SYNC; 0 = sent by the
-                                  #   player itself in the cycle before (the only mode elsewhere)
+    setpoint_lead: 0.0            # s: no longer used (accepted with a warning): every setpoint
+                                  #   is sent by the player itself in the cycle before its SYNC
     stall_dump: 0.0               # s: the setpoint cycle away this long while setpoints are
                                   #   pending -> every thread's stack to stderr (0 = off)
     joints:
@@ -79,6 +77,7 @@ Times are in s unless the name ends in ``_ms``; currents in A.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -88,6 +87,8 @@ import yaml
 
 from ff_hwbridge.protocol.epos_od import CURRENT_MODE
 from ff_hwbridge.protocol.units import FAMILIES, DriveUnits, UnitsError
+
+log = logging.getLogger(__name__)
 
 
 class ConfigError(ValueError):
@@ -278,14 +279,10 @@ class BridgeConfig:
         if not (isinstance(self.stall_dump, (int, float)) and 0.0 <= self.stall_dump <= 3600.0):
             raise ConfigError(f"stall_dump must be 0 .. 3600 s (0 = off), got {self.stall_dump!r}")
         if not (isinstance(self.setpoint_lead, (int, float)) and 0.0 <= self.setpoint_lead <= 0.25):
-            raise ConfigError(f"setpoint_lead must be 0 .. 0.25 s (0 = off), got {self.setpoint_lead!r}")
-        if self.setpoint_lead > 0 and not (self.synchronous and self.player_process
-                                           and self.bus.interface == "remote"):
-            raise ConfigError("setpoint_lead > 0 needs setpoint_timing: sync, player_process: true "
-                              "and the simulation's CAN hub (bus.interface: remote), whose transmit "
-                              f"schedule holds the frames; got setpoint_timing {self.setpoint_timing}, "
-                              f"player_process {self.player_process}, bus.interface "
-                              f"{self.bus.interface}")
+            raise ConfigError(f"setpoint_lead must be 0 .. 0.25 s (no longer used), got {self.setpoint_lead!r}")
+        if self.setpoint_lead > 0:
+            log.warning("setpoint_lead %g s is no longer used: every setpoint is sent by the player "
+                        "itself in the cycle before its SYNC (remove the key)", self.setpoint_lead)
         if not 0 <= self.spin_margin < 0.05:
             raise ConfigError(f"spin_margin must be in [0, 0.05) s, got {self.spin_margin!r}")
         if not (isinstance(self.heartbeat_producer_ms, int) and 0 < self.heartbeat_producer_ms <= 65535):

@@ -31,15 +31,6 @@ while no SYNC has been seen cannot be placed on the grid: ``on_fault(reason)``. 
 fails to prepare or to send, or a pass of the thread that raises, calls ``on_fault(reason)``
 too, besides the log: the player latches the safe state with the reason.
 
-With ``lead`` > 0 s (``lead_cycles`` = ⌊lead / period⌋ ≥ 1) the setpoints go to a bus that
-keeps a transmit schedule (the simulation's hub: ``ff_hwbridge.sim.time_keeper``; ``send(stamp,
-payload, at_ns)``): each one is handed over up to ``lead_cycles`` cycles before its own, for the
-bus instant ``at_ns`` half a period before its SYNC's predicted instant, so that this thread only
-has to be ahead, not on time. One handed over after that instant is sent at once (the bus
-stamps it then) and resolved like any other; a stop sent at once (a cancel's zero) replaces
-whatever was scheduled after it on the bus, and those in-flight setpoints are forgotten here
-(counted ``cancelled``).
-
 Records are (stamp ns, applied SYNC instant ns); the switch error is applied − stamp.
 """
 from __future__ import annotations
@@ -57,7 +48,7 @@ import numpy as np
 
 from ff_hwbridge.drive.ring import FloatRing
 from ff_hwbridge.drive.scheduler import StampedItem, StampedQueue, SwitchStats
-from ff_hwbridge.drive.stall_dump import StallDump
+from ff_hwbridge.drive.realtime import StallDump
 from ff_hwbridge.drive.sync_watch import SyncEvent, SyncWatch
 
 log = logging.getLogger(__name__)
@@ -83,7 +74,6 @@ class _InFlight:
     picked_wall_ns: int = 0   # when the thread took it from the queue
     send_ns: int = 0          # how long preparing and sending took
     queued_wall_ns: int = 0   # when it was submitted
-    at_ns: int = 0            # the bus instant it was scheduled for (0: sent at once)
 
 
 @dataclass(frozen=True)
@@ -132,7 +122,7 @@ class CycleScheduler(StampedQueue):
                  tolerance: float = 0.1, missed_tolerance: int = 1, rt_priority: int = 0,
                  max_records: int = 200_000, name: str = "ff-cycle-scheduler",
                  clock_ns: Callable[[], int] = time.time_ns, clock_opens: bool = True,
-                 stall_dump: float = 0.0, lead: float = 0.0) -> None:
+                 stall_dump: float = 0.0) -> None:
         super().__init__(name, rt_priority, threading.Condition(threading.RLock()))
         # s: this thread away that long while setpoints are pending dumps every thread's stack
         # (what held it: the GIL's holder, a lock); 0 = off. One per process (faulthandler).
@@ -147,8 +137,6 @@ class CycleScheduler(StampedQueue):
         self._margin_ns = int(SEND_MARGIN * self.period_ns)
         self.clock_opens = bool(clock_opens)
         self.missed_tolerance = int(missed_tolerance)
-        # cycles a setpoint may be handed to the bus's transmit schedule before its own
-        self.lead_cycles = max(0, int(math.floor(lead * 1e9 / self.period_ns + 1e-9)))
         self._inflight: deque[_InFlight] = deque()
         self._last_stamp: Optional[int] = None
         self.records: deque[tuple[int, int]] = deque(maxlen=max_records)
@@ -157,7 +145,6 @@ class CycleScheduler(StampedQueue):
         self._leads = FloatRing(max_records)
         self.late = self.stale = self.stale_stops = self.errors = 0
         self.missed = self.missed_max = self.superseded = self.late_stops = 0
-        self.cancelled = 0
         self._last_applied_ns: Optional[int] = None
         watch.add_listener(self._on_sync)
 
@@ -183,7 +170,7 @@ class CycleScheduler(StampedQueue):
         self._err.clear()
         self._leads.clear()
         self.late = self.stale = self.stale_stops = self.missed = self.missed_max = self.superseded = 0
-        self.late_stops = self.cancelled = 0
+        self.late_stops = 0
 
     def grid(self) -> Optional[tuple[int, int]]:
         """(nominal instant of the latest SYNC, period) in ns; None before the first SYNC."""
@@ -262,10 +249,9 @@ class CycleScheduler(StampedQueue):
                     # grid's clock SEND_MARGIN after that SYNC's predicted instant when its
                     # frame (and any number before it) is late here: a SYNC timer keeps time,
                     # the frames' way to this process may not
-                    ahead = self.lead_cycles
-                    opens = g[1] + (k - 1 - ahead) * self.period_ns + self._margin_ns
+                    opens = g[1] + (k - 1) * self.period_ns + self._margin_ns
                     now = self._clock_ns()
-                    if k <= 1 + ahead or (self.clock_opens and now >= opens):
+                    if k <= 1 or (self.clock_opens and now >= opens):
                         item = heapq.heappop(self._heap)
                         picked = time.time_ns()
                         break
@@ -312,17 +298,11 @@ class CycleScheduler(StampedQueue):
         target = nominal_ns + k * self.period_ns
         payload = item.payload
         t0 = time.time_ns()
-        # scheduled for mid-cycle before its SYNC; a stale stop (a cancel's zero) goes at once
-        at_ns = target - self.period_ns // 2 if self.lead_cycles and not stale else 0
         try:
             if self._prepare is not None:
                 payload = self._prepare(payload)
             seen = self.watch.latest()
-            if at_ns and at_ns > time.time_ns():
-                marks, token = self._send(item.stamp_ns, payload, at_ns)
-            else:
-                at_ns = 0
-                marks, token = self._send(item.stamp_ns, payload)
+            marks, token = self._send(item.stamp_ns, payload)
         except Exception as exc:  # noqa: BLE001 - the thread must survive a failing send
             self._failed("preparing / sending a setpoint", item, exc)
             return
@@ -331,14 +311,9 @@ class CycleScheduler(StampedQueue):
         seen_count = seen.count if seen is not None else ev.count
         lead = sent - (seen.bus_ns if seen is not None else ev.bus_ns)
         with self._cond:
-            if self.lead_cycles and not at_ns:
-                # sent at once: the bus dropped what was scheduled after it
-                keep = deque(f for f in self._inflight if not f.at_ns > sent)
-                self.cancelled += len(self._inflight) - len(keep)
-                self._inflight = keep
             self._inflight.append(_InFlight(item.stamp_ns, target, ev.count + k, seen_count, marks,
                                             sent, lead, token, bool(item.stop),
-                                            picked_ns or t0, sent - t0, item.queued_ns, at_ns))
+                                            picked_ns or t0, sent - t0, item.queued_ns))
             self._cond.notify_all()
 
     def _resolve(self) -> list[Resolved]:
@@ -350,10 +325,10 @@ class CycleScheduler(StampedQueue):
             # the RPDO's own bus instant from its echo (a drive latches it at the first SYNC
             # stamped at or after it); without an echo (or one lost for 3 cycles) the send time
             t_bus = self._echo_time(f.marks) if f.marks is not None else None
-            if t_bus is None and f.marks is not None and len(later) < 3 + self.lead_cycles:
+            if t_bus is None and f.marks is not None and len(later) < 3:
                 break                              # its echo is still on the way
             if t_bus is None:
-                t_bus = max(f.sent_wall_ns, f.at_ns)
+                t_bus = f.sent_wall_ns
             hit = next((e for e in later if e.bus_ns >= t_bus), None)
             if hit is None:
                 break

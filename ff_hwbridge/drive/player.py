@@ -1,8 +1,14 @@
-"""Stamped current setpoints played onto the drives: setpoint → safety guard → units → RPDO at its
-stamp.
+"""Stamped current setpoints played onto the drives: setpoint → safety guard → units → RPDO of its
+SYNC cycle (or at its stamp).
 
-:class:`SetpointPlayer` composes the three parts of the drive layer that every stamped setpoint
-goes through:
+:class:`SetpointPlayer` is the one setpoint path, wherever it runs: in the bridge's process its
+link to the drives is the :class:`~ff_hwbridge.drive.epos.EposMaster` itself; in the player
+process (``drive.player_process``) it is that process's own bus connection
+(:class:`~ff_hwbridge.drive.player_process.ChildLink`), which the same class drives. Either link
+(:class:`DriveLink`) does the guard + units (``prepare_currents``), sends the RPDOs
+(``send_prepared``), repeats the value in force in every SYNC cycle, and raises the reset epoch
+at a safe state / fault reset. The player composes the three parts every stamped setpoint goes
+through:
 
 1. ``submit(stamp_ns, currents_A)`` feeds the setpoint watchdog (a motion runs after a profile's
    setpoint that is not its last, or after a manual setpoint with a non-zero current; a manual
@@ -38,22 +44,59 @@ system clock).
 """
 from __future__ import annotations
 
-import sys
 import time
 from collections import deque
 from dataclasses import dataclass, replace
-from typing import Any, Callable, Optional, Self, Sequence
+from typing import Any, Callable, Optional, Protocol, Self, Sequence
+
+import numpy as np
 
 from ff_hwbridge.drive.config import BridgeConfig
 from ff_hwbridge.drive.cycle import CycleScheduler, Resolved
-from ff_hwbridge.drive.epos import EposMaster, PreparedCommand
+from ff_hwbridge.drive.node import PreparedCommand
+from ff_hwbridge.drive.safety import SafetyGuard
 from ff_hwbridge.drive.placement import GridPlacement
+from ff_hwbridge.drive.realtime import SWITCH_INTERVAL, RealtimeConfig, setup_process
 from ff_hwbridge.drive.scheduler import StampScheduler, SwitchStats
+from ff_hwbridge.drive.sync_watch import SyncWatch
+from ff_hwbridge.protocol.units import DriveUnits
 
-__all__ = ["AppliedSetpoint", "PlayerConfig", "SetpointPlayer", "SetpointRejected"]
+__all__ = ["SWITCH_INTERVAL", "AppliedSetpoint", "DriveLink", "PlayerConfig", "SetpointPlayer", "SetpointRejected"]
 
 
-def _sync_keeps_time(master: EposMaster) -> bool:
+class DriveLink(Protocol):
+    """What a player needs of the drives: ``EposMaster`` in the bridge's process, the player
+    process's ``ChildLink`` in its own."""
+
+    config: BridgeConfig
+    guard: SafetyGuard
+    sync_watch: SyncWatch
+    echo: bool
+    pending_fn: Callable[[], bool]
+
+    @property
+    def joint_names(self) -> tuple[str, ...]: ...
+    @property
+    def units(self) -> tuple[DriveUnits, ...]: ...
+    @property
+    def latched(self) -> bool: ...
+    @property
+    def fault_reason(self) -> Optional[str]: ...
+    @property
+    def reset_epoch_ns(self) -> int: ...
+    def note_setpoint(self, motion_running: bool) -> None: ...
+    def prepare_currents(self, amps: Sequence[float]) -> PreparedCommand: ...
+    def send_prepared(self, prepared: PreparedCommand) -> tuple[int, ...]: ...
+    def command_zero(self) -> None: ...
+    def applied_currents(self) -> np.ndarray: ...
+    def echo_time(self, marks: Sequence[int]) -> Optional[int]: ...
+    def trip(self, reason: str) -> Optional[str]: ...
+    def set_receiver_priority(self, priority: int) -> bool: ...
+    def add_fault_listener(self, listener: Callable[[str], None]) -> None: ...
+    def remove_fault_listener(self, listener: Callable[[str], None]) -> None: ...
+
+
+def _sync_keeps_time(master: DriveLink) -> bool:
     """Whether the SYNC grid's clock may open a setpoint's window when the SYNC frame before it
     has not been seen here yet: when SYNC comes from a timer that keeps time while the frame's way
     to this process may not (another producer; the kernel's broadcast manager for this master's
@@ -68,7 +111,6 @@ class SetpointRejected(ValueError):
     """A setpoint the player does not queue (wrong number of currents, safe state latched)."""
 
 
-SWITCH_INTERVAL = 0.0002  # s, thread switch interval of a process running a synchronous player
 LATE_THRESHOLD = 0.0005   # s: a setpoint sent more than this after its stamp counts as late
 MAX_RECORDS = 200_000     # (stamp, sent) pairs the statistics keep
 MAX_REPORTS = 10_000      # applied setpoints waiting for ``take_applied()`` (oldest dropped)
@@ -140,7 +182,7 @@ class PlayerBase:
     master (its pending check, its safe-state listener), the context manager, handing over the
     applied setpoints and the switch part of the diagnostics."""
 
-    master: EposMaster
+    master: DriveLink
     _reports: deque[AppliedSetpoint]
     _n_joints: int
 
@@ -224,13 +266,15 @@ class SetpointPlayer(PlayerBase):
     """Applies stamped current setpoints of one drive group at their stamps (see the module
     docstring). ``config`` None: the timing of ``master.config``."""
 
-    def __init__(self, master: EposMaster, config: Optional[PlayerConfig] = None, *,
+    def __init__(self, master: DriveLink, config: Optional[PlayerConfig] = None, *,
                  clock_ns: Callable[[], int] = time.time_ns, name: str = "ff-setpoint-player") -> None:
         self.master = master
         self.config = config if config is not None else PlayerConfig.from_bridge(master.config)
         self._clock_ns = clock_ns
         self._n_joints = len(master.joint_names)
         self._reports: deque[AppliedSetpoint] = deque(maxlen=MAX_REPORTS)
+        #: called with each applied setpoint as it is reported (the player process's pipe)
+        self.on_applied: Optional[Callable[[AppliedSetpoint], None]] = None
         self.synchronous = master.config.synchronous
         self._cycle: Optional[CycleScheduler] = None
         if self.synchronous:
@@ -259,8 +303,7 @@ class SetpointPlayer(PlayerBase):
         interval at most ``SWITCH_INTERVAL`` (the bus receiver and this thread get the GIL back
         from busy threads that fast) and the bus receiver under the thread's SCHED_FIFO."""
         if self._cycle is not None:
-            if sys.getswitchinterval() > SWITCH_INTERVAL:
-                sys.setswitchinterval(SWITCH_INTERVAL)
+            setup_process(RealtimeConfig(switch_interval=SWITCH_INTERVAL), "setpoint player")
             if self.config.rt_priority > 0:
                 self.master.set_receiver_priority(self.config.rt_priority)
         self._scheduler.start()
@@ -334,7 +377,9 @@ class SetpointPlayer(PlayerBase):
                         "send_after_sync_p99_us": c.send_after_sync_p99_us,
                         "sync_count": w.count, "sync_period_us": w.period_us,
                         "sync_jitter_p99_us": w.jitter_p99_us, "sync_jitter_max_us": w.jitter_max_us,
-                        "sync_missing": w.missing, "sync_age_ms": w.age_ms})
+                        "sync_missing": w.missing, "sync_age_ms": w.age_ms,
+                        "stale_setpoints": self._cycle.stale, "stale_stops": self._cycle.stale_stops,
+                        "player_errors": self._cycle.errors})
         return out
 
     # --- the scheduler thread ---------------------------------------------------------------
@@ -355,8 +400,8 @@ class SetpointPlayer(PlayerBase):
         if q.last:
             master.guard.end_motion()
         currents = tuple(float(a) for a in master.applied_currents())
-        self._reports.append(AppliedSetpoint(sent_ns, stamp_ns, currents, q.seq, q.profile_id,
-                                             q.last, cmd.reason, cmd.latched))
+        self._tell(AppliedSetpoint(sent_ns, stamp_ns, currents, q.seq, q.profile_id, q.last, cmd.reason,
+                                   cmd.latched))
 
     def _send_cycle(self, stamp_ns: int, prepared: _Prepared) -> tuple[Optional[tuple[int, ...]], Any]:
         """During the cycle before its SYNC: send the RPDOs (the drives latch them at it)."""
@@ -371,9 +416,13 @@ class SetpointPlayer(PlayerBase):
         """Its SYNC has come: report it applied at the SYNC's bus instant."""
         prepared, currents = r.token
         q, cmd = prepared.queued, prepared.command.command
-        self._reports.append(AppliedSetpoint(r.applied_ns, r.stamp_ns, currents, q.seq, q.profile_id,
-                                             q.last, cmd.reason, cmd.latched, r.sent_ns,
-                                             r.missed_cycles))
+        self._tell(AppliedSetpoint(r.applied_ns, r.stamp_ns, currents, q.seq, q.profile_id, q.last,
+                                   cmd.reason, cmd.latched, r.sent_ns, r.missed_cycles))
+
+    def _tell(self, applied: AppliedSetpoint) -> None:
+        self._reports.append(applied)
+        if self.on_applied is not None:
+            self.on_applied(applied)
 
     def _on_fault(self, reason: str) -> None:
         """Safe state latched (master's thread): nothing pending may be applied any more."""

@@ -1,34 +1,31 @@
 """The synchronous setpoint player in a process of its own (``player_process: true``).
 
 The bridge's process runs the ROS executor, whose threads hold the GIL for ms at a time; a player
-thread there, SCHED_FIFO or not, waits for the GIL before each send. :class:`ProcessPlayer` has
-the same interface as :class:`~ff_hwbridge.drive.player.SetpointPlayer` but plays in a child
-process (``multiprocessing``, spawn) that imports no ROS and runs no executor:
+thread there waits for the GIL before each send. :class:`ProcessPlayer` has the interface of
+:class:`~ff_hwbridge.drive.player.SetpointPlayer` and runs THE SAME player class in a child
+process (``multiprocessing``, spawn) that imports no ROS and runs no executor; the child is a
+thin wrapper:
 
-- the child opens its own python-can connection to the bus (socketcan allows several sockets;
-  the simulation's hub several clients) with ``receive_own_messages`` where the interface can,
-  watches SYNC itself (:class:`~ff_hwbridge.drive.sync_watch.SyncWatch` fed by its receiver
-  thread), places each stamp on the grid (:class:`~ff_hwbridge.drive.placement.GridPlacement`),
-  and runs the :class:`~ff_hwbridge.drive.cycle.CycleScheduler`: safety clamp
-  (:class:`~ff_hwbridge.drive.safety.SafetyGuard`: ±limit A, NaN → 0 A), units (raw 0x6071 ‰ /
-  0x2030 mA) and RPDO1 (controlword + setpoint, CiA 402) for the right cycle; every SYNC it
-  sees opens a cycle in which an enabled drive gets its RPDO1 once (``_on_cycle``): the value in
-  force for that cycle again when no new setpoint went out (or, with ``setpoint_lead``, was
-  scheduled) for it; the drive's interpolation-period supervision (0x60C2, EMCY 0x8250) is
-  what stops a drive whose player froze;
+- :class:`ChildLink` is the player's link to the drives there: its own python-can connection
+  (``receive_own_messages`` where the interface has it; socketcan allows several sockets, the
+  simulation's hub several clients), its own :class:`~ff_hwbridge.drive.sync_watch.SyncWatch`
+  fed by its receiver thread, guard + units (``prepare_currents``: ±limit A, NaN → 0 A, raw
+  0x6071 ‰ / 0x2030 mA), RPDO1 per joint (controlword + setpoint, CiA 402) and, every SYNC it
+  sees, each enabled drive's RPDO1 once, the value in force repeated when no new setpoint went
+  out in that cycle (the drive's interpolation-period supervision, 0x60C2 / EMCY 0x8250, is what
+  stops a drive whose player froze);
 - what it may send comes from the master through shared memory (:meth:`EposMaster.gate`: per
   joint the controlword and whether a current may be sent; the master updates it before it
   sends a new controlword or its safe-state reaction), so the child never re-enables a drive
   the master stops and sends 0 A while the safe state is latched;
+- a safe state or fault reset raises the reset epoch (wall ns, shared memory): the child forgets
+  the value in force (0 until a new setpoint), drops what is queued and refuses setpoints
+  stamped before it, as the player does in the bridge's process;
 - the bridge's process only feeds it (``submit`` → a pipe) and reports: applied setpoints,
-  missed cycles, faults and the statistics come back over the pipe. A fault the child reports
-  (a miss beyond ``missed_cycle_tolerance``, a setpoint that cannot be placed, a failing send)
-  latches the master's safe state with its reason; a child that dies or stops reporting for
-  ``DEAD_AFTER`` s latches it too (the drive stops by itself a cycle or two after the last
-  RPDO: EMCY 0x8250);
-- a safe state or fault reset raises the gate's reset epoch (wall ns): the child forgets the
-  value in force (0 until a new setpoint), drops queued setpoints and ignores any stamped
-  before the epoch.
+  faults and the statistics come back over the pipe. A fault the child reports (a miss beyond
+  ``missed_cycle_tolerance``, a setpoint that cannot be placed, a failing send) latches the
+  master's safe state with its reason; a child that dies or stops reporting for ``DEAD_AFTER``
+  s latches it too (the drive stops by itself a cycle or two after the last RPDO: EMCY 0x8250).
 
 The master keeps the state machine, the watchdogs and the reactions; while the player owns an
 enabled drive it sends RPDO1 with 0 current only and no refresh of its own
@@ -39,34 +36,32 @@ from __future__ import annotations
 import logging
 import multiprocessing as mp
 import struct
-import sys
 import threading
 import time
 from collections import deque
-from dataclasses import dataclass
 from typing import Any, Callable, Optional, Self, Sequence
 
 import can
+import numpy as np
 
-from ff_hwbridge.drive.bus import send_at
-from ff_hwbridge.drive.cycle import CycleScheduler, Resolved
-from ff_hwbridge.drive.gc_pauses import IdleCollector, freeze_heap, hold_full_collections
-from ff_hwbridge.drive.epos import ECHO_INTERFACES, SYNC_COB_ID, EposMaster
-from ff_hwbridge.drive.placement import GridPlacement
-from ff_hwbridge.drive.player import (MAX_REPORTS, SWITCH_INTERVAL, AppliedSetpoint, PlayerBase, PlayerConfig,
-                                      SetpointPlayer)
+from ff_hwbridge.drive.bus import open_bus
+from ff_hwbridge.drive.config import BridgeConfig
+from ff_hwbridge.drive.epos import EposMaster
+from ff_hwbridge.drive.node import ECHO_INTERFACES, SYNC_COB_ID, PreparedCommand
+from ff_hwbridge.drive.player import (MAX_REPORTS, AppliedSetpoint, PlayerBase, PlayerConfig, SetpointPlayer,
+                                      SetpointRejected)
+from ff_hwbridge.drive.realtime import SWITCH_INTERVAL, IdleCollector, RealtimeConfig, setup_process, use_fifo
 from ff_hwbridge.drive.safety import SafetyGuard
-from ff_hwbridge.drive.scheduler import SwitchStats, fifo_process, use_fifo
+from ff_hwbridge.drive.scheduler import SwitchStats
+from ff_hwbridge.drive.sync_watch import SyncWatch
 from ff_hwbridge.protocol.epos_od import rpdo_layout, struct_format
 from ff_hwbridge.protocol.units import DriveUnits
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ProcessPlayer", "make_player"]
+__all__ = ["ChildLink", "ProcessPlayer", "make_player"]
 
 STATUS_PERIOD = 0.02      # s, the child's status report (pending, heartbeat)
-ECHO_KEEP = 4096          # echoes remembered per joint (their numbers and bus instants)
-ECHO_MATCH_NS = 2_000     # a scheduled frame's echo carries its instant (float s: within this)
 STATS_PERIOD = 0.25       # s, ... with statistics refreshed this often
 DEAD_AFTER = 2.0          # s without a status report: the player process counts as dead
 START_TIMEOUT = 30.0      # s for the child to import, open the bus and report ready
@@ -80,48 +75,24 @@ def make_player(master: EposMaster, config: Optional[PlayerConfig] = None) -> An
     return SetpointPlayer(master, config)
 
 
-@dataclass(frozen=True)
-class _Joint:
-    node_id: int
-    units: DriveUnits
-    limit: float              # A
-    rx_fmt: str               # RPDO1 struct format (controlword, setpoint)
-
-
-@dataclass(frozen=True)
-class _Spec:
-    bus: dict
-    echo: bool
-    joints: tuple[_Joint, ...]
-    period_s: float
-    cycle_tolerance: float
-    missed_tolerance: int
-    rt_priority: int
-    setpoint_timeout: float
-    stall_dump: float = 0.0
-    lead: float = 0.0         # s: setpoints handed to the bus's transmit schedule this early
-
-
 # --- the child ------------------------------------------------------------------------------------
-class _Child:
-    """What runs in the player process (see the module docstring)."""
+class ChildLink:
+    """The player's link to the drives in the player process (see the module docstring): a
+    :class:`~ff_hwbridge.drive.player.DriveLink`. ``gate``: shared ints [cw_0, ok_0, cw_1, ok_1,
+    ..., latched]; ``epoch``: shared 64-bit value, the master's reset epoch (wall ns);
+    ``tell(*msg)``: to the bridge's process."""
 
-    def __init__(self, spec: _Spec, conn: Any, gate: Any, epoch: Any = None) -> None:
-        from ff_hwbridge.drive.bus import open_bus
-        from ff_hwbridge.drive.sync_watch import SyncWatch
-
-        self.spec, self.conn, self.gate = spec, conn, gate
-        self.epoch_ref = epoch                # shared 64-bit value: the master's reset epoch (ns)
-        self.n = len(spec.joints)
-        self._conn_lock = threading.Lock()
-        self._send_lock = threading.Lock()
-        cfg = dict(spec.bus)
-        if spec.echo:
+    def __init__(self, config: BridgeConfig, gate: Any, epoch: Any, tell: Callable[..., None]) -> None:
+        self.config = config
+        self.gate, self._epoch, self.tell = gate, epoch, tell
+        self.n = len(config.joints)
+        cfg = config.bus.as_dict()
+        self.echo = cfg.get("interface") in ECHO_INTERFACES
+        if self.echo:
             cfg["receive_own_messages"] = True
         # only SYNC and the setpoint RPDOs (our echoes) are of interest here; given at open, the
         # simulation's hub applies them on its side too and sends this process nothing else
-        # (at 1 kHz SYNC that spares it and the hub ~2000 TPDO frames a second)
-        ids = [SYNC_COB_ID] + [0x200 + j.node_id for j in spec.joints]
+        ids = [SYNC_COB_ID] + [0x200 + j.node_id for j in config.joints]
         filters = [can.typechecking.CanFilter(can_id=i, can_mask=0x7FF) for i in ids]
         cfg["can_filters"] = filters
         self.bus = open_bus(cfg)
@@ -129,216 +100,164 @@ class _Child:
             self.bus.set_filters(filters)
         except (NotImplementedError, can.CanError, AttributeError):
             pass
-        self.watch = SyncWatch(spec.period_s)
-        self.guard = SafetyGuard([j.limit for j in spec.joints], spec.setpoint_timeout)
-        self.rx_ids = {0x200 + j.node_id: i for i, j in enumerate(spec.joints)}
+        self.sync_watch = SyncWatch(config.sync_period)
+        self.guard = SafetyGuard(config.current_limits, config.setpoint_timeout)
+        self.pending_fn: Callable[[], bool] = lambda: False
+        self._units = [j.units for j in config.joints]
+        self._limits = [float(j.current_limit) for j in config.joints]
+        self._fmt = [struct_format(rpdo_layout(u.family)) for u in self._units]
+        self._cob = [0x200 + j.node_id for j in config.joints]
+        self._rx = {cob: i for i, cob in enumerate(self._cob)}
+        self._lock = threading.Lock()
+        self.raw = [0] * self.n                   # the value in force, per joint
+        self.cycle_sent = [-1] * self.n           # SYNC count when each joint's latest RPDO went
         self.tx_seq = [0] * self.n
         self.echo_seq = [0] * self.n
-        # per joint, the frames handed to the bus not yet echoed: [tx number, data, scheduled
-        # wall ns (0: sent at once)]
-        self.sent_data: list[deque[list]] = [deque(maxlen=1024) for _ in range(self.n)]
-        # per joint: tx number of an echoed frame -> its bus instant (wall ns), the latest ECHO_KEEP
-        self.echo_log: list[dict[int, int]] = [{} for _ in range(self.n)]
-        self.last_frame: list[Optional[bytes]] = [None] * self.n
-        self.raw = [0] * self.n               # the latest setpoint handed to the bus, per joint
-        # per joint: (SYNC count of the cycle a frame lies in, its raw setpoint), sorted, and the
-        # value in force before the oldest kept: what each cycle's RPDO repeats
-        self.planned: list[list[tuple[int, int]]] = [[] for _ in range(self.n)]
-        self.base = [0] * self.n
-        self.repeats = 0                      # RPDOs repeated in a cycle without a new one
-        self.repeats_late = 0                 # with a lead: cycles whose repeat came too late
-        self.epoch = 0                        # the gate's reset epoch last acted on (wall ns)
+        self._sent: list[deque[tuple[int, bytes]]] = [deque(maxlen=1024) for _ in range(self.n)]
+        self._echo_log: list[dict[int, int]] = [{} for _ in range(self.n)]
+        self.repeats = 0
         self.received = 0
-        self.stopped = threading.Event()
-        self.sched = CycleScheduler(self.watch, self._send, self._report, echo_time=self._echo_time,
-                                    prepare=self._prepare, on_fault=self._fault,
-                                    tolerance=spec.cycle_tolerance,
-                                    missed_tolerance=spec.missed_tolerance,
-                                    rt_priority=spec.rt_priority, name="ff-player-process",
-                                    stall_dump=spec.stall_dump, lead=spec.lead)
-        self.placement = GridPlacement(self.sched.grid)
+        self.epoch = 0                            # the reset epoch last acted on
+        self._listeners: list[Callable[[str], None]] = []
+        self._rx_thread: Optional[threading.Thread] = None
         self.rx_rt = False
-        self.watch.add_listener(self._on_cycle)
+        self.stopped = threading.Event()
+        self.sync_watch.add_listener(self._on_cycle)
 
-    def tell(self, *msg: Any) -> None:
-        with self._conn_lock:
-            try:
-                self.conn.send(msg)
-            except (OSError, EOFError, BrokenPipeError):
-                self.stopped.set()
+    # --- DriveLink ----------------------------------------------------------------------------
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return self.config.joint_names
 
-    # gate in shared memory: [cw_0, ok_0, cw_1, ok_1, ..., latched]; reset epoch apart
-    def _gate(self, i: int) -> tuple[int, bool]:
-        return int(self.gate[2 * i]), bool(self.gate[2 * i + 1]) and not self.gate[2 * self.n]
+    @property
+    def units(self) -> tuple[DriveUnits, ...]:
+        return tuple(self._units)
 
-    def _reset_epoch(self) -> int:
-        """Wall ns of the latest safe state / fault reset (0: none): setpoints stamped before it
-        are never sent, and the value in force was 0 from it on."""
-        return int(self.epoch_ref.value) if self.epoch_ref is not None else 0
+    @property
+    def latched(self) -> bool:
+        return bool(self.gate[2 * self.n])
 
-    def _check_epoch(self) -> int:
-        """Act on a new reset epoch (any thread): forget the value in force, drop what is
-        queued. Returns the epoch."""
-        e = self._reset_epoch()
-        if e != self.epoch:
-            with self._send_lock:
-                if e != self.epoch:
-                    self.epoch = e
-                    for i in range(self.n):
-                        self._forget(i)
-            self.sched.clear()
-        return e
+    @property
+    def fault_reason(self) -> Optional[str]:
+        return "safe state latched by the bridge" if self.latched else None
 
-    def _forget(self, i: int) -> None:
-        """Joint ``i``'s value in force is 0 from now on (call with ``_send_lock`` held)."""
-        self.planned[i].clear()
-        self.base[i] = 0
-        self.raw[i] = 0
+    @property
+    def reset_epoch_ns(self) -> int:
+        return int(self._epoch.value) if self._epoch is not None else 0
 
-    def _prepare(self, q: tuple) -> tuple:
-        """Safety clamp (±limit A, NaN → 0 A) and units; 0 A while the bridge's safe state is
-        latched (the gate's last entry) or for a setpoint stamped before the reset epoch."""
-        cmd = self.guard.filter(q[1])
-        if self.gate[2 * self.n]:
-            return q, (0,) * self.n, "safe state latched by the bridge", True
-        if q[0] < self._check_epoch():
-            return q, (0,) * self.n, "stamped before the latest safe state / fault reset", True
-        raws = tuple(j.units.amps_to_setpoint(float(a), limit=j.limit)
-                     for j, a in zip(self.spec.joints, cmd.currents))
-        return q, raws, cmd.reason, cmd.latched
+    def note_setpoint(self, motion_running: bool) -> None:
+        """The bridge's master runs the setpoint watchdog (fed where ``submit`` is called)."""
 
-    def _frame(self, i: int, raw: int) -> Optional[bytes]:
-        cw, ok = self._gate(i)
-        if not ok:
-            return None                       # the master owns this drive's RPDO now
-        return struct.pack(self.spec.joints[i].rx_fmt, cw & 0xFFFF, int(raw))
+    def add_fault_listener(self, listener: Callable[[str], None]) -> None:
+        self._listeners.append(listener)
 
-    def _cycle_of(self, at_ns: Optional[int]) -> int:
-        """SYNC count of the cycle a frame lies in that is sent now (``at_ns`` None: the cycle
-        the latest SYNC seen opened) or scheduled for wall instant ``at_ns``."""
-        g = self.watch.grid()
-        if g is None:
-            return 0
-        ev, nominal = g
-        if at_ns is None:
-            return ev.count
-        p = self.watch.period_ns
-        return ev.count + (at_ns - nominal) // p
+    def remove_fault_listener(self, listener: Callable[[str], None]) -> None:
+        if listener in self._listeners:
+            self._listeners.remove(listener)
 
-    def _note(self, i: int, cycle: int, raw: int, now: bool) -> None:
-        """Record joint ``i``'s frame in ``cycle`` (call with ``_send_lock`` held); a frame
-        sent at once on a bus with a transmit schedule replaced the ones scheduled after it."""
-        plan = self.planned[i]
-        if now and self.spec.lead > 0:
-            while plan and plan[-1][0] > cycle:
-                plan.pop()
-        k = len(plan)
-        while k and plan[k - 1][0] > cycle:
-            k -= 1
-        if k and plan[k - 1][0] == cycle:
-            plan[k - 1] = (cycle, int(raw))     # the later frame in one cycle is latched
-        else:
-            plan.insert(k, (cycle, int(raw)))
+    def trip(self, reason: str) -> Optional[str]:
+        """A fault of the player here: the bridge's master latches the safe state with it."""
+        self.tell("fault", reason)
+        return reason
 
-    def _in_force(self, i: int, cycle: int) -> int:
-        """Joint ``i``'s raw setpoint in force in ``cycle`` (the last frame at or before it)."""
-        for c, raw in reversed(self.planned[i]):
-            if c <= cycle:
-                return raw
-        return self.base[i]
+    def set_receiver_priority(self, priority: int) -> bool:
+        t = self._rx_thread
+        if t is None or not t.is_alive():
+            return False
+        self.rx_rt = use_fifo(priority, "player process bus receiver", tid=t.native_id or 0)
+        return self.rx_rt
 
-    def _tx(self, i: int, data: bytes, raw: int, at_ns: Optional[int] = None) -> None:
-        """Send RPDO1 ``data`` (setpoint ``raw``) to joint ``i``, at once or (``at_ns``, wall ns)
-        through the bus's transmit schedule; call with ``_send_lock`` held, so that a repeat
-        never goes out between a setpoint and the record of it: a repeat of the previous
-        setpoint after a new one would be what the drive latches at the SYNC."""
-        entry = [self.tx_seq[i] + 1, data, int(at_ns or 0)]
-        self.sent_data[i].append(entry)
-        msg = can.Message(arbitration_id=0x200 + self.spec.joints[i].node_id, data=data,
-                          is_extended_id=False)
-        scheduled = False
-        if at_ns is not None:
-            scheduled = send_at(self.bus, msg, at_ns)
-            if not scheduled:
-                entry[2] = 0                    # its instant had passed: sent now
-        else:
-            self.bus.send(msg)
-        self.tx_seq[i] += 1
-        self.last_frame[i] = data
-        self.raw[i] = int(raw)
-        self._note(i, self._cycle_of(at_ns if scheduled else None), raw, not scheduled)
+    def prepare_currents(self, amps: Sequence[float]) -> PreparedCommand:
+        """Guard (±limit A, NaN → 0 A; 0 A while the bridge's safe state is latched) + units."""
+        cmd = self.guard.filter(amps)
+        if self.latched:
+            return PreparedCommand(cmd, (0,) * self.n)
+        return PreparedCommand(cmd, tuple(u.amps_to_setpoint(float(a), limit=lim)
+                                          for u, a, lim in zip(self._units, cmd.currents, self._limits)))
 
-    def _on_cycle(self, ev: Any) -> None:
-        """A SYNC seen (receiver thread; ``ev`` a SyncEvent): the cycle it opens gets each
-        enabled drive's RPDO1 once: the value in force for it again when no frame went out (or
-        is scheduled) in it. With a lead the repeat is scheduled mid-cycle (a frame sent at
-        once would replace the setpoints scheduled after it)."""
-        self._check_epoch()
-        lead = self.spec.lead > 0
-        for i in range(self.n):
-            with self._send_lock:
+    def send_prepared(self, prepared: PreparedCommand) -> tuple[int, ...]:
+        """One RPDO per joint the gate lets this player drive (0 for the others: the master owns
+        their RPDO); per joint the RPDO count including it (0: none sent)."""
+        self.check_epoch()
+        marks = []
+        for i, raw in enumerate(prepared.raw):
+            with self._lock:            # a cycle's repeat never goes between a send and its record
                 cw, ok = self._gate(i)
                 if not ok:
-                    self._forget(i)             # the master owns the RPDO; 0 when it hands back
-                    continue
-                plan = self.planned[i]
-                while len(plan) > 1 and plan[0][0] < ev.count - 1:
-                    self.base[i] = plan.pop(0)[1]
-                if any(c == ev.count for c, _ in plan):
-                    continue
-                raw = self._in_force(i, ev.count)
-                data = struct.pack(self.spec.joints[i].rx_fmt, cw & 0xFFFF, raw)
-                at_ns: Optional[int] = None
-                if lead:
-                    g = self.watch.grid()
-                    if g is None:
-                        continue
-                    p = self.watch.period_ns
-                    at_ns = max(g[1] + p // 2, time.time_ns() + 200_000)
-                    if at_ns > g[1] + p - p // 10:
-                        self.repeats_late += 1    # too late to schedule within its cycle
-                        continue
-                self.repeats += 1
-                self._tx(i, data, raw, at_ns)
-
-    def _send(self, stamp_ns: int, prepared: tuple,
-              at_ns: Optional[int] = None) -> tuple[Optional[tuple[int, ...]], Any]:
-        q, raws, reason, latched = prepared
-        marks: list[int] = []
-        echo = self.spec.echo
-        for i, raw in enumerate(raws):
-            with self._send_lock:
-                data = self._frame(i, raw)
-                if data is None:
                     self.raw[i] = 0
-                    echo = False
+                    marks.append(0)
                     continue
-                self._tx(i, data, raw, at_ns)
+                self._tx(i, cw, int(raw))
                 marks.append(self.tx_seq[i])
-        currents = tuple(j.units.setpoint_to_amps(r) for j, r in zip(self.spec.joints, self.raw))
-        return (tuple(marks) if echo else None), (q, currents, reason, latched)
+        return tuple(marks)
 
-    def _report(self, r: Resolved) -> None:
-        q, currents, reason, latched = r.token
-        self.tell("applied", r.applied_ns, r.stamp_ns, currents, q[2], q[3], q[4], reason, latched,
-                  r.sent_ns, r.missed_cycles)
+    def command_zero(self) -> None:
+        """The value in force 0 on every joint (sent where the gate lets this player drive)."""
+        self.send_prepared(PreparedCommand(self.guard.filter([0.0] * self.n), (0,) * self.n))
 
-    def _fault(self, reason: str) -> None:
-        self.tell("fault", reason)
+    def applied_currents(self) -> np.ndarray:
+        return np.array([u.setpoint_to_amps(r) for u, r in zip(self._units, self.raw)])
 
-    def _echo_time(self, marks: Sequence[int]) -> Optional[int]:
+    def echo_time(self, marks: Sequence[int]) -> Optional[int]:
         t = 0
         for i, m in enumerate(marks):
-            hit = self.echo_log[i].get(m)
+            if m <= 0:
+                continue
+            hit = self._echo_log[i].get(m)
             if hit is None:
                 return None
             t = max(t, hit)
         return t
 
-    # --- threads ----------------------------------------------------------------------------
+    # --- the RPDOs ----------------------------------------------------------------------------
+    def _gate(self, i: int) -> tuple[int, bool]:
+        return int(self.gate[2 * i]), bool(self.gate[2 * i + 1]) and not self.gate[2 * self.n]
+
+    def check_epoch(self) -> None:
+        """A new reset epoch (a safe state / fault reset in the master): the value in force is
+        0 from now on, and the player drops what it has queued (its fault listener)."""
+        e = self.reset_epoch_ns
+        if e == self.epoch:
+            return
+        with self._lock:
+            if e == self.epoch:
+                return
+            self.epoch = e
+            self.raw = [0] * self.n
+        for fn in list(self._listeners):
+            fn("reset epoch")
+
+    def _tx(self, i: int, cw: int, raw: int) -> None:
+        """RPDO1 of joint ``i`` now (call with ``_lock`` held)."""
+        data = struct.pack(self._fmt[i], cw & 0xFFFF, raw)
+        self._sent[i].append((self.tx_seq[i] + 1, data))
+        self.bus.send(can.Message(arbitration_id=self._cob[i], data=data, is_extended_id=False))
+        self.tx_seq[i] += 1
+        self.raw[i] = raw
+        self.cycle_sent[i] = self.sync_watch.count
+
+    def _on_cycle(self, ev: Any) -> None:
+        """A SYNC seen (receiver thread): each enabled drive's RPDO1 once in the cycle it opens,
+        the value in force again when nothing new went out in it."""
+        self.check_epoch()
+        for i in range(self.n):
+            with self._lock:
+                cw, ok = self._gate(i)
+                if not ok:
+                    self.raw[i] = 0             # the master owns the RPDO; 0 when it hands back
+                    continue
+                if self.cycle_sent[i] >= ev.count:
+                    continue
+                self.repeats += 1
+                self._tx(i, cw, self.raw[i])
+
+    def start_receiver(self) -> None:
+        """Start the receiver thread (``receive``)."""
+        self._rx_thread = threading.Thread(target=self.receive, name="ff-player-rx", daemon=True)
+        self._rx_thread.start()
+
     def receive(self) -> None:
-        if self.spec.rt_priority > 0:
-            self.rx_rt = use_fifo(self.spec.rt_priority, "player process bus receiver")
+        """The receiver thread: SYNC into the watch, our own RPDOs' echoes (their bus instants)."""
         failures = 0
         while not self.stopped.is_set():
             try:
@@ -351,8 +270,7 @@ class _Child:
                 if failures == 1:
                     log.exception("player process: bus receive failed")
                 if failures >= 20:            # the bus is gone: tell the bridge, stop
-                    self._fault(f"setpoint player process: the bus is gone ({type(exc).__name__}: "
-                                f"{exc})")
+                    self.tell("fault", f"setpoint player process: the bus is gone ({type(exc).__name__}: {exc})")
                     self.stopped.set()
                     return
                 time.sleep(0.01)
@@ -361,121 +279,106 @@ class _Child:
                 continue
             cid = msg.arbitration_id
             if cid == SYNC_COB_ID:
-                self.watch.observe(msg.timestamp, tuple(self.echo_seq) if self.spec.echo else None)
-            elif cid in self.rx_ids:
-                i = self.rx_ids[cid]
+                self.sync_watch.observe(msg.timestamp, tuple(self.echo_seq) if self.echo else None)
+            elif cid in self._rx:
+                i = self._rx[cid]
                 ts = int(round(msg.timestamp * 1e9)) if msg.timestamp else time.time_ns()
-                seq = self._own(self.sent_data[i], bytes(msg.data), ts)
-                if seq > 0:                           # our own frame, echoed by the bus
+                sent = self._sent[i]
+                # the bus echoes our frames in send order; the master's frames of this COB-ID
+                # (its controlword, its safe-state zero) are not ours
+                if sent and sent[0][1] == bytes(msg.data):
+                    seq = sent.popleft()[0]
                     self.echo_seq[i] += 1
-                    log_ = self.echo_log[i]
+                    log_ = self._echo_log[i]
                     log_[seq] = ts
-                    log_.pop(seq - ECHO_KEEP, None)
+                    log_.pop(seq - 4096, None)
 
-    def _own(self, sent: "deque[list]", data: bytes, ts_ns: int) -> int:
-        """The tx number of the frame an echo (``data``, bus instant ``ts_ns``) is of, removed
-        from ``sent`` (0: not ours). Without a transmit schedule the bus echoes in send order.
-        With one, frames go on the bus in the order of their instants, not of their hand-over
-        (a setpoint scheduled cycles ahead, the repeats of the cycles before it handed over
-        later), and a frame sent at once drops those scheduled after it, which never echo: a
-        scheduled frame is known by its instant (the echo carries it), one sent at once is the
-        oldest of its data; entries scheduled well before this echo are gone."""
-        if not sent:
-            return 0
-        if self.spec.lead <= 0:
-            if sent[0][1] == data:
-                return int(sent.popleft()[0])
-            return 0
-        hit = None
-        for e in sent:
-            if e[1] != data:
-                continue
-            if e[2] and abs(e[2] - ts_ns) <= ECHO_MATCH_NS:
-                hit = e
-                break
-            if not e[2] and hit is None:
-                hit = e
-        if hit is None:
-            return 0
-        sent.remove(hit)
-        stale = ts_ns - 2 * self.watch.period_ns
-        while sent and 0 < sent[0][2] < stale:
-            sent.popleft()                            # dropped by the bus: never echoed
-        return int(hit[0])
-
-    def status(self) -> None:
-        if self.spec.rt_priority > 0:         # the heartbeat to the bridge
-            use_fifo(self.spec.rt_priority, "player process status")
-        idle_gc = IdleCollector(lambda: self.sched.pending == 0)
-        figures_at, was_pending = 0.0, False
-        while not self.stopped.wait(STATUS_PERIOD):
-            idle_gc.tick()
-            self._check_epoch()
-            now = time.monotonic()
-            pending = self.sched.pending
-            # percentiles: numpy, but not for free; fresh at once when a stream has ended
-            if now - figures_at >= STATS_PERIOD or (was_pending and not pending):
-                figures_at = now
-                s, c, w = self.sched.stats(), self.sched.cycle_stats(), self.watch.stats()
-            was_pending = pending > 0
-            g = self.sched.grid()
-            self.tell("status", self.received, pending, s, c, w.as_dict(), g,
-                      int(self.sched.rt_active and (self.rx_rt or self.spec.rt_priority <= 0)),
-                      self.sched.stale, self.sched.stale_stops, self.sched.errors,
-                      self.repeats, self.repeats_late)
-
-    def run(self) -> None:
-        sys.setswitchinterval(SWITCH_INTERVAL)
-        # a full collection would hold the scheduler thread off the GIL: the heap built so far
-        # is frozen, and later full collections run only while nothing is pending
-        freeze_heap()
-        hold_full_collections()
-        if self.spec.rt_priority > 1:     # no thread here holds the GIL at normal priority
-            fifo_process(self.spec.rt_priority - 1, "setpoint player process")
-        threading.Thread(target=self.receive, name="ff-player-rx", daemon=True).start()
-        threading.Thread(target=self.status, name="ff-player-status", daemon=True).start()
-        self.sched.start()
-        self.tell("ready")
+    def close(self) -> None:
+        self.stopped.set()
         try:
-            while not self.stopped.is_set():
-                try:
-                    msg = self.conn.recv()
-                except (EOFError, OSError):
-                    break
-                kind = msg[0]
-                if kind == "sp":
-                    _, stamp, amps, seq, pid, last, stop = msg
-                    self.received += 1
-                    if stamp < self._check_epoch():
-                        continue              # from before the latest safe state / reset
-                    placed = self.placement.place(stamp, pid, seq)
-                    self.sched.submit(placed, (stamp, amps, seq, pid, last), stop=stop)
-                elif kind == "clear":
-                    self.sched.clear()
-                elif kind == "reset_stats":
-                    self.sched.reset_stats()
-                    self.watch.reset_stats()
-                elif kind == "stop":
-                    break
-        finally:
-            self.stopped.set()
-            self.sched.close()
-            try:
-                self.bus.shutdown()
-            except (OSError, can.CanError) as exc:
-                # the receiver thread may be reading the connection as it closes, or the bus
-                # went first (the hub stopped): nothing is left to send on it
-                log.debug("closing the player's bus: %s", exc)
+            self.bus.shutdown()
+        except (OSError, can.CanError) as exc:
+            # the receiver thread may be reading the connection as it closes, or the bus went
+            # first (the hub stopped): nothing is left to send on it
+            log.debug("closing the player's bus: %s", exc)
 
 
-def _child_main(spec: _Spec, conn: Any, gate: Any, epoch: Any) -> None:
+def _child_main(config: BridgeConfig, player_config: PlayerConfig, conn: Any, gate: Any, epoch: Any) -> None:
+    """The player process: one :class:`SetpointPlayer` on a :class:`ChildLink`, fed from the pipe."""
     logging.basicConfig(level=logging.WARNING, format="%(name)s: %(message)s")
+    conn_lock = threading.Lock()
+
+    def tell(*msg: Any) -> None:
+        with conn_lock:
+            try:
+                conn.send(msg)
+            except (OSError, EOFError, BrokenPipeError):
+                link.stopped.set()
+
     try:
-        child = _Child(spec, conn, gate, epoch)
+        link = ChildLink(config, gate, epoch, tell)
     except Exception as exc:  # noqa: BLE001 - told to the parent, which latches the safe state
         conn.send(("fault", f"setpoint player process could not start: {type(exc).__name__}: {exc}"))
         return
-    child.run()
+    player = SetpointPlayer(link, player_config, name="ff-player-process")
+    player.on_applied = lambda a: tell("applied", a)
+    # the heap built so far frozen (later full collections only while nothing is pending), and
+    # no thread here holding the GIL at normal priority
+    setup_process(RealtimeConfig(priority=max(0, player_config.rt_priority - 1), switch_interval=SWITCH_INTERVAL,
+                                 freeze_gc=True), "setpoint player process")
+    link.start_receiver()           # before the player's start: it raises the receiver's priority
+    threading.Thread(target=_status, args=(link, player, tell), name="ff-player-status", daemon=True).start()
+    player.start()
+    tell("ready")
+    try:
+        while not link.stopped.is_set():
+            try:
+                msg = conn.recv()
+            except (EOFError, OSError):
+                break
+            kind = msg[0]
+            if kind == "sp":
+                _, stamp, amps, seq, pid, last = msg
+                link.received += 1
+                link.check_epoch()
+                try:
+                    player.submit(stamp, amps, seq=seq, profile_id=pid, last=last)
+                except SetpointRejected:
+                    continue              # from before the latest safe state / reset
+            elif kind == "clear":
+                player.clear()
+            elif kind == "reset_stats":
+                player.reset_stats()
+            elif kind == "stop":
+                break
+    finally:
+        link.stopped.set()
+        player.close()
+        link.close()
+
+
+def _status(link: ChildLink, player: SetpointPlayer, tell: Callable[..., None]) -> None:
+    """The child's status to the bridge every ``STATUS_PERIOD`` s (its heartbeat there)."""
+    if player.config.rt_priority > 0:
+        use_fifo(player.config.rt_priority, "player process status")
+    idle_gc = IdleCollector(lambda: player.pending == 0)
+    figures_at, was_pending = 0.0, False
+    diag: dict[str, float] = {}
+    stats = player.stats()
+    while not link.stopped.wait(STATUS_PERIOD):
+        idle_gc.tick()
+        link.check_epoch()
+        now = time.monotonic()
+        pending = player.pending
+        # percentiles: numpy, but not for free; fresh at once when a stream has ended
+        if now - figures_at >= STATS_PERIOD or (was_pending and not pending):
+            figures_at = now
+            stats, diag = player.stats(), player.diagnostics()
+            diag["scheduler_realtime"] = int(diag.get("scheduler_realtime", 0)
+                                             and (link.rx_rt or player.config.rt_priority <= 0))
+            diag["cycle_repeats"] = link.repeats
+        was_pending = pending > 0
+        tell("status", link.received, pending, stats, diag, player.sync_grid())
 
 
 # --- the bridge's side --------------------------------------------------------------------------
@@ -483,6 +386,7 @@ class ProcessPlayer(PlayerBase):
     """:class:`SetpointPlayer`'s interface, played by a child process (module docstring)."""
 
     synchronous = True
+    master: EposMaster
 
     def __init__(self, master: EposMaster, config: Optional[PlayerConfig] = None, *,
                  clock_ns: Callable[[], int] = time.time_ns, start_timeout: float = START_TIMEOUT) -> None:
@@ -512,16 +416,6 @@ class ProcessPlayer(PlayerBase):
         self._attach()
 
     # --- control ------------------------------------------------------------------------------
-    def _spec(self) -> _Spec:
-        cfg = self.master.config
-        bus = cfg.bus.as_dict()
-        joints = tuple(_Joint(j.node_id, u, float(j.current_limit), struct_format(rpdo_layout(u.family)))
-                       for j, u in zip(cfg.joints, self.master.units))
-        return _Spec(bus, bus.get("interface") in ECHO_INTERFACES, joints, float(cfg.sync_period),
-                     self.config.cycle_tolerance, int(cfg.missed_cycle_tolerance),
-                     int(self.config.rt_priority), float(cfg.setpoint_timeout),
-                     float(self.config.stall_dump), float(cfg.setpoint_lead))
-
     def start(self) -> Self:
         """Spawn the player process and wait until it has opened the bus (idempotent)."""
         if self._proc is not None and self._proc.is_alive():
@@ -532,7 +426,8 @@ class ProcessPlayer(PlayerBase):
         parent, child = self._ctx.Pipe()
         self._conn = parent
         self._ready.clear()
-        self._proc = self._ctx.Process(target=_child_main, args=(self._spec(), child, self._gate, self._epoch),
+        self._proc = self._ctx.Process(target=_child_main,
+                                       args=(self.master.config, self.config, child, self._gate, self._epoch),
                                        name="ff-setpoint-player", daemon=True)
         self._proc.start()
         child.close()
@@ -576,8 +471,7 @@ class ProcessPlayer(PlayerBase):
         """As :meth:`SetpointPlayer.submit`; the setpoint goes to the player process."""
         amps = self._accept(currents, profile_id, last, self.exit_reason, stamp_ns=stamp_ns)
         self._submitted += 1
-        self._tell("sp", int(stamp_ns), amps, int(seq), str(profile_id), bool(last),
-                   all(c == 0.0 for c in amps))
+        self._tell("sp", int(stamp_ns), amps, int(seq), str(profile_id), bool(last))
 
     def clear(self) -> int:
         """Drop every pending setpoint (in the player process); returns how many were pending."""
@@ -632,11 +526,10 @@ class ProcessPlayer(PlayerBase):
                 return
             kind = msg[0]
             if kind == "applied":
-                (_, applied, stamp, currents, seq, pid, last, reason, latched, sent, missed) = msg
-                self._reports.append(AppliedSetpoint(applied, stamp, tuple(currents), seq, pid, last,
-                                                     reason, latched, sent, missed))
-                self.records_.append((stamp, applied))
-                if last:
+                a: AppliedSetpoint = msg[1]
+                self._reports.append(a)
+                self.records_.append((a.stamp_ns, a.sent_ns))
+                if a.last:
                     self.master.guard.end_motion()
             elif kind == "status":
                 self._status = msg
@@ -685,22 +578,15 @@ class ProcessPlayer(PlayerBase):
 
     def sync_grid(self) -> Optional[tuple[int, int]]:
         st = self._status
-        return None if st is None else st[6]
+        return None if st is None else st[5]
 
     def diagnostics(self) -> dict[str, float]:
-        """As :meth:`SetpointPlayer.diagnostics`, plus ``player_process`` 1 and its pid."""
-        out = self._switch_diagnostics()
-        out.update({"scheduler_realtime": 0, "synchronous": 1, "player_process": 1,
-                    "player_pid": float(self.pid or 0)})
+        """As :meth:`SetpointPlayer.diagnostics` (the child's), plus ``player_process`` 1, its
+        pid, and the pending setpoints and switch statistics seen from here."""
+        out: dict[str, float] = {"scheduler_realtime": 0, "synchronous": 1}
         st = self._status
         if st is not None:
-            c, w = st[4], st[5]
-            out.update({"scheduler_realtime": st[7], "missed_setpoints": c.missed,
-                        "missed_cycles_max": c.missed_max_cycles, "superseded_setpoints": c.superseded,
-                        "send_after_sync_p99_us": c.send_after_sync_p99_us,
-                        "sync_count": w["count"], "sync_period_us": w["period_us"],
-                        "sync_jitter_p99_us": w["jitter_p99_us"], "sync_jitter_max_us": w["jitter_max_us"],
-                        "sync_missing": w["missing"], "sync_age_ms": w["age_ms"],
-                        "stale_setpoints": st[8], "stale_stops": st[9], "player_errors": st[10],
-                        "cycle_repeats": st[11], "cycle_repeats_late": st[12]})
+            out.update(st[4])
+        out.update(self._switch_diagnostics())
+        out.update({"player_process": 1, "player_pid": float(self.pid or 0)})
         return out

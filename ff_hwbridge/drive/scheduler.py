@@ -23,7 +23,6 @@ from __future__ import annotations
 import heapq
 import itertools
 import logging
-import os
 import threading
 import time
 from collections import deque
@@ -32,45 +31,11 @@ from typing import Any, Callable, Optional, Self
 
 import numpy as np
 
+from ff_hwbridge.drive.realtime import fifo_process, use_fifo
+
 log = logging.getLogger(__name__)
 
-
-def use_fifo(priority: int, who: str, tid: int = 0, hint: str = "") -> bool:
-    """SCHED_FIFO at ``priority`` for thread ``tid`` (0 = the calling thread); True when granted,
-    else a logged warning naming ``who`` (and ``hint``) and False."""
-    try:
-        os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(int(priority)))
-        return True
-    except (AttributeError, OSError) as exc:
-        log.warning("%s: cannot use SCHED_FIFO priority %d (%s); running at normal priority%s",
-                    who, priority, exc, hint)
-        return False
-
-
-def fifo_process(priority: int, who: str) -> int:
-    """SCHED_FIFO at ``priority`` for every thread of this process now (Linux ``/proc/self/task``),
-    and so for every thread they start; returns how many threads got it (0 with a logged warning
-    when not permitted).
-
-    A thread at normal priority that holds the GIL can be preempted by any ordinary process; a
-    SCHED_FIFO thread of the same process that needs the GIL then waits for it (priority
-    inversion). With every thread of the process under SCHED_FIFO, the GIL holder keeps its CPU."""
-    try:
-        tids = [int(t) for t in os.listdir("/proc/self/task")]
-    except OSError:
-        tids = [0]
-    done = 0
-    for tid in tids:
-        try:
-            os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(int(priority)))
-            done += 1
-        except ProcessLookupError:
-            continue                    # the thread ended meanwhile
-        except (AttributeError, OSError) as exc:
-            log.warning("%s: cannot use SCHED_FIFO priority %d for its threads (%s); they run at "
-                        "normal priority", who, priority, exc)
-            return 0
-    return done
+__all__ = ["StampScheduler", "StampedItem", "StampedQueue", "SwitchStats", "fifo_process", "use_fifo"]
 
 
 @dataclass(order=True)

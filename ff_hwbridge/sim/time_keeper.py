@@ -6,7 +6,7 @@ is doing then. The simulation's hub plays that part for its clients: the hub's c
 :class:`TimedVirtualBus` (python-can interface ``ff_hub_virtual``, registered as a
 ``can.interface`` entry point), and
 
-- a frame whose timestamp (wall s, the bus instant ``open_bus``'s ``send_at`` gives it) lies in
+- a frame whose timestamp (wall s, the bus instant a client's ``send_at`` gives it, ``sim.hub_bus``) lies in
   the future when it reaches the hub is held by the channel's :class:`TimeKeeper` and put on the
   channel at that instant, keeping that timestamp (the frame's bus instant is its scheduled one,
   as the SYNC's is its timer deadline; how late the keeper's thread really was is measured and

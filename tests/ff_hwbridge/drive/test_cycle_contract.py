@@ -1,7 +1,7 @@
 """The cyclic synchronous contract (CiA 402 CSx): while a drive is enabled, every SYNC cycle
 carries its setpoint RPDO, the value in force repeated when nothing new came, and a new setpoint
 takes effect at the SYNC that closes the cycle it was sent in. Both player placements: the
-master's own per-cycle writer (in-process player) and the player process's child (run here in
+master's own per-cycle writer (in-process player) and the player process's link (run here in
 the test's process, its bus a python-can virtual channel).
 
 SYNCs are injected in lock step (the next one only once the previous cycle's frames have been
@@ -16,11 +16,10 @@ import uuid
 import can
 import pytest
 
-from ff_hwbridge.drive.player import SetpointRejected
-from ff_hwbridge.drive.player_process import _Child, _Joint, _Spec
+from ff_hwbridge.drive.player import SetpointPlayer, SetpointRejected, _Queued
+from ff_hwbridge.drive.player_process import ChildLink
 from ff_hwbridge.protocol.cia402 import State
-from ff_hwbridge.protocol.epos_od import rpdo_layout, struct_format
-from ff_hwbridge.protocol.units import DriveUnits
+from tests.ff_hwbridge.drive.test_player_process_child import child_config, prepared
 from tests.ff_hwbridge.drive.test_sync_player import SyncBench
 from tests.support.canopen_helpers import waiter
 
@@ -120,7 +119,7 @@ def test_a_fault_reset_brings_zero_back_not_the_setpoint_before_the_safe_state(l
     assert b.drive.applied_current == 0.0
 
 
-# --- the player process's child --------------------------------------------------------------
+# --- the player process's link -----------------------------------------------------------------
 CW = 0x0F
 
 
@@ -131,42 +130,35 @@ class _Epoch:
 @pytest.fixture()
 def child():
     channel = f"ff-child-{uuid.uuid4().hex[:8]}"
-    units = DriveUnits()
-    spec = _Spec({"interface": "virtual", "channel": channel}, False,
-                 (_Joint(1, units, 10.0, struct_format(rpdo_layout(units.family))),), 0.01, 0.1, 1, 0, 0.5)
     gate = [CW, 1, 0]                 # joint 0: controlword, current allowed; not latched
     epoch = _Epoch()
     mon = can.Bus(interface="virtual", channel=channel)
-    c = _Child(spec, None, gate, epoch)
+    c = ChildLink(child_config(channel), gate, epoch, lambda *m: None)
     t = [time.time()]
 
     def sync() -> list[int]:
-        """One SYNC seen by the child (as its receiver thread would); the setpoints sent in the
+        """One SYNC seen by the link (as its receiver thread would); the setpoints sent in the
         cycle it closes, in bus order (the drive latches the last)."""
         time.sleep(SETTLE)
         closed = [struct.unpack("<Hh", f[:4])[1] for f in _frames(mon, 0x201)]
         t[0] += 0.01
-        c.watch.observe(t[0])
+        c.sync_watch.observe(t[0])
         return closed
 
     try:
         yield c, sync, gate, epoch
     finally:
-        c.bus.shutdown()
+        c.close()
         mon.shutdown()
-
-
-def _prepared(raw: int, stamp: int = 0) -> tuple:
-    return ((stamp, (0.0,), 0, "p", False), (raw,), "", False)
 
 
 def test_the_child_sends_exactly_one_rpdo_per_cycle_and_a_new_setpoint_in_its_own(child):
     c, sync, _, _ = child
     sync()
-    c._send(0, _prepared(500))                      # in the cycle the first SYNC opened
+    c.send_prepared(prepared(500))                  # in the cycle the first SYNC opened
     assert sync() == [0, 500]                       # that cycle's repeat, then the new one
     assert [sync() for _ in range(CYCLES)] == [[500]] * CYCLES      # repeated, once a cycle
-    c._send(0, _prepared(-300))                                       # new, in the open cycle
+    c.send_prepared(prepared(-300))                                   # new, in the open cycle
     assert sync() == [500, -300]                    # latched at its own SYNC: the last before it
     assert [sync() for _ in range(5)] == [[-300]] * 5
 
@@ -174,7 +166,7 @@ def test_the_child_sends_exactly_one_rpdo_per_cycle_and_a_new_setpoint_in_its_ow
 def test_the_child_repeats_nothing_while_the_master_owns_the_rpdo_and_zero_after(child):
     c, sync, gate, _ = child
     sync()
-    c._send(0, _prepared(700))
+    c.send_prepared(prepared(700))
     assert sync()[-1] == 700
     assert sync() == [700]
     gate[1] = 0                                     # the master's safe state took the drive
@@ -184,81 +176,19 @@ def test_the_child_repeats_nothing_while_the_master_owns_the_rpdo_and_zero_after
     assert [sync() for _ in range(3)] == [[0], [0], [0]]
 
 
-def test_the_child_forgets_the_value_in_force_at_a_reset_epoch_and_drops_older_stamps(child):
+def test_the_child_forgets_the_value_in_force_at_a_reset_epoch_and_the_player_refuses_older_stamps(child):
     c, sync, _, epoch = child
     sync()
-    c._send(0, _prepared(400))
+    c.send_prepared(prepared(400))
     assert sync()[-1] == 400
     epoch.value = time.time_ns()                    # a safe state / fault reset in the master
     assert sync() == [400]
     assert [sync() for _ in range(3)] == [[0], [0], [0]]
-    q, raws, reason, _ = c._prepare(((epoch.value - 1, (0.25,), 0, "p", False)))
-    assert raws == (0,) and "before the latest" in reason
-    q, raws, _, _ = c._prepare(((epoch.value + 1, (0.25,), 0, "p", False)))
-    assert raws[0] != 0                             # stamped after it: applied
-
-
-def test_with_a_lead_the_child_schedules_each_cycles_repeat_mid_cycle_with_the_value_in_force(monkeypatch):
-    """``setpoint_lead``: setpoints go to the bus's transmit schedule cycles ahead; every cycle
-    without one gets the value in force for THAT cycle, scheduled mid-cycle (a frame sent at
-    once would replace the ones scheduled after it)."""
-    from ff_hwbridge.drive import player_process
-
-    channel = f"ff-child-{uuid.uuid4().hex[:8]}"
-    units = DriveUnits()
-    spec = _Spec({"interface": "virtual", "channel": channel}, False,
-                 (_Joint(1, units, 10.0, struct_format(rpdo_layout(units.family))),), 0.01, 0.1, 1, 0, 0.5,
-                 lead=0.05)
-    scheduled: list[tuple[int, int]] = []          # (at_ns, raw)
-
-    def send_at(bus, msg, at_ns):
-        scheduled.append((at_ns, struct.unpack("<Hh", bytes(msg.data[:4]))[1]))
-        return True
-
-    monkeypatch.setattr(player_process, "send_at", send_at)
-    c = _Child(spec, None, [CW, 1, 0], _Epoch())
+    player = SetpointPlayer(c)                      # the one player, on the process's link
     try:
-        p = 10_000_000
-        t0 = time.time_ns() + 5 * p                 # SYNCs a little in the future: on time
-        c.watch.observe(t0 / 1e9)                   # cycle 1 opens
-        n0 = c.watch.latest().bus_ns                # its bus instant (float s: ±0.5 µs)
-        assert scheduled == [(n0 + p // 2, 0)]
-        c._send(0, _prepared(600), at_ns=n0 + 3 * p + p // 2)   # a setpoint for cycle 4
-        for k in range(1, 6):
-            c.watch.observe((t0 + k * p) / 1e9)
-        by_cycle = {round((at - n0 - p // 2) / p) + 1: raw for at, raw in scheduled}
-        assert by_cycle == {1: 0, 2: 0, 3: 0, 4: 600, 5: 600, 6: 600}
-        # mid-cycle, every one (within the float rounding of the SYNCs' bus instants)
-        assert all(abs((at - n0 - p // 2) - round((at - n0 - p // 2) / p) * p) < 2_000 for at, _ in scheduled)
-        assert len(scheduled) == 6                  # one frame per cycle, none twice
+        with pytest.raises(SetpointRejected, match="before the latest safe state"):
+            player.submit(epoch.value - 1, [0.25])
+        assert player._prepare(_Queued((0.25,), 0, "p", False, epoch.value - 1)).command.raw == (0,)
+        assert player._prepare(_Queued((0.25,), 0, "p", False, epoch.value + 1)).command.raw[0] != 0
     finally:
-        c.bus.shutdown()
-
-
-def test_with_a_lead_echoes_are_matched_by_their_instant_not_the_hand_over_order(monkeypatch):
-    """A setpoint scheduled cycles ahead is handed over before the repeats of the cycles before
-    it; the bus echoes them in the order of their instants. Each echo is the frame scheduled for
-    its instant (a repeat's echo is never taken for the setpoint's: that made a setpoint look
-    latched cycles early)."""
-    from ff_hwbridge.drive import player_process
-
-    channel = f"ff-child-{uuid.uuid4().hex[:8]}"
-    units = DriveUnits()
-    spec = _Spec({"interface": "virtual", "channel": channel}, True,
-                 (_Joint(1, units, 10.0, struct_format(rpdo_layout(units.family))),), 0.01, 0.1, 1, 0, 0.5,
-                 lead=0.05)
-    monkeypatch.setattr(player_process, "send_at", lambda bus, msg, at_ns: True)
-    c = _Child(spec, None, [CW, 1, 0], _Epoch())
-    try:
-        p = 10_000_000
-        t = time.time_ns() + 10 * p
-        same = struct.pack("<Hh", CW, 0)
-        c._tx(0, same, 0, at_ns=t + 3 * p)              # tx 1: a zero setpoint, cycle 4
-        for k in range(3):
-            c._tx(0, same, 0, at_ns=t + k * p)          # tx 2..4: the repeats of cycles 1..3
-        got = [c._own(c.sent_data[0], same, t + k * p) for k in range(4)]   # bus order
-        assert got == [2, 3, 4, 1]
-        assert not c.sent_data[0]
-        assert c._own(c.sent_data[0], same, t + 5 * p) == 0       # not ours
-    finally:
-        c.bus.shutdown()
+        player.close()

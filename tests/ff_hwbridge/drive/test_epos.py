@@ -168,7 +168,7 @@ def test_a_tpdo_received_before_its_sync_gets_that_sync_as_its_sample_instant(ri
     master, drives = rig
     configure_and_enable(master)
     drives[0].answer_sync = False             # only the frames below reach the callbacks
-    master.network.sync.stop()
+    master.stop_sync()
     time.sleep(0.02)
     d = master._drives[0]
     period = master.sync_watch.period_ns
