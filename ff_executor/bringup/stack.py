@@ -253,7 +253,8 @@ def robot_bridge_config(path: str | Path, model: str, hub_url: str) -> dict:
         raise ValueError(f"{where}: not valid YAML ({' '.join(str(exc).split())})") from None
     if not isinstance(data, dict):
         raise ValueError(f"{where}: expected a mapping of bridge settings")
-    bus = data.get("bus") if isinstance(data.get("bus"), dict) else {}
+    raw_bus = data.get("bus")
+    bus: dict = raw_bus if isinstance(raw_bus, dict) else {}
     data["bus"] = {"interface": "remote", "channel": hub_url,
                    "bitrate": int(bus.get("bitrate", 1_000_000))}
     try:

@@ -324,3 +324,29 @@ def test_friction_that_is_not_eq9_matches_the_offline_measurement_and_can_be_swi
         SimArm(default_params("scara2"), 0.0).set_friction(FrictionMismatch(stribeck=0.2))
     with pytest.raises(ParameterError):
         SimArm(p, 0.0).set_friction(FrictionMismatch(stribeck=5.0))
+
+
+def test_a_current_law_runs_in_plant_time_whatever_the_caller_does():
+    """A drive's law (its velocity loop braking to 0 rad/s) is evaluated by the plant every
+    LAW_PERIOD_NS: read once after 2 s, the arm has stopped and stays stopped (a law evaluated
+    only when its drive's thread runs would have held the first braking current for 2 s)."""
+    from ff_hwbridge.sim.arm import LAW_PERIOD_NS
+
+    p = preset("table2")
+    clk = FakeClock()
+    arm = SimArm(p, 0.0, qd0=3.0, clock=clk)
+    tpa = p.n * p.kt
+
+    def law(t, q, qd):                                    # speed loop, 20 ms, to 0 rad/s, +-10 A
+        return max(-10.0, min(10.0, p.J * (0.0 - qd) / 0.02 / tpa))
+
+    arm.set_law(0, law, clk.t)
+    assert arm.has_law(0) and arm.state().current[0] < -5.0
+    clk.t += 2_000 * MS
+    s = arm.state()
+    assert abs(s.qd[0]) < 1e-3 and 0.0 < s.q[0] < 0.2, s
+    arm.set_law(0, None, clk.t)
+    arm.set_current(0, 0.0, clk.t)
+    clk.t += 100 * MS
+    assert not arm.has_law(0) and arm.state().qd[0] == 0.0
+    assert LAW_PERIOD_NS <= 1_000_000
