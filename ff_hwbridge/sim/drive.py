@@ -436,7 +436,9 @@ class _Link:
         self._dispatch = threading.RLock()
         self._delay: Optional[_DelayLine] = None
         self._send_lock = threading.Lock()
-        self.stall = StallDump(stall_dump, rearm_every=0.1)
+        # re-armed at most every 0.5 s: faulthandler restarts its watchdog thread on each re-arm,
+        # measured 17 ms a call in the 2-DOF driver at load ~14 (10 a second: 17 % of its time)
+        self.stall = StallDump(stall_dump, rearm_every=0.5)
 
     def _delay_line(self) -> _DelayLine:
         if self._delay is None:

@@ -372,9 +372,9 @@ def test_the_scara_plant_steps_in_compiled_code_one_call_per_interval():
         if whole:
             inner = arm._advance
 
-            def counted(*a, **k):
+            def counted(*a, _inner=inner, **k):
                 calls["n"] += 1
-                return inner(*a, **k)
+                return _inner(*a, **k)
             arm._advance = counted
         else:                                           # the reference: one Python call per step
             arm._advance, arm._any_dt = ref_adv, False
