@@ -136,6 +136,7 @@ class ExecutorNode(Node):
         self._pos: Optional[np.ndarray] = None    # rad, bridge joint order
         self._vel: Optional[np.ndarray] = None    # rad/s
         self._state_t = 0                         # ns (ROS clock) of the last joint state
+        self._sample_ns = 0                       # ns: its sample instant (header stamp; else arrival)
         self._effort_log: Optional[deque[tuple[int, np.ndarray]]] = None  # (t ns, effort A) while a move runs
         self._applied: dict[tuple[str, int], int] = {}
         self._active_stream: Optional[Stream] = None
@@ -217,6 +218,7 @@ class ExecutorNode(Node):
         now = self._now_ns()
         with self._state_lock:
             self._pos, self._vel, self._state_t = pos, vel, now
+            self._sample_ns = time_to_ns(msg.header.stamp) or now
             if self._effort_from_states:
                 self._log_effort(msg, eff, now)
 
@@ -460,7 +462,7 @@ class ExecutorNode(Node):
                                f"{slip:.1f} ms after its slot (lead {cfg.lead_time * 1e3:.0f} ms)")
         start_delay = (start - requested) / NS
         if stopped:
-            self._wait_settled(feedback, period, timeout=1.0)
+            self._wait_settled(feedback, period, timeout=1.0, since_ns=self._now_ns())
             if goal_handle.is_cancel_requested:
                 return self._finish(goal_handle, False, "cancelled: zero current sent at once",
                                     motion, stream, start_delay, how="canceled",
@@ -468,7 +470,8 @@ class ExecutorNode(Node):
             return self._finish(goal_handle, False, "aborted: joint states stopped during the move; "
                                 "zero current sent", motion, stream, start_delay, how="abort",
                                 missed_before=missed_before)
-        settled = self._wait_settled(feedback, period, timeout=float(self._p("settle_timeout")))
+        settled = self._wait_settled(feedback, period, timeout=float(self._p("settle_timeout")),
+                                     since_ns=tf_ns)
         pos, _vel, _ = self._state()
         if pos is None:
             return self._finish(goal_handle, False, "no joint state to judge the move",
@@ -524,15 +527,21 @@ class ExecutorNode(Node):
                 return f"the bridge applied {got} of the profile's {len(switches)} current changes"
         return ""
 
-    def _wait_settled(self, feedback: Callable[[int], None], period: float, timeout: float) -> bool:
-        """Wait until the arm has settled (True) or ``timeout`` s passed (False), sending feedback."""
+    def _wait_settled(self, feedback: Callable[[int], None], period: float, timeout: float,
+                      since_ns: int = 0) -> bool:
+        """Wait until the arm has settled (True) or ``timeout`` s passed (False), sending feedback.
+        Only joint states sampled at or after ``since_ns`` (their header stamps: the drives'
+        sample instants) count, timed by those stamps: a stream that stopped (a stalled drive
+        or bridge) leaves the last state at rest before the move, which says nothing of the
+        move's end."""
         det = SettleDetector(self.config.rest_velocity, float(self._p("settle_hold")))
         end = self._now_ns() + int(timeout * NS)
         next_fb = self._now_ns()
         while rclpy.ok(context=self.context):
             now = self._now_ns()
-            _pos, vel, t = self._state()
-            if vel is not None and det.update(now, vel):
+            with self._state_lock:
+                vel, sample = self._vel, self._sample_ns
+            if vel is not None and sample >= since_ns and det.update(sample, vel):
                 return True
             if now >= next_fb:
                 feedback(now)

@@ -65,6 +65,7 @@ class FakeBridge(Node):
         self.latch = ""                   # != "": report a latched safe state with this reason
         self.drop_seqs: set[int] = set()  # setpoints it never applies (nor reports)
         self.clip_above = float("inf")    # A: an applied current above this counts as clipped
+        self.js_pause_until = 0           # ns: no joint states before this (a stalled drive)
         self.limited_count, self.limited_first_ns = 0, 0   # statusword bit 11 in the motion
         self.running = True
         self.thread = threading.Thread(target=self._loop, daemon=True)
@@ -130,7 +131,7 @@ class FakeBridge(Node):
                 self.t_sim = now
                 q, qd, cur = self.q, self.qd, self.current
             k += 1
-            if k % 5 == 0:
+            if k % 5 == 0 and now >= self.js_pause_until:
                 js = JointState(name=["joint1"], position=[q], velocity=[qd], effort=[cur])
                 js.header.stamp = ns_to_time(now)
                 self.js_pub.publish(js)
@@ -333,6 +334,24 @@ def test_a_move_the_drive_clipped_fails_and_says_so(stack):
         bridge.q, bridge.qd = 0.0, 0.0
     status, result = run_goal(client, goal)
     assert status == GoalStatus.STATUS_SUCCEEDED, result.message
+
+
+def test_a_move_is_judged_on_states_sampled_after_it_not_on_a_stalled_stream(stack):
+    """The joint states stop from the goal until 1.5 s after the move's end (a stalled drive):
+    the result waits for states sampled after tf and reports where the arm really ended, not
+    the last state before the stall (at rest at 0 rad, which looked settled at once)."""
+    bridge, client, _ = stack
+    bridge.reset(0.0)
+    time.sleep(0.2)
+    goal, prof = goal_for()
+    bridge.js_pause_until = bridge.now() + int(3.1e9)     # start margin 0.6 s + tf 1 s + 1.5 s
+    try:
+        status, result = run_goal(client, goal)
+    finally:
+        bridge.js_pause_until = 0
+    assert status == GoalStatus.STATUS_SUCCEEDED, result.message
+    expected = float(rest_position(PARAMS, prof, [0.0])[0])
+    assert result.final_position[0] == pytest.approx(expected, abs=1e-6), result.message
 
 
 def test_second_goal_is_refused_while_one_runs(stack):
