@@ -30,8 +30,8 @@ a 2-core machine). Summary: median / max |measured − predicted_true| and of th
 the load averages (1, 5, 15 min) at the start, per run and at the end.
 
 ``--bridge-config FILE`` runs a robot's bridge file instead of the stack's own (e.g. the shipped
-``config/bridge_epos4_1dof.yaml``: player in the bridge's process, SYNC every 10 ms from the bridge,
-10 ms heartbeats, derived 130 ms timeouts), only its bus re-pointed at the hub
+``config/bridge_epos4_1dof.yaml``: player in the bridge's process, SYNC every 10 ms from the hub's
+timer as the kernel's on SocketCAN, 10 ms heartbeats, derived 130 ms timeouts), only its bus re-pointed at the hub
 (``StackOptions.bridge_config_file``). A run the stack could not execute (the bridge latched,
 no joint states) counts as a fault: its error is recorded, the bridge is fault-reset and the
 next run goes on. ``uptime`` is recorded at the start and the end.

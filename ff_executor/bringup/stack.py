@@ -45,8 +45,9 @@ that fails its enable sequence is restarted once.
 
 ``--bridge-config FILE`` runs a robot's bridge file instead, as it is, with only its ``bus``
 section replaced by the hub (``remote``, ws://127.0.0.1:PORT/): for the shipped
-``config/bridge_epos4_1dof.yaml`` the player in the bridge's process, SYNC every 10 ms from the
-bridge (the hub produces none), 10 ms drive heartbeats, the derived 130 ms timeouts. The simulated
+``config/bridge_epos4_1dof.yaml`` the player in the bridge's process, SYNC every 10 ms from a
+timer outside the bridge's process (on SocketCAN the kernel's, here the hub's), 10 ms drive
+heartbeats, the derived 130 ms timeouts. The simulated
 drives take the file's family, nominal current and encoder resolution; a file whose joints
 (node ids 1..n) or motor data (torque constant, gear ratio) are not the simulated arm's is
 refused with the key to change, before anything starts.
@@ -234,8 +235,10 @@ def _joint_suffix(nj: int, j: int) -> str:
 
 
 def robot_bridge_config(path: str | Path, model: str, hub_url: str) -> dict:
-    """A robot's bridge YAML (``path``) with only its ``bus`` section replaced by the simulation's
-    hub (python-can ``remote`` on ``hub_url``); everything else as shipped.
+    """A robot's bridge YAML (``path``) with its ``bus`` section replaced by the simulation's
+    hub (python-can ``remote`` on ``hub_url``); everything else as shipped, except where the file
+    puts SYNC in the kernel (``interface: socketcan`` with ``sync_producer: master``: the kernel's
+    broadcast manager sends it): the hub's timer sends it instead (``sync_producer: external``).
 
     ValueError naming the key when the file cannot run on the simulated ``model``: it does not
     load as a bridge config, its joints are not the model's (count, node ids 1..n), its drives
@@ -257,6 +260,12 @@ def robot_bridge_config(path: str | Path, model: str, hub_url: str) -> dict:
     bus: dict = raw_bus if isinstance(raw_bus, dict) else {}
     data["bus"] = {"interface": "remote", "channel": hub_url,
                    "bitrate": int(bus.get("bitrate", 1_000_000))}
+    if str(bus.get("interface", "")) == "socketcan" and data.get("sync_producer", "master") == "master":
+        # on SocketCAN the master hands SYNC to the kernel's broadcast manager, whose timer keeps
+        # the period whatever the bridge's process does; the hub's timer (SCHED_FIFO, its own
+        # process) is that kernel here. The hub's remote bus has no kernel: left to the bridge,
+        # SYNC would come from a python-can thread of its process, late whenever it is.
+        data["sync_producer"] = "external"
     try:
         cfg = config_from_mapping(data)
     except (ConfigError, ValueError, TypeError) as exc:
@@ -543,9 +552,9 @@ class Stack:
                  f"(loopback only), CAN hub {self.hub_url}")
         self.log(f"  simulated arm: {model}, true friction differs from the model by {true or 'nothing'}")
         if o.bridge_config_file:
+            sync = "from the hub, as a kernel timer sends it" if self.hub_syncs else "from the bridge"
             self.log(f"  bridge: {o.bridge_config_file} as shipped, its bus on the hub "
-                     f"(SYNC {'from the hub' if self.hub_syncs else 'from the bridge'}, "
-                     f"{self.sync_period * 1e3:g} ms)")
+                     f"(SYNC {sync}, {self.sync_period * 1e3:g} ms)")
         try:
             if o.separate_hub:
                 hub_args = ["--port", str(self.hub_port)]
@@ -767,7 +776,7 @@ def build_parser() -> argparse.ArgumentParser:
                          "timer; on_receipt: setpoints applied when they arrive, at their stamps")
     ap.add_argument("--bridge-config", default=None, metavar="YAML",
                     help="run this bridge config as a robot would (e.g. config/bridge_epos4_1dof.yaml: "
-                         "in-process player, 10 ms SYNC from the bridge), only its bus re-pointed at "
+                         "in-process player, 10 ms SYNC from a kernel-like timer: the hub's), its bus re-pointed at "
                          "the simulated hub; --setpoint-timing/--setpoint-lead/--rt-priority then do not "
                          "apply to the bridge (default: the stack's own lenient config)")
     ap.add_argument("--setpoint-lead", type=float, default=StackOptions.setpoint_lead, metavar="S",

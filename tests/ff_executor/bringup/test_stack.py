@@ -160,18 +160,27 @@ def test_robot_bridge_config_is_the_shipped_file_with_only_its_bus_on_the_hub(tm
     data = robot_bridge_config(shipped, "arm1dof", "ws://127.0.0.1:50000/")
     original = yaml.safe_load(shipped.read_text())
     assert data["bus"] == {"interface": "remote", "channel": "ws://127.0.0.1:50000/", "bitrate": 1_000_000}
-    assert {k: v for k, v in data.items() if k != "bus"} == {k: v for k, v in original.items() if k != "bus"}
+    # SocketCAN + sync_producer master: the kernel sends SYNC on a robot, the hub's timer here
+    assert original["bus"]["interface"] == "socketcan" and original["sync_producer"] == "master"
+    assert data["sync_producer"] == "external"
+    assert ({k: v for k, v in data.items() if k not in ("bus", "sync_producer")}
+            == {k: v for k, v in original.items() if k not in ("bus", "sync_producer")})
     stack = Stack(StackOptions(bridge_config_file=str(shipped), run_dir=str(tmp_path)), log=lambda s: None)
-    # the robot's mode: in-process player, SYNC from the bridge every 10 ms, so none from the hub
-    assert stack.bridge_data()["sync_producer"] == "master" and not stack.bridge_data().get("player_process")
-    assert not stack.hub_syncs and stack.sync_period == 0.01
+    # the robot's mode: in-process player, SYNC every 10 ms from a timer outside the bridge
+    assert not stack.bridge_data().get("player_process")
+    assert stack.hub_syncs and stack.sync_period == 0.01
     assert stack.sim_parameters()["nominal_current"] == original["joints"][0]["units"]["nominal_current"]
     assert stack.planner_files()[1]["current_quantum"] == pytest.approx(0.003)
-    # with a SYNC producer elsewhere, the hub produces it at the file's period
+    # with a SYNC producer elsewhere, the hub produces it at the file's period; on a bus whose
+    # SYNC comes from the master's own thread (pcan), the bridge produces it, none from the hub
     ext = tmp_path / "external.yaml"
     ext.write_text(yaml.safe_dump(dict(original, sync_producer="external", sync_period=0.02)))
     stack = Stack(StackOptions(bridge_config_file=str(ext), run_dir=str(tmp_path)), log=lambda s: None)
     assert stack.hub_syncs and stack.sync_period == 0.02
+    pcan = tmp_path / "pcan.yaml"
+    pcan.write_text(yaml.safe_dump(dict(original, bus={"interface": "pcan", "channel": "PCAN_USBBUS1"})))
+    stack = Stack(StackOptions(bridge_config_file=str(pcan), run_dir=str(tmp_path)), log=lambda s: None)
+    assert stack.bridge_data()["sync_producer"] == "master" and not stack.hub_syncs
 
 
 @pytest.mark.parametrize("change, text", [
