@@ -5,7 +5,8 @@ no planner or executor), by default with the shipped robot configuration
 (``config/bridge_epos4_1dof.yaml``: in-process player, 10 ms SYNC from the hub's timer as the
 kernel's on SocketCAN, derived 130 ms timeouts; its bus on the hub), brought to *active*, then
 left alone ``--hold`` s. Counted: start-ups that did not come up, and those whose bridge
-latched its safe state (with the reason and the time after *active*). ``--bridge-config default`` runs the stack's own config instead.
+latched its safe state (with the reason and the time after *active*). ``--bridge-config
+default`` runs the stack's own config instead.
 ``uptime`` at the start and the end. ``bench_hold.py --duration 2 --repeats 30`` counts the same
 for an ``ff-epos`` master.
 
