@@ -29,13 +29,21 @@ Per run:
 a 2-core machine). Summary: median / max |measured − predicted_true| and of the other differences;
 the load averages (1, 5, 15 min) at the start, per run and at the end.
 
+``--bridge-config FILE`` runs a robot's bridge file instead of the stack's own (e.g. the shipped
+``config/bridge_epos4_1dof.yaml``: player in the bridge's process, SYNC every 10 ms from the hub's
+timer as the kernel's on SocketCAN, 10 ms heartbeats, derived 130 ms timeouts), only its bus re-pointed at the hub
+(``StackOptions.bridge_config_file``). A run the stack could not execute (the bridge latched,
+no joint states) counts as a fault: its error is recorded, the bridge is fault-reset and the
+next run goes on. ``uptime`` is recorded at the start and the end.
+
     python benchmarks/bench_execution.py [--runs 20] [--objective robust-box] [--load 2]
-        [--player process|thread] [--out FILE]
+        [--player process|thread] [--bridge-config config/bridge_epos4_1dof.yaml] [--out FILE]
 """
 from __future__ import annotations
 
 import argparse
 import os
+import subprocess
 import sys
 import threading
 import time
@@ -49,7 +57,7 @@ from std_srvs.srv import Trigger
 from ff_executor.bringup.demo import plan_request
 from ff_executor.bringup.identify import applied_profile
 from ff_executor.bringup.stack import NOMINAL_CURRENT, SYNC_PERIOD, Stack, StackOptions
-from ff_executor.ros.client import StackClient
+from ff_executor.ros.client import StackCallError, StackClient
 from ff_hwbridge.protocol.units import DriveUnits
 from ff_msgs_py.convert import msg_to_profile
 from ff_planner.model.profile import CurrentProfile
@@ -132,6 +140,19 @@ def fault_reset(client: StackClient, timeout: float = 10.0) -> str:
         client.node.destroy_client(cli)
 
 
+def failed_run(error: str) -> dict[str, Any]:
+    """A run the stack could not execute (``error``): counted, with NaN figures."""
+    nan = float("nan")
+    return {"succeeded": False, "message": error, "error": error, "measured_rest": nan,
+            "predicted_true": nan, "predicted_nominal": nan, "measured_minus_predicted": nan,
+            "measured_minus_predicted_applied": nan, "measured_minus_predicted_applied_quantised": nan,
+            "measured_minus_executor_predicted": nan, "quantisation_term": nan,
+            "switch_timing_term": nan, "late_switches": -1, "loadavg": list(os.getloadavg()),
+            "switch_error_s": {"p50": nan, "p99": nan, "max": nan}, "switch_delays_s": [],
+            "switch_spread_s": nan, "missed_cycles": 0, "sync_period_s": nan,
+            "applied_all_switches": False}
+
+
 def one_run(client: StackClient, msg: Any, nominal, true, late: SimLateSwitches) -> dict[str, Any]:
     """Execute ``msg`` once from rest at 0 rad; the measured and predicted rest positions."""
     prof = msg_to_profile(msg)
@@ -189,8 +210,12 @@ def main(argv: Any = None) -> int:
     ap.add_argument("--player", choices=("process", "thread"), default="process",
                     help="the bridge's setpoint player in its own process (the stack's default) "
                          "or a thread of the bridge's process")
+    ap.add_argument("--bridge-config", default=None, metavar="YAML",
+                    help="a robot's bridge file run as shipped, its bus on the hub (e.g. "
+                         "config/bridge_epos4_1dof.yaml); default: the stack's own")
     ap.add_argument("--out", default=None)
     a = ap.parse_args(argv)
+    uptime_start = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
 
     nominal = arm1dof_params()
     true = nominal.replace(pc=nominal.pc * PC_SCALE)
@@ -200,7 +225,8 @@ def main(argv: Any = None) -> int:
     rows: list[dict[str, Any]] = []
     try:
         with Stack(StackOptions(true_params={"pc": true.pc}, rt_priority=a.rt_priority,
-                                player_process=a.player == "process"), log=log) as stack:
+                                player_process=a.player == "process",
+                                bridge_config_file=a.bridge_config), log=log) as stack:
             with StackClient(stack.env, "ff_bench_execution") as client:
                 late = SimLateSwitches(client)
                 resp = client.plan(plan_request(a.objective))
@@ -219,7 +245,11 @@ def main(argv: Any = None) -> int:
                     f"off the 3 mA grid by {planned['current_grid_error_a']:.1e} A, switches off the "
                     f"SYNC grid by {planned['switch_grid_error_s']:.1e} s")
                 for k in range(a.runs):
-                    row = one_run(client, resp.profile, nominal, true, late)
+                    try:
+                        row = one_run(client, resp.profile, nominal, true, late)
+                    except StackCallError as exc:     # counted: the stack could not run it
+                        row = failed_run(str(exc))
+                        log(f"run {k + 1}: not executed: {exc}")
                     # a missed cycle beyond the tolerance latches the bridge's safe state: the run
                     # counts as it came out, and the state is cleared so that the next run measures
                     row["fault_reset_after"] = None
@@ -242,6 +272,9 @@ def main(argv: Any = None) -> int:
     out = {
         "benchmark": "execution_determinism", "task": f"arm1dof 0 -> 1 rad in 1 s, {a.objective}",
         "objective": a.objective, "plan": planned,
+        "bridge_config": a.bridge_config or "the simulated stack's own (StackOptions defaults)",
+        "uptime_start": uptime_start,
+        "uptime_end": subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip(),
         "stack": {"setpoint_timing": StackOptions().setpoint_timing, "sync_period_s": SYNC_PERIOD,
                   "current_quantum_a": NOMINAL_CURRENT / 1000.0,
                   "setpoint_lead_s": StackOptions().setpoint_lead if a.player == "process" else 0.0},
@@ -274,6 +307,8 @@ def main(argv: Any = None) -> int:
             "runs_with_missed_cycles": int(sum(r["missed_cycles"] > 0 for r in rows)),
             "runs_not_applied": int(sum(not r["applied_all_switches"] for r in rows)),
             "fault_resets": int(sum(r["fault_reset_after"] is not None for r in rows)),
+            "runs_not_executed": int(sum("error" in r for r in rows)),
+            "runs_failed": int(sum(not r["succeeded"] for r in rows)),
             "sync_period_s": rows[0]["sync_period_s"] if rows else None,
             "all_succeeded": all(r["succeeded"] for r in rows),
         },

@@ -15,6 +15,9 @@ drive received: SYNCs and RxPDO1s (one per cycle when the master keeps the contr
 runs. Prints JSON; ``--out`` writes it too.
 
     .venv/bin/python benchmarks/bench_hold.py --duration 60 --load-repeats 10
+    .venv/bin/python benchmarks/bench_hold.py --duration 2 --repeats 30 --load-repeats 0   # start-ups
+
+``uptime`` is recorded at the start, between the series and at the end.
 """
 from __future__ import annotations
 
@@ -120,6 +123,11 @@ def hold(config: Path, current: float, duration: float, sync_from: str = "master
     return result
 
 
+def _uptime() -> str:
+    """``uptime``'s line (load averages over 1, 5, 15 min)."""
+    return subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+
+
 def _series(n: int, config: Path, current: float, duration: float, sync_from: str) -> dict[str, Any]:
     runs, errors = [], []
     for k in range(n):
@@ -151,13 +159,15 @@ def main() -> int:
     a = ap.parse_args()
     out: dict[str, Any] = {"benchmark": "hold", "config": os.path.relpath(a.config, REPO),
                            "current_a": a.current, "duration_s": a.duration, "sync_from": a.sync_from,
-                           "load_avg_1min_at_start": os.getloadavg()[0]}
+                           "load_avg_1min_at_start": os.getloadavg()[0], "uptime_start": _uptime()}
     out["quiet"] = _series(a.repeats, Path(a.config), a.current, a.duration, a.sync_from)
     out["load_avg_1min_after_quiet"] = os.getloadavg()[0]
-    with busy_load(a.load):
+    out["uptime_after_quiet"] = _uptime()
+    with busy_load(a.load if a.load_repeats else 0):
         out[f"load_{a.load}"] = _series(a.load_repeats, Path(a.config), a.current, a.duration,
                                         a.sync_from)
     out["load_avg_1min_at_end"] = os.getloadavg()[0]
+    out["uptime_end"] = _uptime()
     report(out, a.out)
     return 0
 

@@ -4,6 +4,7 @@
     ff-bringup --true-scale pc=1.2          # the simulated arm's Coulomb friction 20 % higher
     ff-bringup --true-param pc=0.25 --no-planner --hub-port 54701
     ff-bringup --print-config               # the effective configuration, nothing started
+    ff-bringup --bridge-config config/bridge_epos4_1dof.yaml   # the shipped robot config, bus on the hub
     ff-bringup --record run_bag             # also record the topics (ff-record, rosbag2/MCAP)
 
 Safe defaults, always: ROS traffic on loopback only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``),
@@ -41,6 +42,15 @@ applies setpoints when they arrive instead, with the bridge producing SYNC), 50 
 3 s timeout on both sides and 3 s for the executor's joint-state watchdog (above the scheduling
 gaps of a normal-priority process on a loaded shared machine, measured up to 1.4 s); a bridge
 that fails its enable sequence is restarted once.
+
+``--bridge-config FILE`` runs a robot's bridge file instead, as it is, with only its ``bus``
+section replaced by the hub (``remote``, ws://127.0.0.1:PORT/): for the shipped
+``config/bridge_epos4_1dof.yaml`` the player in the bridge's process, SYNC every 10 ms from a
+timer outside the bridge's process (on SocketCAN the kernel's, here the hub's), 10 ms drive
+heartbeats, the derived 130 ms timeouts. The simulated
+drives take the file's family, nominal current and encoder resolution; a file whose joints
+(node ids 1..n) or motor data (torque constant, gear ratio) are not the simulated arm's is
+refused with the key to change, before anything starts.
 """
 from __future__ import annotations
 
@@ -156,6 +166,13 @@ class StackOptions:
     sim_friction: Mapping[str, float] = field(default_factory=dict)   # the simulated arm's friction
                                                # that is not Eq. 9 (1-DOF): stribeck, stribeck_speed,
                                                # coulomb_ripple, coulomb_period (sim driver friction.*)
+    bridge_config_file: Optional[str] = None   # a robot's bridge YAML (e.g. the shipped
+                                               # config/bridge_epos4_1dof.yaml) run as it is, only its
+                                               # bus re-pointed at the hub: its SYNC producer, period,
+                                               # player placement, heartbeats and derived timeouts;
+                                               # setpoint_timing, player_process, setpoint_lead,
+                                               # stall_dump and rt_priority above then do not apply
+                                               # to the bridge (None: the stack's own bridge config)
 
     def true_friction(self) -> dict[str, float]:
         """The simulated arm's true parameters that differ from the planner's model."""
@@ -200,7 +217,7 @@ def bridge_config(model: str, hub_url: str) -> dict:
     nj = model_spec(model).n_joints
     joints = []
     for j in range(nj):
-        sfx = "" if nj == 1 else str(j + 1)    # parameter keys: "kt" (1 joint), "kt1", "kt2", ...
+        sfx = _joint_suffix(nj, j)             # parameter keys: "kt" (1 joint), "kt1", "kt2", ...
         joints.append({"name": f"joint{j + 1}", "node_id": j + 1, "family": "epos4",
                        "current_limit": float(getattr(p, "i_max" + sfx)),
                        "units": {"nominal_current": NOMINAL_CURRENT,
@@ -210,6 +227,72 @@ def bridge_config(model: str, hub_url: str) -> dict:
             "sync_period": SYNC_PERIOD, "heartbeat_producer_ms": HEARTBEAT_PRODUCER_MS,
             "heartbeat_timeout": HEARTBEAT_TIMEOUT, "master_heartbeat_timeout_ms": MASTER_HEARTBEAT_TIMEOUT_MS,
             "setpoint_timeout": 0.5, "joints": joints}
+
+
+def _joint_suffix(nj: int, j: int) -> str:
+    """Parameter key suffix of joint ``j`` (0-based): "" for one joint ("kt"), else "1", "2"..."""
+    return "" if nj == 1 else str(j + 1)
+
+
+def robot_bridge_config(path: str | Path, model: str, hub_url: str) -> dict:
+    """A robot's bridge YAML (``path``) with its ``bus`` section replaced by the simulation's
+    hub (python-can ``remote`` on ``hub_url``); everything else as shipped, except where the file
+    puts SYNC in the kernel (``interface: socketcan`` with ``sync_producer: master``: the kernel's
+    broadcast manager sends it): the hub's timer sends it instead (``sync_producer: external``).
+
+    ValueError naming the key when the file cannot run on the simulated ``model``: it does not
+    load as a bridge config, its joints are not the model's (count, node ids 1..n), its drives
+    are not one family, or its motor data (units.torque_constant Nm/A, units.gear_ratio) differ
+    from the simulated arm's by more than 0.1 % (the simulated drives take nominal current,
+    encoder resolution and family from the file)."""
+    from ff_hwbridge.drive.config import ConfigError, config_from_mapping
+
+    where = f"bridge config {path}"
+    try:
+        data = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+    except OSError as exc:
+        raise ValueError(f"{where}: cannot read it ({exc.strerror or exc})") from None
+    except yaml.YAMLError as exc:
+        raise ValueError(f"{where}: not valid YAML ({' '.join(str(exc).split())})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{where}: expected a mapping of bridge settings")
+    raw_bus = data.get("bus")
+    bus: dict = raw_bus if isinstance(raw_bus, dict) else {}
+    data["bus"] = {"interface": "remote", "channel": hub_url,
+                   "bitrate": int(bus.get("bitrate", 1_000_000))}
+    if str(bus.get("interface", "")) == "socketcan" and data.get("sync_producer", "master") == "master":
+        # on SocketCAN the master hands SYNC to the kernel's broadcast manager, whose timer keeps
+        # the period whatever the bridge's process does; the hub's timer (SCHED_FIFO, its own
+        # process) is that kernel here. The hub's remote bus has no kernel: left to the bridge,
+        # SYNC would come from a python-can thread of its process, late whenever it is.
+        data["sync_producer"] = "external"
+    try:
+        cfg = config_from_mapping(data)
+    except (ConfigError, ValueError, TypeError) as exc:
+        raise ValueError(f"{where}: {exc}") from None
+    nj = model_spec(model).n_joints
+    cannot = f"{where} cannot run on the simulated {model}"
+    ids = [j.node_id for j in cfg.joints]
+    if ids != list(range(1, nj + 1)):
+        raise ValueError(f"{cannot}: its joints have node ids {ids}; the simulation has "
+                         f"{nj} drive(s) with node ids {list(range(1, nj + 1))}")
+    families = {j.family for j in cfg.joints}
+    nominal = {float(j.units.nominal_current) for j in cfg.joints}
+    cpr = {int(j.units.counts_per_rev) for j in cfg.joints}
+    if len(families) > 1 or len(nominal) > 1 or len(cpr) > 1:
+        raise ValueError(f"{cannot}: the simulated drives share one family, nominal current and "
+                         f"encoder resolution; the file has {sorted(families)}, {sorted(nominal)} A, "
+                         f"{sorted(cpr)} counts/rev")
+    p = default_params(model)
+    for j, joint in enumerate(cfg.joints):
+        sfx = _joint_suffix(nj, j)
+        for key, have, want in (("torque_constant", joint.units.torque_constant, getattr(p, "kt" + sfx)),
+                                ("gear_ratio", joint.units.gear_ratio, getattr(p, "n" + sfx))):
+            if abs(float(have) - float(want)) > 1e-3 * abs(float(want)):
+                raise ValueError(f"{cannot}: {joint.name} units.{key} is {have}, the simulated "
+                                 f"arm's is {want} (the model's {'kt' if key == 'torque_constant' else 'n'}"
+                                 f"{sfx}); plan and simulate that arm, or fix the file")
+    return data
 
 
 class Stack:
@@ -233,6 +316,7 @@ class Stack:
         self._renice: list[NodeProcess] = []
         self._ctx: Optional[Context] = None
         self._node: Optional[Node] = None
+        self._robot: Optional[dict] = None
 
     @property
     def hub_url(self) -> str:
@@ -337,18 +421,50 @@ class Stack:
             "q0": [float(x) for x in (o.q0 or [0.0] * nj)], "counts_per_rev": COUNTS_PER_REV,
             "nominal_current": NOMINAL_CURRENT, "ground_truth_rate": 100.0,
             "physics_step": default_params(o.model).plant_step}
+        robot = self.robot_config()
+        if robot is not None:     # the simulated drives carry the motor data the file asserts
+            j0 = robot["joints"][0]
+            sim["family"] = str(j0.get("family", "epos4"))
+            sim["nominal_current"] = float(j0["units"]["nominal_current"])
+            sim["counts_per_rev"] = int(j0["units"]["counts_per_rev"])
         sim.update({f"true_params.{k}": v for k, v in o.true_friction().items()})
         sim.update({f"friction.{k}": float(v) for k, v in o.sim_friction.items()})
         sim.update(o.sim_overrides)
         return sim
 
+    def robot_config(self) -> Optional[dict]:
+        """The robot's bridge file (``bridge_config_file``) re-pointed at the hub, None without one;
+        ValueError when it cannot run on the simulation (:func:`robot_bridge_config`)."""
+        if self.options.bridge_config_file is None:
+            return None
+        if self._robot is None:
+            self._robot = robot_bridge_config(self.options.bridge_config_file, self.options.model,
+                                              self.hub_url)
+        return self._robot
+
+    @property
+    def sync_period(self) -> float:
+        """s, the SYNC period on the hub's bus (the robot file's, else the stack's)."""
+        robot = self.robot_config()
+        return float(robot.get("sync_period", 0.01)) if robot is not None else SYNC_PERIOD
+
     @property
     def hub_syncs(self) -> bool:
-        """The hub (its own process) produces SYNC: synchronous setpoints on a separate hub."""
+        """The hub (its own process) produces SYNC: synchronous setpoints on a separate hub (with
+        a robot file: when it says ``sync_producer: external``)."""
+        robot = self.robot_config()
+        if robot is not None:
+            return (self.options.separate_hub and robot.get("setpoint_timing", "sync") == "sync"
+                    and robot.get("sync_producer", "master") == "external")
         return self.options.separate_hub and self.options.setpoint_timing == "sync"
 
     def bridge_data(self) -> dict:
         """The bridge's config file (ff_hwbridge.drive.config), written to <run_dir>/bridge.yaml."""
+        robot = self.robot_config()
+        if robot is not None:
+            bdata = dict(robot)
+            self._apply_envelope(bdata)
+            return bdata
         bdata = bridge_config(self.options.model, self.hub_url)
         bdata["setpoint_timing"] = self.options.setpoint_timing
         if self.hub_syncs:
@@ -360,12 +476,16 @@ class Stack:
         bdata["stall_dump"] = float(self.options.stall_dump)
         if self.options.rt_priority:
             bdata["scheduler_rt_priority"] = int(self.options.rt_priority)
+        self._apply_envelope(bdata)
+        return bdata
+
+    def _apply_envelope(self, bdata: dict) -> None:
         if self.options.joint_envelope is not None:
             lo, hi, vmax = (float(x) for x in self.options.joint_envelope)
+            bdata["joints"] = [dict(j) for j in bdata["joints"]]
             for joint in bdata["joints"]:
                 joint["position_limits"] = [lo, hi]
                 joint["velocity_limit"] = vmax
-        return bdata
 
     def planner_files(self) -> tuple[list[str], dict[str, object]]:
         """(parameter files in order, overrides written after them) for the planner."""
@@ -374,7 +494,10 @@ class Stack:
         # the planner starts): currents on its setpoint unit (per mille of the rated torque),
         # switch times on its SYNC cycle, the certificate on that profile
         pp["drive_config"] = str(self.run_dir / "bridge.yaml")
-        pp["current_quantum"] = NOMINAL_CURRENT / 1000.0
+        robot = self.robot_config()
+        nominal = (float(robot["joints"][0]["units"]["nominal_current"]) if robot is not None
+                   else NOMINAL_CURRENT)
+        pp["current_quantum"] = nominal / 1000.0
         pp.update(self.options.planner_overrides)
         return [self.options.planner_params or str(CONFIG_DIR / "planner.yaml")], pp
 
@@ -408,10 +531,13 @@ class Stack:
         return {
             "ros": {k: self.env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR")},
             "run_dir": str(self.run_dir), "can_hub": self.hub_url, "record": o.record,
-            "ff_sim_driver": {"source": "generated (counts_per_rev, nominal_current from config/sim_arm1dof.yaml)",
+            "ff_sim_driver": {"source": ("generated (family, counts_per_rev, nominal_current from "
+                                         f"{o.bridge_config_file or 'config/sim_arm1dof.yaml'})"),
                               "parameters": self.sim_parameters()},
-            "ff_hwbridge": {"source": "generated: lenient timing for a shared machine (config/bridge_*.yaml "
-                                      "are for real hardware)", "config": self.bridge_data(),
+            "ff_hwbridge": {"source": (f"{o.bridge_config_file}, its bus re-pointed at the hub"
+                                       if o.bridge_config_file else
+                                       "generated: lenient timing for a shared machine (config/bridge_*.yaml "
+                                       "are for real hardware)"), "config": self.bridge_data(),
                             "parameters": dict(o.bridge_overrides)},
             **({"ff_planner": {"files": pf, "parameters": merged(pf, "ff_planner", pov)}} if o.planner else {}),
             **({"ff_executor": {"files": ef, "parameters": merged(ef, "ff_executor", eov)}} if o.executor else {}),
@@ -421,14 +547,19 @@ class Stack:
         o = self.options
         model = o.model
         true = o.true_friction()
+        self.robot_config()          # a robot file that cannot run here: refused before anything starts
         self.log(f"ff-bringup: run folder {self.run_dir}, ROS_DOMAIN_ID={self.env['ROS_DOMAIN_ID']} "
                  f"(loopback only), CAN hub {self.hub_url}")
         self.log(f"  simulated arm: {model}, true friction differs from the model by {true or 'nothing'}")
+        if o.bridge_config_file:
+            sync = "from the hub, as a kernel timer sends it" if self.hub_syncs else "from the bridge"
+            self.log(f"  bridge: {o.bridge_config_file} as shipped, its bus on the hub "
+                     f"(SYNC {sync}, {self.sync_period * 1e3:g} ms)")
         try:
             if o.separate_hub:
                 hub_args = ["--port", str(self.hub_port)]
                 if self.hub_syncs:
-                    hub_args += ["--sync-period", str(SYNC_PERIOD),
+                    hub_args += ["--sync-period", str(self.sync_period),
                                  "--sync-jitter-model-us", str(float(o.sync_jitter_model_us))]
                 p = self._start("ff_can_hub", "ff_hwbridge.cli.can_hub", hub_args, timing=True)
                 self._wait(p, lambda: "CAN hub on" in p.output(), "serving on 127.0.0.1")
@@ -643,6 +774,11 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--setpoint-timing", choices=("sync", "on_receipt"), default="sync",
                     help="sync (default): the drives latch setpoints at SYNC, produced by the CAN hub's "
                          "timer; on_receipt: setpoints applied when they arrive, at their stamps")
+    ap.add_argument("--bridge-config", default=None, metavar="YAML",
+                    help="run this bridge config as a robot would (e.g. config/bridge_epos4_1dof.yaml: "
+                         "in-process player, 10 ms SYNC from a kernel-like timer: the hub's), its bus re-pointed at "
+                         "the simulated hub; --setpoint-timing/--setpoint-lead/--rt-priority then do not "
+                         "apply to the bridge (default: the stack's own lenient config)")
     ap.add_argument("--setpoint-lead", type=float, default=StackOptions.setpoint_lead, metavar="S",
                     help="s: the bridge's player process hands setpoints to the hub's transmit "
                          "schedule up to this early (0..0.25; 0 = sent in the cycle before)")
@@ -657,8 +793,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                             true_params=parse_key_values(a.true_param, "--true-param"), planner=not a.no_planner,
                             hub_port=a.hub_port, start_timeout=a.start_timeout, rt_priority=a.rt_priority,
                             setpoint_timing=a.setpoint_timing, setpoint_lead=a.setpoint_lead,
-                            **environment_options(a))
+                            bridge_config_file=a.bridge_config, **environment_options(a))
         opts.true_friction()
+        if a.bridge_config:
+            robot_bridge_config(a.bridge_config, a.model, "ws://127.0.0.1:1/")
         if not 0 <= a.rt_priority <= 99:
             raise ValueError(f"--rt-priority must be 0..99, got {a.rt_priority}")
         if not 0.0 <= a.setpoint_lead <= 0.25:

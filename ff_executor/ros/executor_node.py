@@ -38,6 +38,13 @@ the increase over the goal of the status counter ``missed_setpoints`` (or ``miss
 from a status sent after the last applied report (the result waits up to ``DIAG_WAIT`` s for one);
 without a counter it is counted from the applied reports, whose stamps are then SYNC instants
 (applied − stamp ≥ 1.1 SYNC periods: :func:`ff_executor.engine.missed_cycles`).
+
+Clipping is a failed move: when the bridge's status (from after the move's end, waited for at
+most ``DIAG_WAIT`` s) counts feedback samples with statusword bit 11 (internal limit active) in
+this motion (``<joint>.motion_limited_count``, first one at ``<joint>.motion_limited_first_ns``),
+the drive did not apply the planned current: the goal is aborted with ``success = false``, the
+message naming the joints, how many samples and from when, the measured state filled in as for
+a success (:mod:`ff_executor.engine.clipping`).
 """
 from __future__ import annotations
 
@@ -65,6 +72,7 @@ from sensor_msgs.msg import JointState
 from ff_executor.engine import (NS, EngineConfig, Motion, ProfileRejected, Setpoint, SettleDetector, Stream,
                                 StreamRunner, TimingStats, build_setpoints, check_profile, check_start_state,
                                 estimate_applied_times, missed_cycles, resolve_start, timing_stats)
+from ff_executor.engine.clipping import clipped_joints, clipping_message
 from ff_executor.engine.config import EXECUTOR_PARAMETERS
 from ff_executor.engine.paramspec import ParamTable
 from ff_msgs.action import ExecuteProfile
@@ -128,6 +136,7 @@ class ExecutorNode(Node):
         self._pos: Optional[np.ndarray] = None    # rad, bridge joint order
         self._vel: Optional[np.ndarray] = None    # rad/s
         self._state_t = 0                         # ns (ROS clock) of the last joint state
+        self._sample_ns = 0                       # ns: its sample instant (header stamp; else arrival)
         self._effort_log: Optional[deque[tuple[int, np.ndarray]]] = None  # (t ns, effort A) while a move runs
         self._applied: dict[tuple[str, int], int] = {}
         self._active_stream: Optional[Stream] = None
@@ -137,6 +146,7 @@ class ExecutorNode(Node):
         self._diag_rx_ns = 0                      # ns: the last status of the bridge arrived
         self._bridge_latch = ""                   # the bridge's safe-state message ("" = none)
         self._latch_seen_ns = 0                   # ns: the last status that said "safe state" arrived
+        self._diag_values: dict[str, str] = {}    # the bridge's latest drive-group status (key -> value)
 
         sensor_qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT,
                                 history=HistoryPolicy.KEEP_LAST)
@@ -208,6 +218,7 @@ class ExecutorNode(Node):
         now = self._now_ns()
         with self._state_lock:
             self._pos, self._vel, self._state_t = pos, vel, now
+            self._sample_ns = time_to_ns(msg.header.stamp) or now
             if self._effort_from_states:
                 self._log_effort(msg, eff, now)
 
@@ -244,6 +255,7 @@ class ExecutorNode(Node):
                 self._bridge_missed = missed
                 self._diag_rx_ns = now
                 self._bridge_latch = str(status.message) if latched else ""
+                self._diag_values = values
                 if latched:
                     self._latch_seen_ns = now
 
@@ -450,7 +462,7 @@ class ExecutorNode(Node):
                                f"{slip:.1f} ms after its slot (lead {cfg.lead_time * 1e3:.0f} ms)")
         start_delay = (start - requested) / NS
         if stopped:
-            self._wait_settled(feedback, period, timeout=1.0)
+            self._wait_settled(feedback, period, timeout=1.0, since_ns=self._now_ns())
             if goal_handle.is_cancel_requested:
                 return self._finish(goal_handle, False, "cancelled: zero current sent at once",
                                     motion, stream, start_delay, how="canceled",
@@ -458,7 +470,8 @@ class ExecutorNode(Node):
             return self._finish(goal_handle, False, "aborted: joint states stopped during the move; "
                                 "zero current sent", motion, stream, start_delay, how="abort",
                                 missed_before=missed_before)
-        settled = self._wait_settled(feedback, period, timeout=float(self._p("settle_timeout")))
+        settled = self._wait_settled(feedback, period, timeout=float(self._p("settle_timeout")),
+                                     since_ns=tf_ns)
         pos, _vel, _ = self._state()
         if pos is None:
             return self._finish(goal_handle, False, "no joint state to judge the move",
@@ -468,6 +481,7 @@ class ExecutorNode(Node):
             return self._finish(goal_handle, False, f"aborted: {not_driven}; the arm is at "
                                 f"{np.round(pos, 6).tolist()} rad", motion, stream, start_delay,
                                 how="abort", missed_before=missed_before)
+        clipped = self._clipped(received, stream.start_ns, max(tf_ns, self._now_ns()))
         err = pos - motion.qf
         late = stream.late()
         text = (f"{'settled' if settled else 'NOT settled'} at {np.round(pos, 6).tolist()} rad, "
@@ -477,8 +491,26 @@ class ExecutorNode(Node):
             text += f"; the model predicted {np.round(predicted, 6).tolist()} rad"
         if late:
             text += f"; {len(late)} setpoint(s) reached the bridge after their stamp"
+        if clipped:
+            return self._finish(goal_handle, False, f"failed: {clipped}; {text}", motion, stream,
+                                start_delay, how="abort", missed_before=missed_before)
         return self._finish(goal_handle, True, text, motion, stream, start_delay, how="succeed",
                             missed_before=missed_before)
+
+    def _clipped(self, since_ns: int, start_ns: int, after_ns: int) -> str:
+        """Why the move failed by clipping ("" = no drive clipped it): statusword bit 11 counted
+        by the bridge for the motion begun after ``since_ns`` (ns), from a status that arrived
+        after ``after_ns`` (the move's end; waited for at most ``DIAG_WAIT`` s, else the latest);
+        ``start_ns``: the move's start, for the message."""
+        end = self._now_ns() + int(DIAG_WAIT * NS)
+        while True:
+            with self._state_lock:
+                values, rx, period = dict(self._diag_values), self._diag_rx_ns, self._sync_period
+            if rx >= after_ns or self._now_ns() >= end:
+                break
+            time.sleep(0.01)
+        clips = clipped_joints(values, self.config.joint_names, since_ns)
+        return clipping_message(clips, start_ns, period) if clips else ""
 
     def _not_driven(self, stream: Stream, since_ns: int) -> str:
         """Why the bridge did not drive the profile as streamed ("" = it did): it latched its safe
@@ -495,15 +527,21 @@ class ExecutorNode(Node):
                 return f"the bridge applied {got} of the profile's {len(switches)} current changes"
         return ""
 
-    def _wait_settled(self, feedback: Callable[[int], None], period: float, timeout: float) -> bool:
-        """Wait until the arm has settled (True) or ``timeout`` s passed (False), sending feedback."""
+    def _wait_settled(self, feedback: Callable[[int], None], period: float, timeout: float,
+                      since_ns: int = 0) -> bool:
+        """Wait until the arm has settled (True) or ``timeout`` s passed (False), sending feedback.
+        Only joint states sampled at or after ``since_ns`` (their header stamps: the drives'
+        sample instants) count, timed by those stamps: a stream that stopped (a stalled drive
+        or bridge) leaves the last state at rest before the move, which says nothing of the
+        move's end."""
         det = SettleDetector(self.config.rest_velocity, float(self._p("settle_hold")))
         end = self._now_ns() + int(timeout * NS)
         next_fb = self._now_ns()
         while rclpy.ok(context=self.context):
             now = self._now_ns()
-            _pos, vel, t = self._state()
-            if vel is not None and det.update(now, vel):
+            with self._state_lock:
+                vel, sample = self._vel, self._sample_ns
+            if vel is not None and sample >= since_ns and det.update(sample, vel):
                 return True
             if now >= next_fb:
                 feedback(now)

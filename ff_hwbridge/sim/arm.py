@@ -24,10 +24,17 @@ Eq. 9 — a Stribeck rise of the Coulomb level at low speed, a Coulomb level tha
 position (``ff_planner.identify.measure.FrictionMismatch``): each sub-step is then the exact
 Eq. 9 motion with the Coulomb level of the sub-step's start state, as the offline measurement
 simulates it, so that identification on the stack can be tested for honesty.
+
+A drive's current law (``set_law``: its velocity loop braking on a stop ramp, as an EPOS4 runs it
+in firmware) is evaluated by the plant itself every ``LAW_PERIOD_NS`` of plant time, however late
+the drive's own thread runs: a starved Python thread must not leave a braking current on after
+the arm has stopped (it would drive the arm back the other way).
 """
 from __future__ import annotations
 
 import bisect
+import functools
+import inspect
 import threading
 import time
 from collections import deque
@@ -40,7 +47,7 @@ from ff_planner.identify.measure import FrictionMismatch, advance_mismatch
 from ff_planner.model.params import Arm1DofParams, ParameterError, Params
 from ff_planner.model.registry import model_spec
 
-__all__ = ["AdvanceFn", "ArmState", "FrictionMismatch", "JointPort", "Params", "SimArm", "joint_param",
+__all__ = ["AdvanceFn", "ArmState", "CurrentLaw", "FrictionMismatch", "JointPort", "Params", "SimArm", "joint_param",
            "mismatch_advance", "planner_advance"]
 
 #: advance(params, q, qd, currents, dt) -> (q, qd): per-joint arrays of shape (n_joints,),
@@ -53,6 +60,21 @@ def planner_advance(params: Params) -> AdvanceFn:
     # the models compile with numba: imported when a plant is built, not with this module
 
     return model_spec(params.model).advance
+
+
+def substepping_advance(advance: AdvanceFn, step: float) -> Optional[AdvanceFn]:
+    """``advance`` taking any ``dt`` in compiled sub-steps of ``step`` s, when the model's advance
+    sub-steps itself (a keyword ``h``, e.g. the SCARA's): the same steps (``step`` from the
+    interval's start, the last one shorter) as calling it once per step from Python, without a
+    Python call per 0.1 ms (which cost the 2-DOF plant ~17 % of a core per simulated second,
+    and seconds of catch-up after a stall); None otherwise."""
+    try:
+        params = inspect.signature(advance).parameters
+    except (TypeError, ValueError):
+        return None
+    if "h" not in params or params["h"].kind is not inspect.Parameter.KEYWORD_ONLY:
+        return None
+    return functools.partial(advance, h=float(step))
 
 
 def mismatch_advance(mismatch: FrictionMismatch, step: Optional[float] = None) -> AdvanceFn:
@@ -92,6 +114,11 @@ class ArmState:
 #: to its state before that instant and integrates again with the change where it belongs (a real
 #: drive's timing does not depend on when a process gets the CPU; the simulated one's should not)
 LATE_NS = 1_000
+#: ns, the period on which the plant evaluates a drive's current law (``set_law``): a velocity
+#: loop in the drive's firmware (an EPOS4's runs at 2.5 kHz)
+LAW_PERIOD_NS = 400_000
+#: A drive's current law: (t ns, q rad, qd rad/s) of its joint -> current A
+CurrentLaw = Callable[[int, float, float], float]
 #: ns: how far back the plant can rewind (its history); a change older than this starts late, at
 #: the plant's time, and is counted in ``late_changes``
 REWIND_NS = 2_000_000_000
@@ -121,6 +148,11 @@ class SimArm:
         self._own_advance = self._advance
         # an advance exact over any interval (the 1-DOF Eq. 9 motion) needs no sub-steps
         self._own_any_dt = advance is None and model_spec(params.model).advance_exact
+        if advance is None and not self._own_any_dt:
+            sub = substepping_advance(self._advance, self.step)
+            if sub is not None:
+                self._advance = self._own_advance = sub
+                self._own_any_dt = True
         self._any_dt = self._own_any_dt
         self.friction: Optional[FrictionMismatch] = None    # None: the model's Eq. 9
         self._clock = clock
@@ -136,6 +168,7 @@ class SimArm:
         self.rewound_changes = 0   # current changes the plant had passed, put in their place
         self.rewound_max_ns = 0    # ... the largest rewind (ns)
         self.stale_reads = 0       # states asked for before the history: the oldest one given
+        self._laws: dict[int, CurrentLaw] = {}                # joint -> a drive's current law
         self._snaps: deque[_Snapshot] = deque()              # plant states, oldest first
         self._changes: deque[tuple[int, int, float]] = deque()   # (t ns, joint, A) since the oldest
         self._snapshot()
@@ -184,14 +217,28 @@ class SimArm:
         return a
 
     def _integrate(self, dt: float) -> None:
-        self._q, self._qd = self._integrate_from(self._q, self._qd, self._i, dt)
+        self._q, self._qd = self._integrate_from(self._q, self._qd, self._i, dt, self._t_ns)
 
     def _integrate_from(self, q: np.ndarray, qd: np.ndarray, i: np.ndarray,
-                        dt: float) -> tuple[np.ndarray, np.ndarray]:
-        """(q rad, qd rad/s) after ``dt`` s of currents ``i`` (A) from (q, qd); the inputs are
-        not changed."""
-        p = self.params
+                        dt: float, t_ns: int = 0) -> tuple[np.ndarray, np.ndarray]:
+        """(q rad, qd rad/s) after ``dt`` s of currents ``i`` (A) from (q, qd) at plant time
+        ``t_ns``; q and qd are not changed. A joint under a current law (``set_law``) takes the
+        law's current every ``LAW_PERIOD_NS`` (written into ``i``)."""
         q, qd = np.array(q, dtype=float), np.array(qd, dtype=float)
+        if not self._laws:
+            return self._run(q, qd, i, dt)
+        t, end = int(t_ns), int(t_ns) + int(round(dt * 1e9))
+        while t < end:
+            for j, law in self._laws.items():
+                i[j] = float(law(t, float(q[j]), float(qd[j])))
+            nxt = min(end, (t // LAW_PERIOD_NS + 1) * LAW_PERIOD_NS)
+            q, qd = self._run(q, qd, i, (nxt - t) * 1e-9)
+            t = nxt
+        return q, qd
+
+    def _run(self, q: np.ndarray, qd: np.ndarray, i: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+        """``dt`` s of constant currents ``i`` from (q, qd), in the model's steps."""
+        p = self.params
         while dt > 0.0:
             h = dt if self._any_dt else min(self.step, dt)
             q1, qd1 = self._advance(p, q.copy(), qd.copy(), i.copy(), h)
@@ -275,6 +322,26 @@ class SimArm:
             self._changes.append((self._t_ns, joint, float(current)))
             self._snapshot()
 
+    def set_law(self, joint: int, law: Optional[CurrentLaw], t_ns: Optional[int] = None) -> None:
+        """From ``t_ns`` (default now) motor ``joint`` carries the current ``law(t ns, q rad, qd
+        rad/s)`` A, evaluated by the plant every ``LAW_PERIOD_NS`` (a drive's firmware loop, e.g.
+        braking on a stop ramp); None: the law ends, the current stays at its last value until
+        ``set_current``. The history before it cannot be replayed."""
+        if not 0 <= joint < self.n_joints:
+            raise ParameterError(f"joint index must be 0..{self.n_joints - 1}, got {joint}")
+        with self._lock:
+            self._advance_to(self._clock() if t_ns is None else int(t_ns))
+            if law is None:
+                self._laws.pop(joint, None)
+            else:
+                self._laws[joint] = law
+                self._i[joint] = float(law(self._t_ns, float(self._q[joint]), float(self._qd[joint])))
+            self._forget_history()
+
+    def has_law(self, joint: int) -> bool:
+        """Whether motor ``joint`` is under a drive's current law now."""
+        return joint in self._laws
+
     def state(self, t_ns: Optional[int] = None) -> ArmState:
         """Ground truth at ``t_ns``. Default: the ``horizon()``, or the plant's time where that is
         later (reading the state never moves the plant past a current change still in flight).
@@ -307,10 +374,10 @@ class SimArm:
         q, qd, i = snap.q.copy(), snap.qd.copy(), snap.i.copy()
         t = snap.t_ns
         for tc, j, c in reversed(between):
-            q, qd = self._integrate_from(q, qd, i, (tc - t) * 1e-9)
+            q, qd = self._integrate_from(q, qd, i, (tc - t) * 1e-9, t)
             t = tc
             i[j] = c
-        q, qd = self._integrate_from(q, qd, i, (t_ns - t) * 1e-9)
+        q, qd = self._integrate_from(q, qd, i, (t_ns - t) * 1e-9, t)
         return ArmState(int(t_ns), tuple(map(float, q)), tuple(map(float, qd)), tuple(map(float, i)))
 
     def joint(self, joint: int, t_ns: Optional[int] = None) -> tuple[float, float, float]:
@@ -328,6 +395,7 @@ class SimArm:
                 self.params = params
             self._q, self._qd = self._vec(q0, "q0"), self._vec(0.0 if qd0 is None else qd0, "qd0")
             self._i[:] = 0.0
+            self._laws.clear()
             self._t_ns = self._clock()
             self._forget_history()
 
@@ -368,6 +436,10 @@ class JointPort:
 
     def set_current(self, current: float, t_ns: int) -> None:
         self.arm.set_current(self.joint, current, t_ns)
+
+    def set_law(self, law: Optional[CurrentLaw], t_ns: int) -> None:
+        """The drive's current law from ``t_ns`` on (None: ended); see ``SimArm.set_law``."""
+        self.arm.set_law(self.joint, law, t_ns)
 
     def sample(self, t_ns: int) -> tuple[float, float, float]:
         """(q rad, qd rad/s, current A) of the joint at ``t_ns``."""

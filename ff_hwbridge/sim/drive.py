@@ -30,6 +30,10 @@ What it does, per the suite's CANopen contract (CiA 301/402):
   deceleration for the slow down ramp; rpm/s of the motor), to standstill; a fault waits in
   FAULT REACTION ACTIVE meanwhile. 0x6085 is a velocity deceleration, so the ramp is a speed
   ramp, not a torque ramp. The loop is tuned to ``DriveConfig.load_inertia`` (0: no ramp).
+  On a plant that takes a current law (``SimArm.set_law``) the loop runs in the plant's time
+  every 0.4 ms, as in the drive's firmware, whatever this process's threads do: a starved
+  thread neither holds a braking current past standstill (driving the arm back the other way)
+  nor ends a ramp early; the drive's 2 ms thread only ends the ramp once the arm stands still.
 - TPDOs with transmission type 1-240 sent on every n-th SYNC in OPERATIONAL, sampled at the SYNC's
   arrival; event-driven TPDOs (254/255, maxon's default for TxPDO1) on a change of a mapped
   value, no sooner than the inhibit time, and every event timer if set;
@@ -432,7 +436,9 @@ class _Link:
         self._dispatch = threading.RLock()
         self._delay: Optional[_DelayLine] = None
         self._send_lock = threading.Lock()
-        self.stall = StallDump(stall_dump, rearm_every=0.1)
+        # re-armed at most every 0.5 s: faulthandler restarts its watchdog thread on each re-arm,
+        # measured 17 ms a call in the 2-DOF driver at load ~14 (10 a second: 17 % of its time)
+        self.stall = StallDump(stall_dump, rearm_every=0.5)
 
     def _delay_line(self) -> _DelayLine:
         if self._delay is None:
@@ -617,6 +623,7 @@ class SimEpos:
             self._left_enabled_ns = 0
             self._zero_current_ns = 0
             self._ramp: Optional[_Ramp] = None
+            self._law_on = False         # the stop ramp's velocity loop runs in the plant
             self._brake = 0.0
             self._tpdo_sent: dict[int, tuple[int, bytes]] = {}   # id(map) -> (monotonic ns, data)
             self._in_rpdo = False
@@ -967,8 +974,9 @@ class SimEpos:
         was_driving = self.state is State.OPERATION_ENABLED and self._in_current_mode()
         if self.state is State.OPERATION_ENABLED and new is not State.OPERATION_ENABLED:
             self._left_enabled_ns = t_ns
+        cleared = False
         if new not in _BRAKING:
-            self._ramp = None
+            cleared = self._set_ramp(None, t_ns)
         elif transition == 11 and was_driving:
             self._begin_ramp("quick_stop", self._qs_c, t_ns)
         elif transition == 13 and (was_driving or self._ramp is not None):
@@ -977,7 +985,7 @@ class SimEpos:
         self.transitions.append(transition)
         self.state_log.append(StateChange(t_ns, t_ns + wall_minus_mono(),
                                           new, transition))
-        if new not in _POWERED:
+        if new not in _POWERED or cleared:
             self._apply(t_ns)
 
     # -- stop ramps (quick stop 0x605A, fault reaction 0x605E) ----------------------------------
@@ -988,7 +996,7 @@ class SimEpos:
         quick stop deceleration), 0x605A 3/4/7/8 at the current limit; rpm/s of the motor.
         0x605A 0 / 0x605E 0, a motor standing still, or no tuned velocity loop (``load_inertia``
         0): no ramp, the current is cut at once."""
-        self._ramp = None
+        self._set_ramp(None, t_ns)
         if option <= 0 or (kind == "fault" and option > 2) or self.config.load_inertia <= 0:
             return
         _, qd, _ = self.plant.sample(t_ns)
@@ -1004,8 +1012,34 @@ class SimEpos:
         else:
             alpha = decel * RPM_S / self.config.gear_ratio
         t_ramp = 0.0 if math.isinf(alpha) else abs(qd) / alpha
-        self._ramp = _Ramp(kind, t_ns, qd, alpha, t_max=2.0 * t_ramp + 1.0)
-        self._brake = self._ramp_current(self._ramp, qd, 0.0)
+        ramp = _Ramp(kind, t_ns, qd, alpha, t_max=2.0 * t_ramp + 1.0)
+        self._brake = self._ramp_current(ramp, qd, 0.0)
+        self._set_ramp(ramp, t_ns)
+
+    def _set_ramp(self, ramp: Optional[_Ramp], t_ns: int) -> bool:
+        """Start (``ramp``) or end (None) a stop ramp at ``t_ns``. On a plant that takes a current
+        law (``SimArm``) the velocity loop runs in the plant's time, as in a drive's firmware,
+        however late this process's threads run (``JointPort.set_law``); True when a law ended
+        (the caller then pushes the power stage's current again)."""
+        self._ramp = ramp
+        set_law = getattr(self.plant, "set_law", None)
+        if set_law is None:
+            return False
+        if ramp is None:
+            if not self._law_on:
+                return False
+            set_law(None, t_ns)
+            self._law_on = False
+            self._applied = math.nan            # the next _apply pushes its current
+            return True
+        lim = self.current_limit()
+
+        def law(t: int, _q: float, qd: float) -> float:
+            return max(-lim, min(lim, self._ramp_current(ramp, qd, (t - ramp.t0_ns) * 1e-9)))
+
+        set_law(law, t_ns)
+        self._law_on = True
+        return False
 
     def _ramp_current(self, r: _Ramp, qd: float, t: float) -> float:
         """A the velocity loop asks for at ``t`` s into the ramp at joint speed ``qd`` rad/s:
@@ -1029,7 +1063,8 @@ class SimEpos:
             ramp_over = math.isinf(r.alpha) or abs(r.v0) - r.alpha * t <= 0.0
             stopped = abs(qd) < STANDSTILL or qd * r.v0 < 0.0
             if (ramp_over and stopped) or t > r.t_max:
-                self._ramp, self._brake = None, 0.0
+                self._brake = 0.0
+                self._set_ramp(None, now)
                 self._apply(now)
                 if r.kind == "fault" and self.state is State.FAULT_REACTION_ACTIVE:
                     self._set_state(State.FAULT, 14, now)
@@ -1068,11 +1103,14 @@ class SimEpos:
             self._commanded = self.setpoint_to_current(self._setpoint_raw)
             lim = self.current_limit()
             amps = max(-lim, min(lim, self._commanded))
-            if self._ramp is not None and self.state in _BRAKING:
+            braking = self._ramp is not None and self.state in _BRAKING
+            if braking:
                 amps = max(-lim, min(lim, self._brake))
             elif self.state not in _POWERED or not self._in_current_mode():
                 amps = 0.0
-            if amps != self._applied or self._applied == 0.0:
+            if braking and self._law_on:
+                pass                            # the plant runs the velocity loop's law
+            elif amps != self._applied or self._applied == 0.0:
                 self.plant.set_current(amps, t_ns)
             if amps == 0.0 and self._applied != 0.0:
                 self._zero_current_ns = t_ns

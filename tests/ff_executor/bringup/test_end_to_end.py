@@ -7,6 +7,8 @@ baseline (energy-optimal) must miss by more than BASELINE_MIN and by at least 3x
 """
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 from action_msgs.msg import GoalStatus
@@ -97,3 +99,45 @@ def test_cancel_mid_move_stops_the_arm_across_the_chain(stack_client):
     # after the cancel the motor current measured by the bridge goes to zero and stays there
     t, _, _, eff = mv.joints.arrays()
     assert eff.size and abs(eff[-1, 0]) < 0.05
+
+
+#: rad: |measured rest - the model's prediction| of the robust move with the shipped robot
+#: configuration, the arm's friction as the model's (the issue's bound with two busy processes;
+#: the stack's defaults land within 0.02 mrad, benchmarks/results/exec_defaults_quiet.json)
+SHIPPED_TOL = 0.002
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "the bridge (ff_hwbridge.ros.bridge_node, in-process player) sends no setpoint RPDO for two "
+    "or more SYNC cycles while it activates, after the drive reached Operation enabled, so the "
+    "drive faults 0x8250 at start-up (bench_startups: 5 of 8 here; a bus trace showed a 33 ms gap "
+    "during on_activate's full gc, freeze_heap, but with that moved before enable 5 of 6 still "
+    "latched 5-44 ms after active); under load the in-process player also misses cycles and the "
+    "derived 130 ms heartbeat / feedback timeouts trip (bench_execution --bridge-config)"))
+def test_the_shipped_robot_configuration_runs_a_robust_move_on_the_simulated_epos4(tmp_path):
+    """config/bridge_epos4_1dof.yaml as a robot runs it (player in the bridge's process, SYNC
+    every 10 ms from a timer outside it: the kernel's on SocketCAN, the hub's here; 10 ms
+    heartbeats, derived 130 ms timeouts), its bus on the simulated hub: it comes up without a
+    latch, holds for 3 s, and the robust move lands where the model says, no cycle missed."""
+    from ff_executor.bringup.stack import CONFIG_DIR
+
+    shipped = str(CONFIG_DIR / "bridge_epos4_1dof.yaml")
+    # the arm's friction as the planner's model: the executor's predicted rest (the model's, for
+    # the drive-exact profile) is then the true arm's
+    stack = Stack(StackOptions(bridge_config_file=shipped, run_dir=str(tmp_path)), log=lambda s: None)
+    stack.start()
+    client = StackClient(stack.env, "ff_e2e_shipped")
+    try:
+        assert stack.hub_syncs and not stack.bridge_data().get("player_process")
+        time.sleep(3.0)
+        bridge_log = next(p for p in stack.procs if p.name == "ff_hwbridge").output()
+        assert "safe state" not in bridge_log, bridge_log[-2000:]
+        s = run_motions(client, 1.0, 1.0, MOTIONS[:1], log=lambda _m: None)
+        rob = s["robust"]
+        assert rob["executed"], rob["message"]
+        assert rob["missed_cycles"] == 0, rob
+        assert abs(rob["measured_minus_predicted"]) <= SHIPPED_TOL, rob
+        assert all(p.alive() for p in stack.procs)
+    finally:
+        client.close()
+        stack.stop()

@@ -149,3 +149,74 @@ def test_print_config_shows_the_values_from_config(capsys, tmp_path, monkeypatch
     assert cfg["ff_executor"]["parameters"]["keepalive"] == 0.25     # from config/executor.yaml
     assert demo.main(["--print-config", "--domain-id", "5"]) == 0
     assert yaml.safe_load(capsys.readouterr().out)["ros"]["ROS_DOMAIN_ID"] == "5"
+
+
+def test_robot_bridge_config_is_the_shipped_file_with_only_its_bus_on_the_hub(tmp_path):
+    import yaml
+
+    from ff_executor.bringup.stack import CONFIG_DIR, robot_bridge_config
+
+    shipped = CONFIG_DIR / "bridge_epos4_1dof.yaml"
+    data = robot_bridge_config(shipped, "arm1dof", "ws://127.0.0.1:50000/")
+    original = yaml.safe_load(shipped.read_text())
+    assert data["bus"] == {"interface": "remote", "channel": "ws://127.0.0.1:50000/", "bitrate": 1_000_000}
+    # SocketCAN + sync_producer master: the kernel sends SYNC on a robot, the hub's timer here
+    assert original["bus"]["interface"] == "socketcan" and original["sync_producer"] == "master"
+    assert data["sync_producer"] == "external"
+    assert ({k: v for k, v in data.items() if k not in ("bus", "sync_producer")}
+            == {k: v for k, v in original.items() if k not in ("bus", "sync_producer")})
+    stack = Stack(StackOptions(bridge_config_file=str(shipped), run_dir=str(tmp_path)), log=lambda s: None)
+    # the robot's mode: in-process player, SYNC every 10 ms from a timer outside the bridge
+    assert not stack.bridge_data().get("player_process")
+    assert stack.hub_syncs and stack.sync_period == 0.01
+    assert stack.sim_parameters()["nominal_current"] == original["joints"][0]["units"]["nominal_current"]
+    assert stack.planner_files()[1]["current_quantum"] == pytest.approx(0.003)
+    # with a SYNC producer elsewhere, the hub produces it at the file's period; on a bus whose
+    # SYNC comes from the master's own thread (pcan), the bridge produces it, none from the hub
+    ext = tmp_path / "external.yaml"
+    ext.write_text(yaml.safe_dump(dict(original, sync_producer="external", sync_period=0.02)))
+    stack = Stack(StackOptions(bridge_config_file=str(ext), run_dir=str(tmp_path)), log=lambda s: None)
+    assert stack.hub_syncs and stack.sync_period == 0.02
+    pcan = tmp_path / "pcan.yaml"
+    pcan.write_text(yaml.safe_dump(dict(original, bus={"interface": "pcan", "channel": "PCAN_USBBUS1"})))
+    stack = Stack(StackOptions(bridge_config_file=str(pcan), run_dir=str(tmp_path)), log=lambda s: None)
+    assert stack.bridge_data()["sync_producer"] == "master" and not stack.hub_syncs
+
+
+@pytest.mark.parametrize("change, text", [
+    ({"joints": [{"node_id": 3}]}, "node ids [3]"),
+    ({"joints": [{"units": {"torque_constant": 0.05}}]}, "units.torque_constant is 0.05"),
+    ({"joints": [{"units": {"gear_ratio": 100.0}}]}, "units.gear_ratio is 100.0"),
+    ({"sync_period": -1.0}, "sync_period"),
+])
+def test_a_robot_config_that_cannot_run_on_the_simulation_is_refused_with_the_key(tmp_path, capsys, change, text):
+    import yaml
+
+    from ff_executor.bringup.stack import CONFIG_DIR, robot_bridge_config
+
+    data = yaml.safe_load((CONFIG_DIR / "bridge_epos4_1dof.yaml").read_text())
+    for key, value in change.items():
+        if key == "joints":
+            joint = data["joints"][0]
+            for k, v in value[0].items():
+                joint[k] = dict(joint[k], **v) if isinstance(v, dict) else v
+        else:
+            data[key] = value
+    bad = tmp_path / "robot.yaml"
+    bad.write_text(yaml.safe_dump(data))
+    with pytest.raises(ValueError, match="robot.yaml") as exc:
+        robot_bridge_config(bad, "arm1dof", "ws://127.0.0.1:50000/")
+    assert text in str(exc.value)
+    # ff-bringup: one line, exit 2, nothing started
+    assert main(["--bridge-config", str(bad), "--run-dir", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("ff-bringup: bridge config") and text in err and not (tmp_path / "run").exists()
+
+
+def test_the_one_dof_robot_config_does_not_run_the_two_dof_simulation(capsys):
+    from ff_executor.bringup.stack import CONFIG_DIR
+
+    assert main(["--model", "scara2", "--bridge-config", str(CONFIG_DIR / "bridge_epos4_1dof.yaml")]) == 2
+    assert "cannot run on the simulated scara2: its joints have node ids [1]" in capsys.readouterr().err
+    assert main(["--bridge-config", "no/such.yaml"]) == 2
+    assert "cannot read it" in capsys.readouterr().err

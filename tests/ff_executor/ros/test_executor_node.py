@@ -64,6 +64,9 @@ class FakeBridge(Node):
         self.miss_seqs: set[int] = set()  # SYNC mode: these take effect one cycle late
         self.latch = ""                   # != "": report a latched safe state with this reason
         self.drop_seqs: set[int] = set()  # setpoints it never applies (nor reports)
+        self.clip_above = float("inf")    # A: an applied current above this counts as clipped
+        self.js_pause_until = 0           # ns: no joint states before this (a stalled drive)
+        self.limited_count, self.limited_first_ns = 0, 0   # statusword bit 11 in the motion
         self.running = True
         self.thread = threading.Thread(target=self._loop, daemon=True)
         self.thread.start()
@@ -95,6 +98,7 @@ class FakeBridge(Node):
             self.received.clear()
             self.applied.clear()
             self.reported_errors.clear()
+            self.limited_count, self.limited_first_ns = 0, 0
             self.t_sim = self.now()
 
     def _loop(self):
@@ -110,6 +114,9 @@ class FakeBridge(Node):
                     self.q, self.qd = advance(PARAMS, self.q, self.qd, self.current,
                                               (t_apply - self.t_sim) / 1e9)
                     self.t_sim, self.current = t_apply, cur
+                    if abs(cur) > self.clip_above:     # the drive limits it (bit 11 from now on)
+                        self.limited_first_ns = self.limited_first_ns or t_apply
+                        self.limited_count += 1
                     self.applied.append((stamp, cur))
                     self.reported_errors.append(((stamp if self.sync_period > 0 else now) - stamp) / 1e9)
                     sync = self.sync_period > 0
@@ -124,7 +131,7 @@ class FakeBridge(Node):
                 self.t_sim = now
                 q, qd, cur = self.q, self.qd, self.current
             k += 1
-            if k % 5 == 0:
+            if k % 5 == 0 and now >= self.js_pause_until:
                 js = JointState(name=["joint1"], position=[q], velocity=[qd], effort=[cur])
                 js.header.stamp = ns_to_time(now)
                 self.js_pub.publish(js)
@@ -134,7 +141,9 @@ class FakeBridge(Node):
 
     def _publish_diagnostics(self):
         values = {"synchronous": int(self.sync_period > 0), "sync_period_us": self.sync_period * 1e6,
-                  "missed_setpoints": self.missed_count}
+                  "missed_setpoints": self.missed_count,
+                  "joint1.motion_limited_count": self.limited_count,
+                  "joint1.motion_limited_first_ns": self.limited_first_ns}
         level, text = ((DiagnosticStatus.ERROR, f"safe state: {self.latch}") if self.latch
                        else (DiagnosticStatus.OK, "operation enabled"))
         st = DiagnosticStatus(name="fake_bridge: drive group", level=level, message=text,
@@ -303,6 +312,46 @@ def test_a_move_the_bridge_did_not_drive_is_aborted_not_succeeded(stack, how):
     want = "latched its safe state: setpoint watchdog" if how == "latched" else "applied 5 of the profile's 6"
     assert want in res.result.message, res.result.message
     time.sleep(0.3)
+
+
+def test_a_move_the_drive_clipped_fails_and_says_so(stack):
+    bridge, client, _ = stack
+    bridge.clip_above = 6.0                  # the profile's 6.94 A step is clipped by the drive
+    try:
+        bridge.reset(0.0)
+        time.sleep(0.2)
+        goal, _ = goal_for()
+        status, result = run_goal(client, goal)
+    finally:
+        bridge.clip_above = float("inf")
+    assert status == GoalStatus.STATUS_ABORTED and not result.success, result.message
+    assert "clipped the current (statusword bit 11" in result.message and "joint1: 1 feedback" in result.message
+    assert len(result.final_position) == 1 and result.setpoints_sent == 6   # the move's record kept
+    # the next move, not clipped: the earlier motion's count (stamped before it) does not fail it
+    bridge.t_sim = bridge.now()
+    time.sleep(0.3)
+    with bridge.lock:
+        bridge.q, bridge.qd = 0.0, 0.0
+    status, result = run_goal(client, goal)
+    assert status == GoalStatus.STATUS_SUCCEEDED, result.message
+
+
+def test_a_move_is_judged_on_states_sampled_after_it_not_on_a_stalled_stream(stack):
+    """The joint states stop from the goal until 1.5 s after the move's end (a stalled drive):
+    the result waits for states sampled after tf and reports where the arm really ended, not
+    the last state before the stall (at rest at 0 rad, which looked settled at once)."""
+    bridge, client, _ = stack
+    bridge.reset(0.0)
+    time.sleep(0.2)
+    goal, prof = goal_for()
+    bridge.js_pause_until = bridge.now() + int(3.1e9)     # start margin 0.6 s + tf 1 s + 1.5 s
+    try:
+        status, result = run_goal(client, goal)
+    finally:
+        bridge.js_pause_until = 0
+    assert status == GoalStatus.STATUS_SUCCEEDED, result.message
+    expected = float(rest_position(PARAMS, prof, [0.0])[0])
+    assert result.final_position[0] == pytest.approx(expected, abs=1e-6), result.message
 
 
 def test_second_goal_is_refused_while_one_runs(stack):

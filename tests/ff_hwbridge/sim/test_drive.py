@@ -929,3 +929,33 @@ def test_the_rig_turns_the_supervision_off_and_says_so():
         rig.close()
     off = RigConfig(interpolation_supervision=False).drive_configs()[0]
     assert off.interpolation_supervision is False
+
+
+def test_a_stop_ramp_brakes_in_the_drives_time_even_when_its_thread_is_held_off():
+    """The quick-stop ramp's velocity loop is the drive's firmware: with the simulated drive's
+    own thread held off for 1.5 s (a loaded machine), the arm still stops on the ramp and stays
+    stopped (a braking current held by a starved thread would drive it back the other way, and
+    a ramp cut short would free it at speed), then the drive ends Switch on disabled (0x605A =
+    2, the shipped option) and the arm, at rest, has only friction. From 5 rad/s: above 3.8
+    rad/s the model's friction (pv < 0, table 2) no longer brakes a free arm at all."""
+    r, arm = _moving_rig({(0x605A, None): 2}, speed=5.0)
+    step = r.drive._ramp_step
+    try:
+        q0, v0 = arm.state().q[0], arm.state().qd[0]
+        r.drive._ramp_step = lambda: None                  # the drive's 2 ms thread starved
+        r.rpdo(0x02, 0)
+        assert wait_for(lambda: r.drive.braking)
+        time.sleep(1.5)
+        s = arm.state()
+        alpha = 10000 * 2 * 3.141592653589793 / 60 / r.cfg.gear_ratio     # 0x6085, rad/s²
+        assert abs(s.qd[0]) < 0.05, s                      # stopped, not reversed
+        assert q0 < s.q[0] < q0 + v0 * v0 / alpha + 0.05, (q0, v0, s)
+        r.drive._ramp_step = step
+        assert wait_for(lambda: r.drive.state is State.SWITCH_ON_DISABLED, 5.0)
+        assert wait_for(lambda: r.drive.applied_current == 0.0 and not r.drive.braking)
+        time.sleep(0.3)
+        assert abs(arm.state().qd[0]) < 0.01 and abs(arm.state().current[0]) == 0.0
+    finally:
+        r.drive._ramp_step = step
+        r.close()
+        arm.stop_clock()
