@@ -25,7 +25,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Optional, Sequence
+from typing import Optional
+
+from numpy.typing import ArrayLike
 
 import numpy as np
 from numba import njit
@@ -491,8 +493,8 @@ class ArmSim:
     event_kind: Optional[np.ndarray] = None
 
 
-def _check(arm: UrdfArm, profile: CurrentProfile, q0: Sequence[float],
-           qd0: Optional[Sequence[float]]) -> tuple[np.ndarray, np.ndarray]:
+def _check(arm: UrdfArm, profile: CurrentProfile, q0: ArrayLike,
+           qd0: Optional[ArrayLike]) -> tuple[np.ndarray, np.ndarray]:
     n = arm.n
     if profile.n_joints != n:
         raise PlanningError(f"arm '{arm.name}' needs currents for {n} joints, got {profile.n_joints}")
@@ -527,10 +529,10 @@ def run(arm: UrdfArm, profile: CurrentProfile, q0: np.ndarray, qd0: Optional[np.
                          y0.astype(np.complex128), float(h), bool(settle), float(settle_max), nrec)
 
 
-def simulate(arm: UrdfArm, profile: CurrentProfile, q0: Sequence[float],
-             qd0: Optional[Sequence[float]] = None, *, settle: bool = True, record: bool = False,
+def simulate(arm: UrdfArm, profile: CurrentProfile, q0: ArrayLike,
+             qd0: Optional[ArrayLike] = None, *, settle: bool = True, record: bool = False,
              h: float = DEFAULT_H, friction_scale: Optional[np.ndarray] = None,
-             i_rest: Optional[Sequence[float]] = None) -> ArmSim:
+             i_rest: Optional[ArrayLike] = None) -> ArmSim:
     """Simulate a move from (q0, qd0) (motor angles θ, rad, rad/s); ``friction_scale`` (n, 3)
     multiplies the nominal (pv, pc, pt) of each joint. PlanningError if it chatters."""
     q0a, qd0a = _check(arm, profile, q0, qd0)
@@ -559,9 +561,9 @@ def simulate(arm: UrdfArm, profile: CurrentProfile, q0: Sequence[float],
     return out
 
 
-def rest_position(arm: UrdfArm, profile: CurrentProfile, q0: Sequence[float], *,
+def rest_position(arm: UrdfArm, profile: CurrentProfile, q0: ArrayLike, *,
                   h: float = DEFAULT_H, friction_scale: Optional[np.ndarray] = None,
-                  i_rest: Optional[Sequence[float]] = None) -> np.ndarray:
+                  i_rest: Optional[ArrayLike] = None) -> np.ndarray:
     """Where the arm comes to rest (θ, rad) after tf with ``i_rest`` (default zero current); nan
     for every joint if it has not stopped SETTLE_MAX s after tf."""
     sim = simulate(arm, profile, q0, settle=True, h=h, friction_scale=friction_scale,
@@ -569,8 +571,8 @@ def rest_position(arm: UrdfArm, profile: CurrentProfile, q0: Sequence[float], *,
     return sim.q_rest if sim.q_rest is not None else np.full(arm.n, np.nan)
 
 
-def rest_sensitivities(arm: UrdfArm, profile: CurrentProfile, q0: Sequence[float], *,
-                       h: float = DEFAULT_H, i_rest: Optional[Sequence[float]] = None) -> np.ndarray:
+def rest_sensitivities(arm: UrdfArm, profile: CurrentProfile, q0: ArrayLike, *,
+                       h: float = DEFAULT_H, i_rest: Optional[ArrayLike] = None) -> np.ndarray:
     """∂θ_rest/∂p (n, n, 3): entry [i, j, k] = derivative of joint i's rest angle (rad) with
     respect to joint j's friction parameter k (pv, pc, pt; per unit of it), by complex step
     through the event-aware integrator (exact to rounding for the discretised model)."""
