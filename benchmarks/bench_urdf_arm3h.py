@@ -40,6 +40,7 @@ def main() -> None:
     t = time.perf_counter()
     from ff_planner.arm import sim
     from ff_planner.arm.model import load_arm
+    from ff_planner.arm import reference
     from ff_planner.arm.reference import reference_rest
     from ff_planner.armplan.certificate import BoxSpec, certify_arm
     from ff_planner.armplan.robust_box import plan_box_robust_arm
@@ -94,7 +95,8 @@ def main() -> None:
         cert = res.certificate
         assert cert is not None
         out["independent_check"] = {
-            "points": args.check, "seed": 99_001, "simulator": "Pinocchio CRBA/RNEA + scipy DOP853 (rtol 1e-11)",
+            "points": args.check, "seed": 99_001,
+            "simulator": f"Pinocchio CRBA/RNEA + scipy DOP853 (rtol {reference.RTOL:g})",
             "worst_per_joint": worst.tolist(), "worst": float(worst.max()),
             "ratio_to_certificate_per_joint": (worst / np.array(cert.worst_per_joint)).tolist(),
             "compiled_vs_reference_max_abs_rad_first10": agree, "seconds": time.perf_counter() - t}

@@ -593,3 +593,18 @@ def rest_sensitivities(arm: UrdfArm, profile: CurrentProfile, q0: ArrayLike, *,
                                     "sensitivities", "INTERNAL_ERROR")
             out[:, j, k] = r[1][:n].imag / hs
     return out
+
+
+def warm_up() -> float:
+    """Compile (or load from numba's on-disk cache) this module's kernels on a small 2-joint arm
+    built without a URDF; returns the seconds it took (call at install time or node start)."""
+    import time as _time
+    t = _time.perf_counter()
+    n = 2
+    G = (np.eye(n), np.array([[0.3, 0.2], [0.2, 0.3]]), np.zeros((n, n)), np.zeros(n), np.zeros(n),
+         np.zeros(n))
+    fr = np.array([[0.01, 0.01], [0.1, 0.1], [0.1, 0.1]], dtype=np.complex128)
+    cur = np.array([[1.0, -1.0], [-1.0, 1.0]], dtype=np.complex128)
+    simulate_core(G, fr, np.ones(n), np.array([0.0, 0.2, 0.4]), cur, np.zeros(n, dtype=np.complex128),
+                  0.5, np.zeros(2 * n, dtype=np.complex128), 1e-3, True, 1.0, 10)
+    return _time.perf_counter() - t

@@ -45,6 +45,7 @@ from ff_planner.optimize.planner import plan
 PLAN_H = 4e-3            # s, RK4 substep while searching (rest positions within ~1e-7 rad of 1 ms)
 W_GOAL = 10.0            # weight of the nominal goal error against the first-order terms
 DIFF_STEP = 1e-6         # relative forward-difference step in the currents
+SEARCH_SHARE = 0.65      # share of the time budget for the search; the rest for the certificate
 
 
 class _OutOfTime(Exception):
@@ -292,7 +293,7 @@ def plan_box_robust_arm(arm: UrdfArm, q0: Sequence[float], qf: Sequence[float], 
     N = int(steps) if steps else int(math.ceil((n + n * spec.k) / n)) + 2
     ir = None if i_rest is None else np.asarray(i_rest, float)
     bounds = (-np.tile(arm.i_max, N), np.tile(arm.i_max, N))
-    deadline = t0 + float(time_budget) * (0.8 if certify else 1.0)
+    deadline = t0 + float(time_budget) * (SEARCH_SHARE if certify else 1.0)
     prob = _Problem(arm, q0a, qfa, float(tf), float(coast), N, ir, deadline)
     starts = 0
     while True:
