@@ -1,0 +1,1 @@
+"""Robust feedforward plans and certificates for arms from a URDF (ff_planner.arm), n joints."""
