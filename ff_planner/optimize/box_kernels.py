@@ -169,10 +169,11 @@ def rest_errors(J, c, pvals, scales, times, cur, tf, q0, goal):
 @njit(cache=True, nogil=True)
 def free_values(J, c, pvals, pscale, scales, times, cur, tf, q0, goal, W):
     """(e (S,), g (5,)) of ``free_terms`` without the Jacobians (one exact simulation per
-    sample and one forward-mode simulation at the nominal friction)."""
+    sample and one forward-mode simulation at the nominal friction, on Taylor rows in the
+    friction parameters only: W's row count, 4 columns)."""
     e = rest_errors(J, c, pvals, scales, times, cur, tf, q0, goal)
     g = np.empty(5)
-    _nominal(J, c, pvals, pscale, times, cur, tf, q0, goal, W, g)
+    _nominal_p(J, c, pvals, pscale, times, cur, tf, q0, goal, np.zeros((W.shape[0], 4)), g)
     return e, g
 
 
