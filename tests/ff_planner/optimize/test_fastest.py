@@ -182,3 +182,36 @@ def test_the_scan_also_runs_when_the_descent_found_no_pass():
         return 1e-3 if 1.50 <= tf <= 1.53 else (3e-3 if tf >= 1.2 else 50e-3)
     r = plan_fastest(REQ, plan_fn=_stand_in(worst))
     assert r.success and 1.50 <= r.profile.tf <= 1.53
+
+
+def test_real_robust_box_search_is_within_5_percent_of_a_coarse_sweep():
+    """The facade's robust-box planner at N = 5 (tens of ms a plan): the tf the search finds is
+    no longer than 1.05 × the shortest passing tf of a 50 ms sweep of the same planner (seed 0),
+    certified within the tolerance, and the certificate holds on fresh box points."""
+    from ff_planner.model.arm1dof import batch_core
+    from ff_planner.optimize.planner import plan
+
+    tol = 8e-3
+    base = dict(objective="robust-box", steps=5, qf=(1.0,), time_budget=20.0)
+    sweep = []
+    for k in range(17):             # 0.8 ... 1.6 s
+        tf = round(0.8 + 0.05 * k, 3)
+        r = plan(PlanRequest(tf=tf, **base))
+        w = r.certificate.worst_rest_error if r.certificate is not None else math.inf
+        if r.success and w <= tol:
+            sweep.append(tf)
+    assert sweep, "the sweep found no passing tf"
+    found = plan_fastest(PlanRequest(tf=2.0, tolerance=tol, move_time_max=2.0,
+                                     **{**base, "time_budget": 60.0}))
+    info = found.extra["tolerance_search"]
+    assert found.success and info["complete"]
+    assert found.profile.tf <= 1.05 * min(sweep) + 1e-9, (found.profile.tf, sweep, info["trials"])
+    cert = found.certificate.worst_rest_error
+    assert cert <= tol
+    p, prof = found.params, found.profile
+    rng = np.random.default_rng(7)
+    scales = np.vstack([rng.uniform(0.8, 1.2, (200, 3)), np.ones((1, 3))])
+    fr = np.ascontiguousarray(scales * np.array([p.pv, p.pc, p.pt]))
+    q, _ = batch_core(p.J, p.n * p.kt, fr, np.ones(len(scales), bool), prof.step_times,
+                      np.ascontiguousarray(prof.currents[:, 0]), prof.tf, 0.0)
+    assert float(np.max(np.abs(q - 1.0))) <= cert * (1.0 + 1e-6)
