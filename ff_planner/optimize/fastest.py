@@ -33,13 +33,15 @@ import math
 import time
 from dataclasses import dataclass, field
 from dataclasses import replace as dc_replace
+from functools import partial
 from typing import Callable, Optional, Union
 
 import numpy as np
 
 from ff_planner.core.errors import PlanningError
 from ff_planner.model.profile import PlanRequest, PlanResult
-from ff_planner.optimize.planner import CheckedRequest, Progress, check, plan, reach
+from ff_planner.optimize.drive_grid import DriveGrid
+from ff_planner.optimize.planner import CheckedRequest, Progress, check, on_drive_grid, plan, reach
 
 DEFAULT_MOVE_TIME_MAX = 3.0   # s, longest tf a tolerance search considers when the request says none
 
@@ -122,15 +124,23 @@ def shortest_reachable_tf(req: PlanRequest, params, tf_max: float, step: float) 
 
 def plan_fastest(request: Union[PlanRequest, CheckedRequest], progress: Progress = None,
                  initial_currents: Optional[np.ndarray] = None, plan_fn: PlanFn = plan,
-                 settings: SearchSettings = SearchSettings()) -> PlanResult:
+                 settings: SearchSettings = SearchSettings(),
+                 drive: Optional[DriveGrid] = None) -> PlanResult:
     """The plan of the fastest tf ≤ move_time_max certified within ``request.tolerance`` (rad).
 
-    ``plan_fn(sub_request, progress)`` plans one tf (default: the facade). ``initial_currents``
-    is not used (each tf is its own task). Raises PlanningError when the request is invalid or
-    the move is unreachable even at move_time_max; otherwise returns a PlanResult whose
-    ``extra["tolerance_search"]`` lists every tf tried."""
+    ``plan_fn(sub_request, progress)`` plans one tf (default: the facade). ``drive`` (or a
+    CheckedRequest's drive): every plan drive-exact for it (the facade's ``drive``) and the tfs
+    tried on its SYNC grid. ``initial_currents`` is not used (each tf is its own task). Raises
+    PlanningError when the request is invalid or the move is unreachable even at move_time_max;
+    otherwise returns a PlanResult whose ``extra["tolerance_search"]`` lists every tf tried."""
     t0 = time.perf_counter()
     req: PlanRequest = request.request if isinstance(request, CheckedRequest) else request
+    if drive is None and isinstance(request, CheckedRequest):
+        drive = request.drive
+    if drive is not None:
+        req = on_drive_grid(req, drive)
+        if plan_fn is plan:
+            plan_fn = partial(plan, drive=drive)
     if req.tolerance is None:
         raise PlanningError("plan_fastest needs a request with a tolerance (rad)")
     tolerance = float(req.tolerance)
@@ -138,7 +148,7 @@ def plan_fastest(request: Union[PlanRequest, CheckedRequest], progress: Progress
     step = float(getattr(req, "grid", None) or settings.tf_step)
     tf_max = math.floor(tf_max / step + 1e-9) * step
     base = dc_replace(req, tf=tf_max, tolerance=None, move_time_max=None)
-    checked = check(base)            # invalid or unreachable at tf_max: refused as the facade does
+    checked = check(base, drive)     # invalid or unreachable at tf_max: refused as the facade does
     tf_lo = min(shortest_reachable_tf(base, checked.params, tf_max, step), tf_max)
     budget = float(req.time_budget)
     deadline = t0 + budget

@@ -215,3 +215,28 @@ def test_real_robust_box_search_is_within_5_percent_of_a_coarse_sweep():
     q, _ = batch_core(p.J, p.n * p.kt, fr, np.ones(len(scales), bool), prof.step_times,
                       np.ascontiguousarray(prof.currents[:, 0]), prof.tf, 0.0)
     assert float(np.max(np.abs(q - 1.0))) <= cert * (1.0 + 1e-6)
+
+
+def test_a_search_for_a_drive_tries_tfs_on_its_sync_grid_and_answers_drive_exact():
+    from ff_planner.optimize.drive_grid import DriveCertificate, DriveGrid
+    from ff_planner.optimize.planner import check as check_req
+
+    seen: list[float] = []
+    drive = DriveGrid(quantum=0.003, period=0.01, source="test")
+
+    def fn(req, progress=None):
+        seen.append(float(req.tf))
+        assert getattr(req, "grid", None) == 0.01
+        return _stand_in(lambda tf: 1e-3 if tf >= 1.234 else 50e-3)(req, progress)
+
+    r = plan_fastest(PlanRequest(objective="robust-box", steps=5, qf=(1.0,), tf=2.0,
+                                 tolerance=2e-3, move_time_max=2.0), plan_fn=fn, drive=drive)
+    assert r.success and 1.24 - 1e-9 <= r.profile.tf <= 1.24 * 1.011 + 1e-9
+    assert seen and all(abs(t / 0.01 - round(t / 0.01)) < 1e-9 for t in seen)
+    real = plan_fastest(check_req(PlanRequest(objective="robust-box", steps=5, qf=(1.0,), tf=1.5,
+                                              tolerance=0.05, move_time_max=1.5,
+                                              time_budget=20.0), drive))
+    assert real.success and isinstance(real.certificate, DriveCertificate)
+    assert "drive_exact" in real.extra
+    assert all(abs(t["tf"] / 0.01 - round(t["tf"] / 0.01)) < 1e-9
+               for t in real.extra["tolerance_search"]["trials"])
