@@ -677,6 +677,32 @@ def _with_times(prob: _Problem, times: np.ndarray, grid: Optional[float] = None)
     return out
 
 
+def _on_grid(prob_t: _Problem, I: np.ndarray, grid: Optional[float], base: np.ndarray,
+             check: np.ndarray, deadline: float) -> tuple[Optional[np.ndarray], _Problem]:
+    """(currents, prob_t) of a free-time plan whose times ``prob_t`` has rounded to ``grid``:
+    the LM's minimum-norm steps back onto the robust set (``_polish``), and with a grid then the
+    currents' minimax at those (fixed) grid times (``_refine_equal``: rounding a switch by up to
+    half a SYNC period moves the box worst; the currents can take some of it back), whichever
+    has the lesser worst over the base and check samples."""
+    I_p = _polish(prob_t, I)
+    if not grid or time.perf_counter() > deadline:
+        return I_p, prob_t
+    try:
+        I_g = _polish(prob_t, _refine_equal(prob_t, I if I_p is None else I_p, base, check,
+                                            deadline))
+    except (ValueError, ArithmeticError):
+        return I_p, prob_t
+    if I_g is None:
+        return I_p, prob_t
+    if I_p is None:
+        return I_g, prob_t
+
+    def worst(J: np.ndarray) -> float:
+        return max(_worst(prob_t, prob_t.times, J, base), _worst(prob_t, prob_t.times, J, check))
+
+    return (I_g if worst(I_g) < worst(I_p) else I_p), prob_t
+
+
 def _polish(prob: _Problem, I: np.ndarray) -> Optional[np.ndarray]:
     """The LM's minimum-norm steps from ``I`` back onto the robust set (SLSQP meets the
     equalities to its own tolerance only, the verification asks for 0.1·tol); None if it fails."""
@@ -1141,7 +1167,7 @@ def _plan_box(request: PlanRequest, progress: Progress = None,
             except (ValueError, ArithmeticError):
                 continue
             prob_t = _with_times(prob_r, t_f, grid)
-            consider(_polish(prob_t, I_f), prob_t)
+            consider(*_on_grid(prob_t, I_f, grid, base_scales, check_scales, deadline))
             if best is not None:
                 break       # the first verified refinement ends the stage
         for _w0, I0, prob_r in found:   # and the walk's LM plans themselves, least worst first
@@ -1227,7 +1253,7 @@ def _plan_box(request: PlanRequest, progress: Progress = None,
             except (ValueError, ArithmeticError):
                 continue
             prob_t = _with_times(prob, t_f, grid)
-            consider(_polish(prob_t, I_f), prob_t)
+            consider(*_on_grid(prob_t, I_f, grid, base_scales, check_scales, deadline))
         if progress is not None:
             progress({"stage": f"robust-box refine {refined}", "starts_done": tried,
                       "best": float(best[0]) if best else math.inf})
