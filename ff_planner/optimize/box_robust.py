@@ -85,7 +85,8 @@ Measured (paper task, q in [−0.3, 1.05] rad, |q̇| ≤ 4 rad/s, N = 12, seeds 
 the best robust plans without limits: ~2 mrad, swinging to −1.1 rad at up to 8.7 rad/s), every
 certificate point within the limits, 0.79 s CPU median (``benchmarks/bench_limits.py``).
 
-With a ``grid`` the free times are rounded to it and the currents solved again. When no plan is
+With a ``grid`` the free times are rounded to it and the currents solved again (the LM back
+onto the robust set, and the currents' minimax at the rounded times, ``_on_grid``). When no plan is
 derivative-robust, the LM end point of the shortest coast nearest the robust set (least |r|²)
 is the labelled best effort; when the time budget runs out before any refinement, the first
 verified LM plan is the answer (its message says so). ``continue_steps`` continues a plan in N
