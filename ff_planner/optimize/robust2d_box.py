@@ -16,6 +16,16 @@ Not reused from ``box_robust``: its free switch times and coast choice, because 
 it finds do not hold link 2 (measured on the section 4.2 task: hold fraction −1.4 … −1.8, i.e.
 link 2 slips; docs/scara2-model.md). Tasks that move link 2 go to ``plan_robust_scara2``
 (one joint at a time, else the least-worst-case plan, labelled). Units: rad, A, s.
+
+Limits (``request.limits``): while link 2 is held, joint 1's excursion is the held 1-DOF arm's
+(``limits1d.Limits1D`` of ``joint1_params``, exact): the minimax holds joint 1's position range
+and speed limit at the box corners and centre of the uncertain joint-1 parameters as SLSQP
+constraints and answers only a plan within them at every certificate box point of those
+parameters; from a start outside them, any such plan replaces the start. Among the starts, a plan
+within joint 1's limits wins over any outside them (``extra["limits_joint1_excess"]``: the largest
+violation, rad or rad/s, 0 = within). Link 2 held keeps joint 2 at q20 (inside its range by
+validation) at nominal joint-2 friction. The facade checks the 2-DOF certificate's excursion (both
+joints, all six parameters) against the limits and labels a plan that leaves them.
 """
 from __future__ import annotations
 
@@ -31,6 +41,7 @@ from ff_planner.model.arm1dof import FRICTION
 from ff_planner.model.params import Scara2Params
 from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
 from ff_planner.optimize.hold_joint import Joint1Problem, joint1_params, joint2_hold_currents
+from ff_planner.optimize.limits1d import Limits1D
 from ff_planner.optimize.robust2d import plan_robust_scara2
 from ff_planner.optimize.robust2d_refine import refine_box, rest_errors
 from ff_planner.optimize.sample_box import box_fractions, box_samples
@@ -70,6 +81,9 @@ def plan_box_robust_scara2(request: PlanRequest, progress: Progress = None) -> P
     p1 = joint1_params(p)
     hp = Joint1Problem(p1, float(q0[0]), float(qf[0]), float(request.tf), float(request.coast), n,
                        names1, p2=p, q2=float(q0[1]), hold_min=HOLD_MIN)
+    lim = Limits1D.of(request.limits, p1, float(q0[0]), float(request.tf), list(names1), box1)
+    if lim is not None and lim.rows.size == 0:
+        lim = None                   # only joint-2 limits: link 2 held, checked by the facade
     best: Optional[PlanResult] = None
     tried: list[dict] = []
     for s in range(BOX2_STARTS):
@@ -86,13 +100,13 @@ def plan_box_robust_scara2(request: PlanRequest, progress: Progress = None) -> P
                 start.extra = dict(start.extra or {}, box_minimax=False)
                 best = start
             continue
-        cand = _minimax(request, p, hp, scales, start, deadline)
+        cand = _minimax(request, p, hp, scales, start, deadline, lim)
         tried.append({"seed": int(request.seed) + s, "box_minimax": cand.extra["box_minimax"],
-                      "box_worst_joint1": cand.extra["box_worst_joint1"]})
-        if (best is None or not best.success or float(cand.extra["box_worst_joint1"])
-                < float(best.extra.get("box_worst_joint1", math.inf))):
+                      "box_worst_joint1": cand.extra["box_worst_joint1"],
+                      "limits_joint1_excess": cand.extra.get("limits_joint1_excess")})
+        if best is None or not best.success or _rank(cand) < _rank(best):
             best = cand
-        if cand.extra["box_minimax"]:
+        if cand.extra["box_minimax"] and cand.extra.get("limits_joint1_excess", 0.0) <= 0.0:
             break            # measured: further starts gain < 10 % at N = 12 for 3-10x the time
     assert best is not None
     best.extra = dict(best.extra, box_starts=tried)
@@ -103,18 +117,28 @@ def plan_box_robust_scara2(request: PlanRequest, progress: Progress = None) -> P
     return best
 
 
+def _rank(res: PlanResult) -> tuple[bool, float]:
+    """Order of the starts' answers: within joint 1's limits first, then the joint-1 box worst."""
+    ex = res.extra or {}
+    return (float(ex.get("limits_joint1_excess", 0.0)) > 0.0,
+            float(ex.get("box_worst_joint1", math.inf)))
+
+
 def _minimax(request: PlanRequest, p: Scara2Params, hp: Joint1Problem, scales: np.ndarray,
-             start: PlanResult, deadline: float) -> PlanResult:
-    """The held-link-2 box minimax from the derivative-robust plan ``start``, verified on the
-    full 2-DOF model; ``start`` itself (with its joint-1 box worst) when it does not improve."""
+             start: PlanResult, deadline: float, lim: Optional[Limits1D] = None) -> PlanResult:
+    """The held-link-2 box minimax from the derivative-robust plan ``start`` (under joint 1's
+    limits ``lim``), verified on the full 2-DOF model; ``start`` itself (with its joint-1 box
+    worst and limit excess) when it does not improve."""
     assert start.profile is not None
     q0 = np.asarray(request.q0, float)
     qf = np.asarray(request.qf, float)
     x0 = np.ascontiguousarray(start.profile.currents[:, 0], dtype=float)
     w0 = float(np.max(np.abs(rest_errors(hp, x0, scales))))
-    out = refine_box(hp, x0, scales, deadline, float(request.tol))
+    out = refine_box(hp, x0, scales, deadline, float(request.tol), limits=lim)
     extra = dict(start.extra or {}, box_minimax=False, derivative_start_box_worst_joint1=w0,
                  box_worst_joint1=w0, n_steps=hp.N)
+    if lim is not None:
+        extra["limits_joint1_excess"] = lim.excess(hp.times, x0)
     start.extra = extra
     if out is None:
         return start
@@ -133,7 +157,8 @@ def _minimax(request: PlanRequest, p: Scara2Params, hp: Joint1Problem, scales: n
     return dc_replace(
         start, profile=profile, q_final=sim.q_f, qd_final=sim.qd_f, sensitivities=sens,
         extra=dict(extra, method="hold-link2-box", box_minimax=True, box_worst_joint1=w,
-                   hold_fraction=frac),
+                   hold_fraction=frac,
+                   **({"limits_joint1_excess": lim.excess(hp.times, x)} if lim is not None else {})),
         message=(f"robust-box plan: joint 2 held by stiction (holds down to "
                  f"{100 * (1 - frac):.0f} % of nominal joint-2 friction), joint-1 worst rest "
                  f"error {w * 1e3:.3g} mrad on the box samples (derivative-robust start: "
