@@ -19,12 +19,23 @@ both joints at rest at tf, and all 12 sensitivities by complex step (exact deriv
 which link 2 must move have no known truly robust plan (see docs/scara2-model.md): the planner
 says so (NO_ROBUST_PLAN) and returns its least-worst-case-error plan labelled best_effort.
 
+Limits (``request.limits``): with link 2 held, joint 1's excursion is the held 1-DOF arm's, so
+every verified candidate is checked against joint 1's position range and speed limit at the
+certificate's box points of the uncertain joint-1 parameters (``joint1_limits``, exact); a held
+plan outside them is continued into them (a second continuation with ``Joint1Problem``'s limit
+rows at the box corners, so that the first keeps its success rate): the search goes
+on past a robust plan outside them, and answers one only when no robust plan within
+them was found, labelled (not a success, ``extra["limits_joint1_excess"]``). The facade checks
+the 2-DOF certificate's excursion (both joints) against the limits as well. Tasks that move
+link 2 do not search under limits; the facade labels their plans when they leave them.
+
 Units: rad, A, s. No rclpy here.
 """
 from __future__ import annotations
 
 import math
 import time
+from dataclasses import replace as dc_replace
 from typing import Any, Callable, Optional
 
 import numpy as np
@@ -33,11 +44,12 @@ from ff_planner.model import scara2
 from ff_planner.model.params import Scara2Params
 from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
 from ff_planner.optimize.hold_joint import Joint1Problem, joint1_params, joint2_hold_currents
+from ff_planner.optimize.limits1d import Limits1D
 from ff_planner.optimize.robust1d import solve_block
 from ff_planner.optimize.robust2d_least_worst import plan_least_worst
 from ff_planner.optimize.robust2d_refine import refine_sampled
 from ff_planner.optimize.robust2d_sequential import plan_sequential
-from ff_planner.optimize.sample_box import FINITE_FRACTIONS, one_at_a_time
+from ff_planner.optimize.sample_box import FINITE_FRACTIONS, box_fractions, one_at_a_time
 
 Progress = Optional[Callable[[dict], None]]
 
@@ -45,6 +57,10 @@ HOLD_FALLBACK = 0.1      # accepted when HOLD_MIN cannot be reached from a start
 HOLD_LEVELS = (HOLD_FALLBACK,)   # margins asked for in turn by the continuation
 STAGE2_NFEV = 40         # evaluations per continuation attempt (then abandon)
 CHUNK = 16               # joint-1 starts per compiled call (budget checked between calls)
+LIMITS_MARGIN2 = 1e-3    # rad, rad/s: joint 1's limits are held this much inside the request's
+#                          (the held 1-DOF excursion ignores link 2 slipping where joint-2
+#                          friction is below the hold; measured: a minimax plan on the held
+#                          model's bound reached 7e-7 rad beyond it in the 2-DOF certificate)
 
 
 def _is_pos(key: str) -> bool:
@@ -86,6 +102,21 @@ def verify_plan(p: Scara2Params, profile: CurrentProfile, q0, qf, names=scara2.F
 # the planner
 
 
+def joint1_limits(request: PlanRequest, p: Scara2Params) -> Optional[Limits1D]:
+    """Joint 1's limits of ``request`` as the held 1-DOF arm's (``limits1d.Limits1D`` over the box
+    of the uncertain joint-1 parameters), LIMITS_MARGIN2 inside the request's; None when joint 1
+    has none."""
+    names1 = [u[:-1] for u in request.uncertain if u.endswith("1")]
+    box1 = {u[:-1]: f for u, f in box_fractions(list(request.uncertain), request.box).items()
+            if u.endswith("1")}
+    lim = Limits1D.of(request.limits, joint1_params(p), float(request.q0[0]), float(request.tf),
+                      names1, box1)
+    if lim is None or not lim.rows.size:
+        return None
+    return dc_replace(lim, lo=lim.lo + LIMITS_MARGIN2, hi=lim.hi - LIMITS_MARGIN2,
+                      vmax=lim.vmax - LIMITS_MARGIN2)
+
+
 def _result(request: PlanRequest, p: Scara2Params, **kw: Any) -> PlanResult:
     base: dict[str, Any] = dict(success=False, message="", profile=None, model="scara2", params=p,
                 q0=np.asarray(request.q0, float), qf=np.asarray(request.qf, float),
@@ -123,7 +154,10 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
     # stage 1: joint 1 robust with rest in the coast (robust1d's compiled LM, ``solve_block``);
     # stage 2: continuation along that solution set until link 2 is held with margin
     times = np.linspace(0.0, request.tf - request.coast, N + 1)
+    lim = joint1_limits(request, p)
     holds = [Joint1Problem(*args, p2=p, q2=float(q0[1]), hold_min=h) for h in HOLD_LEVELS]
+    holds_lim = [Joint1Problem(*args, p2=p, q2=float(q0[1]), hold_min=h, limits=lim)
+                 for h in HOLD_LEVELS] if lim is not None else []
     rng = np.random.default_rng(request.seed)
     best = None          # (score, profile, verification)
     best_cost = math.inf
@@ -158,6 +192,14 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
                 if float(np.max(np.abs(fun2))) <= 0.1 * tol:
                     x = x2
                     break
+            # then, from a held plan outside joint 1's limits, on along the set into them
+            if lim is not None and lim.excess(times, np.ascontiguousarray(x)) > 0.0:
+                for hp in holds_lim:
+                    x2, fun2, nfev2 = hp.solve(x, max_nfev=STAGE2_NFEV)
+                    iters += nfev2
+                    if float(np.max(np.abs(fun2))) <= 0.1 * tol:
+                        x = x2
+                        break
             prof1 = CurrentProfile(times, x.reshape(-1, 1), request.tf, request.coast)
             I2, frac = joint2_hold_currents(p, prof1, q0)
             profile = CurrentProfile(times, np.column_stack([x, I2]), request.tf, request.coast)
@@ -168,14 +210,17 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
             smax = max(abs(v) for k, v in sens.items() if _is_pos(k))
             err = float(np.max(np.abs(sim.q_f - qf)))
             ok = err <= tol and smax <= tol and sim.stuck_tf[0] and sim.stuck_tf[1]
-            score = (0 if ok else 1, -frac if ok else smax + err)
+            excess = lim.excess(times, np.ascontiguousarray(x, dtype=float)) if lim else 0.0
+            ok_in = ok and excess <= 0.0
+            # robust within the limits, then robust nearest the limits, then least residual
+            score = ((0, -frac) if ok_in else (1, excess) if ok else (2, smax + err))
             if best is None or score < best[0]:
-                best = (score, profile, sim, sens, frac)
+                best = (score, profile, sim, sens, frac, excess)
             if progress:
                 progress({"stage": "verify", "starts_done": starts, "robust": ok,
                           "hold_fraction": frac, "max_sensitivity": smax, "error": err,
                           "elapsed": time.perf_counter() - t_start})
-            if ok:      # frac >= HOLD_FALLBACK > 0 here: first verified robust plan wins
+            if ok_in:   # frac >= HOLD_FALLBACK > 0 here: first verified robust plan wins
                 found = True
                 break
     elapsed = time.perf_counter() - t_start
@@ -183,31 +228,42 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
         code = "TIME_BUDGET_EXHAUSTED" if time.perf_counter() >= deadline else "NO_ROBUST_PLAN"
         return _result(request, p, message=(
             f"no robust plan with N = {N} steps per joint after {starts} joint-1 starts and "
-            f"{candidates} continuations (best joint-1 residual {best_cost:.3g}); try a larger "
-            f"time budget, more starts, more steps or a longer tf"),
+            f"{candidates} continuations (best joint-1 residual {best_cost:.3g}); "
+            + (f"{lim.advice()}" if lim is not None else
+               "try a larger time budget, more starts, more steps or a longer tf")),
             error_code=code, starts_tried=starts, iterations=iters, solve_time=elapsed)
-    (ok_flag, _), profile, sim, sens, frac = best
-    robust = ok_flag == 0
+    (rank, _), profile, sim, sens, frac, excess = best
+    robust = rank == 0
+    outside = rank == 1      # robust, but joint 1 leaves its limits
     refined = None
     if robust and request.objective == "robust-sampled" and names1:
         refined = _refine(request, p, holds[0], profile, names, names1, deadline, progress,
                           t_start)
+        if refined is not None and lim is not None and not lim.ok(
+                times, np.ascontiguousarray(refined[0].currents[:, 0])):
+            refined = None       # the refinement left joint 1's limits: keep the plan within
         if refined is not None:
             profile, sim, sens, frac = refined
     elapsed = time.perf_counter() - t_start
     msg = (f"robust plan: joint 2 held by stiction (holds down to {100 * (1 - frac):.0f} % "
            f"of nominal joint-2 friction), max |dq/dp| = "
            f"{max(abs(v) for k, v in sens.items() if _is_pos(k)):.2g}")
-    if not robust:
+    if outside:
+        assert lim is not None
+        msg = (f"robust plan found, but it leaves joint 1's limits by {excess:.3g} rad (rad/s) "
+               f"over the box: {lim.advice()}; " + msg.split(": ", 1)[1])
+    elif not robust:
         msg = "best plan found is NOT robust to the tolerance: " + msg.split(": ", 1)[1]
+    limit_extra = {} if lim is None else {"limits_joint1_excess": float(excess)}
     return _result(
-        request, p, success=robust, robust=robust, best_effort=not robust,
+        request, p, success=robust, robust=robust or outside, best_effort=not robust,
         error_code="OK" if robust else "NO_ROBUST_PLAN", message=msg, profile=profile,
         q_final=sim.q_f, qd_final=sim.qd_f,
         sensitivities={k: v for k, v in sens.items() if _is_pos(k)},
         starts_tried=starts, iterations=iters, solve_time=elapsed,
         extra={"method": "hold-link2", "hold_fraction": frac, "candidates": candidates,
-               "joint1_inertia": p1.J, "sampled_refinement": refined is not None})
+               "joint1_inertia": p1.J, "sampled_refinement": refined is not None,
+               **limit_extra})
 
 
 def _refine(request, p, hp, profile, names, names1, deadline, progress, t_start):

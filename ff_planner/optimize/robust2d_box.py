@@ -18,7 +18,8 @@ link 2 slips; docs/scara2-model.md). Tasks that move link 2 go to ``plan_robust_
 (one joint at a time, else the least-worst-case plan, labelled). Units: rad, A, s.
 
 Limits (``request.limits``): while link 2 is held, joint 1's excursion is the held 1-DOF arm's
-(``limits1d.Limits1D`` of ``joint1_params``, exact): the minimax holds joint 1's position range
+(``robust2d.joint1_limits``: ``limits1d.Limits1D`` of ``joint1_params``, exact, held
+``robust2d.LIMITS_MARGIN2`` inside the request's): the minimax holds joint 1's position range
 and speed limit at the box corners and centre of the uncertain joint-1 parameters as SLSQP
 constraints and answers only a plan within them at every certificate box point of those
 parameters; from a start outside them, any such plan replaces the start. Among the starts, a plan
@@ -42,7 +43,7 @@ from ff_planner.model.params import Scara2Params
 from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
 from ff_planner.optimize.hold_joint import Joint1Problem, joint1_params, joint2_hold_currents
 from ff_planner.optimize.limits1d import Limits1D
-from ff_planner.optimize.robust2d import plan_robust_scara2
+from ff_planner.optimize.robust2d import joint1_limits, plan_robust_scara2
 from ff_planner.optimize.robust2d_refine import refine_box, rest_errors
 from ff_planner.optimize.sample_box import box_fractions, box_samples
 
@@ -79,11 +80,9 @@ def plan_box_robust_scara2(request: PlanRequest, progress: Progress = None) -> P
             if u.endswith("1")}
     scales = box_samples(box_fractions(list(names1), box1), FRICTION)
     p1 = joint1_params(p)
+    lim = joint1_limits(request, p)   # None with only joint-2 limits: link 2 held
     hp = Joint1Problem(p1, float(q0[0]), float(qf[0]), float(request.tf), float(request.coast), n,
-                       names1, p2=p, q2=float(q0[1]), hold_min=HOLD_MIN)
-    lim = Limits1D.of(request.limits, p1, float(q0[0]), float(request.tf), list(names1), box1)
-    if lim is not None and lim.rows.size == 0:
-        lim = None                   # only joint-2 limits: link 2 held, checked by the facade
+                       names1, p2=p, q2=float(q0[1]), hold_min=HOLD_MIN, limits=lim)
     best: Optional[PlanResult] = None
     tried: list[dict] = []
     for s in range(BOX2_STARTS):
@@ -95,7 +94,7 @@ def plan_box_robust_scara2(request: PlanRequest, progress: Progress = None) -> P
                                time_budget=max(1e-3, DERIVATIVE_SHARE * left))
         start = plan_robust_scara2(start_req, progress)
         start.objective = request.objective
-        if not start.success or start.profile is None:
+        if start.profile is None or not start.robust:   # robust outside the limits: minimax
             if best is None:
                 start.extra = dict(start.extra or {}, box_minimax=False)
                 best = start
@@ -155,7 +154,8 @@ def _minimax(request: PlanRequest, p: Scara2Params, hp: Joint1Problem, scales: n
     if not (err <= request.tol and smax <= request.tol and all(sim.stuck_tf) and frac > 0.0):
         return start
     return dc_replace(
-        start, profile=profile, q_final=sim.q_f, qd_final=sim.qd_f, sensitivities=sens,
+        start, success=True, robust=True, best_effort=False, error_code="OK",
+        profile=profile, q_final=sim.q_f, qd_final=sim.qd_f, sensitivities=sens,
         extra=dict(extra, method="hold-link2-box", box_minimax=True, box_worst_joint1=w,
                    hold_fraction=frac,
                    **({"limits_joint1_excess": lim.excess(hp.times, x)} if lim is not None else {})),
