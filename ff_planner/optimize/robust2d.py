@@ -25,7 +25,10 @@ certificate's box points of the uncertain joint-1 parameters (``joint1_limits``,
 plan outside them is continued into them (a second continuation with ``Joint1Problem``'s limit
 rows at the box corners, so that the first keeps its success rate): the search goes
 on past a robust plan outside them, and answers one only when no robust plan within
-them was found, labelled (not a success, ``extra["limits_joint1_excess"]``). The facade checks
+them was found, labelled (not a success, ``extra["limits_joint1_excess"]``). A candidate within
+them is also simulated on the full 2-DOF model at the corners of the whole box
+(``corner_excess_2dof``: both joints' limits, link 2 free to slip) before it is taken. The facade
+checks
 the 2-DOF certificate's excursion (both joints) against the limits as well. Tasks that move
 link 2 do not search under limits; the facade labels their plans when they leave them.
 
@@ -44,12 +47,18 @@ from ff_planner.model import scara2
 from ff_planner.model.params import Scara2Params
 from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
 from ff_planner.optimize.hold_joint import Joint1Problem, joint1_params, joint2_hold_currents
-from ff_planner.optimize.limits1d import Limits1D
+from ff_planner.optimize.certificate2d import CERT_H
+from ff_planner.optimize.limits1d import Limits1D, limit_bounds
 from ff_planner.optimize.robust1d import solve_block
 from ff_planner.optimize.robust2d_least_worst import plan_least_worst
 from ff_planner.optimize.robust2d_refine import refine_sampled
 from ff_planner.optimize.robust2d_sequential import plan_sequential
-from ff_planner.optimize.sample_box import FINITE_FRACTIONS, box_fractions, one_at_a_time
+from ff_planner.optimize.sample_box import (
+    FINITE_FRACTIONS,
+    box_corners,
+    box_fractions,
+    one_at_a_time,
+)
 
 Progress = Optional[Callable[[dict], None]]
 
@@ -102,6 +111,38 @@ def verify_plan(p: Scara2Params, profile: CurrentProfile, q0, qf, names=scara2.F
 # the planner
 
 
+def shrink_limits(lim: Limits1D, margin: float) -> Limits1D:
+    """``lim`` held ``margin`` (rad, rad/s) inside on every side."""
+    return dc_replace(lim, lo=lim.lo + margin, hi=lim.hi - margin, vmax=lim.vmax - margin)
+
+
+def corner_excess_2dof(request: PlanRequest, p: Scara2Params, profile: CurrentProfile) -> float:
+    """Largest violation (rad or rad/s; 0 = within, inf = a point never stops) of the request's
+    limits (both joints) on the full 2-DOF model (``scara2.track_scara2``, the certificate's
+    substep) at the nominal friction and the corners of the box of all uncertain parameters —
+    where the held 1-DOF model of joint 1 does not see link 2 slip."""
+    limits = request.limits
+    if limits is None or limits.empty:
+        return 0.0
+    unc = [u for u in scara2.FRICTION_NAMES if u in request.uncertain]
+    fr = box_fractions(unc, request.box)
+    scales = np.vstack([np.ones((1, len(unc))), box_corners(fr, unc)])
+    bounds = [limit_bounds(limits, j) for j in range(2)]
+    worst = 0.0
+    for sc in scales:
+        pp = p.replace(**{u: getattr(p, u) * float(f) for u, f in zip(unc, sc)})
+        try:
+            tr = scara2.track_scara2(pp, profile, [float(v) for v in request.q0], h=CERT_H)
+        except (PlanningError, ArithmeticError, ValueError):
+            return math.inf
+        if tr.q_rest is None:
+            return math.inf
+        for j, (lo, hi, vm) in enumerate(bounds):
+            worst = max(worst, lo - float(tr.q_min[j]), float(tr.q_max[j]) - hi,
+                        float(tr.speed[j]) - vm)
+    return worst
+
+
 def joint1_limits(request: PlanRequest, p: Scara2Params) -> Optional[Limits1D]:
     """Joint 1's limits of ``request`` as the held 1-DOF arm's (``limits1d.Limits1D`` over the box
     of the uncertain joint-1 parameters), LIMITS_MARGIN2 inside the request's; None when joint 1
@@ -113,8 +154,7 @@ def joint1_limits(request: PlanRequest, p: Scara2Params) -> Optional[Limits1D]:
                       names1, box1)
     if lim is None or not lim.rows.size:
         return None
-    return dc_replace(lim, lo=lim.lo + LIMITS_MARGIN2, hi=lim.hi - LIMITS_MARGIN2,
-                      vmax=lim.vmax - LIMITS_MARGIN2)
+    return shrink_limits(lim, LIMITS_MARGIN2)
 
 
 def _result(request: PlanRequest, p: Scara2Params, **kw: Any) -> PlanResult:
@@ -211,6 +251,8 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
             err = float(np.max(np.abs(sim.q_f - qf)))
             ok = err <= tol and smax <= tol and sim.stuck_tf[0] and sim.stuck_tf[1]
             excess = lim.excess(times, np.ascontiguousarray(x, dtype=float)) if lim else 0.0
+            if ok and excess <= 0.0:     # and on the full model at the corners of the box
+                excess = corner_excess_2dof(request, p, profile)
             ok_in = ok and excess <= 0.0
             # robust within the limits, then robust nearest the limits, then least residual
             score = ((0, -frac) if ok_in else (1, excess) if ok else (2, smax + err))
@@ -249,9 +291,10 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
            f"of nominal joint-2 friction), max |dq/dp| = "
            f"{max(abs(v) for k, v in sens.items() if _is_pos(k)):.2g}")
     if outside:
-        assert lim is not None
-        msg = (f"robust plan found, but it leaves joint 1's limits by {excess:.3g} rad (rad/s) "
-               f"over the box: {lim.advice()}; " + msg.split(": ", 1)[1])
+        advice = (lim.advice() if lim is not None else "widen the limits or give a longer "
+                  "move time")
+        msg = (f"robust plan found, but it leaves the limits by {excess:.3g} rad (rad/s) over "
+               f"the box: {advice}; " + msg.split(": ", 1)[1])
     elif not robust:
         msg = "best plan found is NOT robust to the tolerance: " + msg.split(": ", 1)[1]
     limit_extra = {} if lim is None else {"limits_joint1_excess": float(excess)}

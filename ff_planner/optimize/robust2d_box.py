@@ -43,7 +43,12 @@ from ff_planner.model.params import Scara2Params
 from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
 from ff_planner.optimize.hold_joint import Joint1Problem, joint1_params, joint2_hold_currents
 from ff_planner.optimize.limits1d import Limits1D
-from ff_planner.optimize.robust2d import joint1_limits, plan_robust_scara2
+from ff_planner.optimize.robust2d import (
+    corner_excess_2dof,
+    joint1_limits,
+    plan_robust_scara2,
+    shrink_limits,
+)
 from ff_planner.optimize.robust2d_refine import refine_box, rest_errors
 from ff_planner.optimize.sample_box import box_fractions, box_samples
 
@@ -53,6 +58,8 @@ BOX2_DEFAULT_STEPS = 12   # steps per joint when unset (section 4.2 task, measur
 #                           worst ~0.12 rad at N = 12 against ~0.30 rad at N = 8)
 HOLD_MIN = 0.1            # link 2 keeps this share of its stiction unused (nominal friction)
 DERIVATIVE_SHARE = 0.5    # share of the remaining time budget for each derivative-robust start
+LIMITS_RETRIES = 2        # minimax reruns with joint 1's limits further inside (see _minimax)
+LIMITS_RETRY_GROW = 1.5   # ... by this many times the full model's excess at the box corners
 BOX2_STARTS = 3           # derivative-robust starts (seeds seed, seed + 1, ...), the next one
 #                           only when the minimax did not improve the last (measured: one in four)
 
@@ -127,20 +134,60 @@ def _minimax(request: PlanRequest, p: Scara2Params, hp: Joint1Problem, scales: n
              start: PlanResult, deadline: float, lim: Optional[Limits1D] = None) -> PlanResult:
     """The held-link-2 box minimax from the derivative-robust plan ``start`` (under joint 1's
     limits ``lim``), verified on the full 2-DOF model; ``start`` itself (with its joint-1 box
-    worst and limit excess) when it does not improve."""
+    worst and limit excess) when it does not improve. Under limits the answer is also simulated
+    on the full model at the corners of the whole box (``corner_excess_2dof``); where it leaves
+    the limits there, the minimax runs again with joint 1's limits held that excess
+    (× LIMITS_RETRY_GROW) further inside, at most LIMITS_RETRIES times."""
     assert start.profile is not None
-    q0 = np.asarray(request.q0, float)
-    qf = np.asarray(request.qf, float)
     x0 = np.ascontiguousarray(start.profile.currents[:, 0], dtype=float)
     w0 = float(np.max(np.abs(rest_errors(hp, x0, scales))))
-    out = refine_box(hp, x0, scales, deadline, float(request.tol), limits=lim)
     extra = dict(start.extra or {}, box_minimax=False, derivative_start_box_worst_joint1=w0,
                  box_worst_joint1=w0, n_steps=hp.N)
     if lim is not None:
-        extra["limits_joint1_excess"] = lim.excess(hp.times, x0)
+        extra["limits_joint1_excess"] = max(lim.excess(hp.times, x0),
+                                            corner_excess_2dof(request, p, start.profile))
     start.extra = extra
+    hp_limits = hp.limits
+    try:
+        for _ in range(LIMITS_RETRIES + 1):
+            hp.limits = lim
+            got = _minimax_once(request, p, hp, scales, start, deadline, lim, x0)
+            if got is None:
+                return start
+            profile, sim, sens, frac, w, excess = got
+            if excess <= 0.0 or lim is None:
+                break
+            lim = shrink_limits(lim, LIMITS_RETRY_GROW * excess)
+    finally:
+        hp.limits = hp_limits
+    smax = max(abs(v) for v in sens.values()) if sens else 0.0
+    inside = excess <= 0.0
+    return dc_replace(
+        start, success=inside, robust=True, best_effort=not inside,
+        error_code="OK" if inside else "NO_ROBUST_PLAN",
+        profile=profile, q_final=sim.q_f, qd_final=sim.qd_f, sensitivities=sens,
+        extra=dict(extra, method="hold-link2-box", box_minimax=True, box_worst_joint1=w,
+                   hold_fraction=frac,
+                   **({"limits_joint1_excess": excess} if lim is not None else {})),
+        message=(f"robust-box plan: joint 2 held by stiction (holds down to "
+                 f"{100 * (1 - frac):.0f} % of nominal joint-2 friction), joint-1 worst rest "
+                 f"error {w * 1e3:.3g} mrad on the box samples (derivative-robust start: "
+                 f"{w0 * 1e3:.3g} mrad), max |dq/dp| = {smax:.2g}"))
+
+
+def _minimax_once(request: PlanRequest, p: Scara2Params, hp: Joint1Problem, scales: np.ndarray,
+                  start: PlanResult, deadline: float, lim: Optional[Limits1D], x0: np.ndarray
+                  ) -> Optional[tuple]:
+    """One minimax under ``lim``, verified (goal, at rest, sensitivities, hold): (profile, sim,
+    sensitivities, hold fraction, joint-1 worst (rad), limit excess (rad or rad/s, the held
+    model's at the certificate's joint-1 points and the full model's at the box corners)), or
+    None when it did not improve or does not verify."""
+    assert start.profile is not None
+    q0 = np.asarray(request.q0, float)
+    qf = np.asarray(request.qf, float)
+    out = refine_box(hp, x0, scales, deadline, float(request.tol), limits=lim)
     if out is None:
-        return start
+        return None
     x, w = out
     times = start.profile.step_times
     prof1 = CurrentProfile(times, x.reshape(-1, 1), request.tf, request.coast)
@@ -152,14 +199,8 @@ def _minimax(request: PlanRequest, p: Scara2Params, hp: Joint1Problem, scales: n
     smax = max(abs(v) for v in sens.values()) if sens else 0.0
     err = float(np.max(np.abs(sim.q_f - qf)))
     if not (err <= request.tol and smax <= request.tol and all(sim.stuck_tf) and frac > 0.0):
-        return start
-    return dc_replace(
-        start, success=True, robust=True, best_effort=False, error_code="OK",
-        profile=profile, q_final=sim.q_f, qd_final=sim.qd_f, sensitivities=sens,
-        extra=dict(extra, method="hold-link2-box", box_minimax=True, box_worst_joint1=w,
-                   hold_fraction=frac,
-                   **({"limits_joint1_excess": lim.excess(hp.times, x)} if lim is not None else {})),
-        message=(f"robust-box plan: joint 2 held by stiction (holds down to "
-                 f"{100 * (1 - frac):.0f} % of nominal joint-2 friction), joint-1 worst rest "
-                 f"error {w * 1e3:.3g} mrad on the box samples (derivative-robust start: "
-                 f"{w0 * 1e3:.3g} mrad), max |dq/dp| = {smax:.2g}"))
+        return None
+    excess = 0.0
+    if lim is not None:
+        excess = max(lim.excess(hp.times, x), corner_excess_2dof(request, p, profile))
+    return profile, sim, sens, frac, w, excess
