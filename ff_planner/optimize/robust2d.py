@@ -21,16 +21,16 @@ says so (NO_ROBUST_PLAN) and returns its least-worst-case-error plan labelled be
 
 Limits (``request.limits``): with link 2 held, joint 1's excursion is the held 1-DOF arm's, so
 every verified candidate is checked against joint 1's position range and speed limit at the
-certificate's box points of the uncertain joint-1 parameters (``joint1_limits``, exact); a held
-plan outside them is continued into them (a second continuation with ``Joint1Problem``'s limit
-rows at the box corners, so that the first keeps its success rate): the search goes
-on past a robust plan outside them, and answers one only when no robust plan within
-them was found, labelled (not a success, ``extra["limits_joint1_excess"]``). A candidate within
-them is also simulated on the full 2-DOF model at the corners of the whole box
-(``corner_excess_2dof``: both joints' limits, link 2 free to slip) before it is taken. The facade
-checks
-the 2-DOF certificate's excursion (both joints) against the limits as well. Tasks that move
-link 2 do not search under limits; the facade labels their plans when they leave them.
+certificate's box points of the uncertain joint-1 parameters (``limits2d.joint1_limits``,
+exact); a held plan outside them is continued into them (a second continuation with
+``Joint1Problem``'s limit rows at the box corners, so that the first keeps its success rate). A
+candidate within them is also simulated on the full 2-DOF model at the corners of the whole box
+(``limits2d.corner_excess_2dof``: both joints, link 2 free to slip) before it is taken. The search
+goes on past a robust plan outside them and answers one only when no robust plan within them was
+found, labelled (not a success, ``extra["limits_joint1_excess"]``). Tasks that move link 2: the
+one-joint-at-a-time plans hold each phase's moving joint within its limits
+(``robust2d_sequential``); the least-worst plan does not search under limits. The facade checks
+the 2-DOF certificate's excursion against the limits and labels a plan that leaves them.
 
 Units: rad, A, s. No rclpy here.
 """
@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import replace as dc_replace
 from typing import Any, Callable, Optional
 
 import numpy as np
@@ -47,18 +46,12 @@ from ff_planner.model import scara2
 from ff_planner.model.params import Scara2Params
 from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
 from ff_planner.optimize.hold_joint import Joint1Problem, joint1_params, joint2_hold_currents
-from ff_planner.optimize.certificate2d import CERT_H
-from ff_planner.optimize.limits1d import Limits1D, limit_bounds
+from ff_planner.optimize.limits2d import corner_excess_2dof, joint1_limits
 from ff_planner.optimize.robust1d import solve_block
 from ff_planner.optimize.robust2d_least_worst import plan_least_worst
 from ff_planner.optimize.robust2d_refine import refine_sampled
 from ff_planner.optimize.robust2d_sequential import plan_sequential
-from ff_planner.optimize.sample_box import (
-    FINITE_FRACTIONS,
-    box_corners,
-    box_fractions,
-    one_at_a_time,
-)
+from ff_planner.optimize.sample_box import FINITE_FRACTIONS, one_at_a_time
 
 Progress = Optional[Callable[[dict], None]]
 
@@ -66,10 +59,6 @@ HOLD_FALLBACK = 0.1      # accepted when HOLD_MIN cannot be reached from a start
 HOLD_LEVELS = (HOLD_FALLBACK,)   # margins asked for in turn by the continuation
 STAGE2_NFEV = 40         # evaluations per continuation attempt (then abandon)
 CHUNK = 16               # joint-1 starts per compiled call (budget checked between calls)
-LIMITS_MARGIN2 = 1e-3    # rad, rad/s: joint 1's limits are held this much inside the request's
-#                          (the held 1-DOF excursion ignores link 2 slipping where joint-2
-#                          friction is below the hold; measured: a minimax plan on the held
-#                          model's bound reached 7e-7 rad beyond it in the 2-DOF certificate)
 
 
 def _is_pos(key: str) -> bool:
@@ -109,52 +98,6 @@ def verify_plan(p: Scara2Params, profile: CurrentProfile, q0, qf, names=scara2.F
 
 # ----------------------------------------------------------------------------------------------
 # the planner
-
-
-def shrink_limits(lim: Limits1D, margin: float) -> Limits1D:
-    """``lim`` held ``margin`` (rad, rad/s) inside on every side."""
-    return dc_replace(lim, lo=lim.lo + margin, hi=lim.hi - margin, vmax=lim.vmax - margin)
-
-
-def corner_excess_2dof(request: PlanRequest, p: Scara2Params, profile: CurrentProfile) -> float:
-    """Largest violation (rad or rad/s; 0 = within, inf = a point never stops) of the request's
-    limits (both joints) on the full 2-DOF model (``scara2.track_scara2``, the certificate's
-    substep) at the nominal friction and the corners of the box of all uncertain parameters —
-    where the held 1-DOF model of joint 1 does not see link 2 slip."""
-    limits = request.limits
-    if limits is None or limits.empty:
-        return 0.0
-    unc = [u for u in scara2.FRICTION_NAMES if u in request.uncertain]
-    fr = box_fractions(unc, request.box)
-    scales = np.vstack([np.ones((1, len(unc))), box_corners(fr, unc)])
-    bounds = [limit_bounds(limits, j) for j in range(2)]
-    worst = 0.0
-    for sc in scales:
-        pp = p.replace(**{u: getattr(p, u) * float(f) for u, f in zip(unc, sc)})
-        try:
-            tr = scara2.track_scara2(pp, profile, [float(v) for v in request.q0], h=CERT_H)
-        except (PlanningError, ArithmeticError, ValueError):
-            return math.inf
-        if tr.q_rest is None:
-            return math.inf
-        for j, (lo, hi, vm) in enumerate(bounds):
-            worst = max(worst, lo - float(tr.q_min[j]), float(tr.q_max[j]) - hi,
-                        float(tr.speed[j]) - vm)
-    return worst
-
-
-def joint1_limits(request: PlanRequest, p: Scara2Params) -> Optional[Limits1D]:
-    """Joint 1's limits of ``request`` as the held 1-DOF arm's (``limits1d.Limits1D`` over the box
-    of the uncertain joint-1 parameters), LIMITS_MARGIN2 inside the request's; None when joint 1
-    has none."""
-    names1 = [u[:-1] for u in request.uncertain if u.endswith("1")]
-    box1 = {u[:-1]: f for u, f in box_fractions(list(request.uncertain), request.box).items()
-            if u.endswith("1")}
-    lim = Limits1D.of(request.limits, joint1_params(p), float(request.q0[0]), float(request.tf),
-                      names1, box1)
-    if lim is None or not lim.rows.size:
-        return None
-    return shrink_limits(lim, LIMITS_MARGIN2)
 
 
 def _result(request: PlanRequest, p: Scara2Params, **kw: Any) -> PlanResult:

@@ -18,8 +18,8 @@ link 2 slips; docs/scara2-model.md). Tasks that move link 2 go to ``plan_robust_
 (one joint at a time, else the least-worst-case plan, labelled). Units: rad, A, s.
 
 Limits (``request.limits``): while link 2 is held, joint 1's excursion is the held 1-DOF arm's
-(``robust2d.joint1_limits``: ``limits1d.Limits1D`` of ``joint1_params``, exact, held
-``robust2d.LIMITS_MARGIN2`` inside the request's): the minimax holds joint 1's position range
+(``limits2d.joint1_limits``: ``limits1d.Limits1D`` of ``joint1_params``, exact, held
+``limits2d.LIMITS_MARGIN2`` inside the request's): the minimax holds joint 1's position range
 and speed limit at the box corners and centre of the uncertain joint-1 parameters as SLSQP
 constraints and answers only a plan within them at every certificate box point of those
 parameters; from a start outside them, any such plan replaces the start. Among the starts, a plan
@@ -43,12 +43,8 @@ from ff_planner.model.params import Scara2Params
 from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
 from ff_planner.optimize.hold_joint import Joint1Problem, joint1_params, joint2_hold_currents
 from ff_planner.optimize.limits1d import Limits1D
-from ff_planner.optimize.robust2d import (
-    corner_excess_2dof,
-    joint1_limits,
-    plan_robust_scara2,
-    shrink_limits,
-)
+from ff_planner.optimize.limits2d import corner_excess_2dof, joint1_limits, shrink_limits
+from ff_planner.optimize.robust2d import plan_robust_scara2
 from ff_planner.optimize.robust2d_refine import refine_box, rest_errors
 from ff_planner.optimize.sample_box import box_fractions, box_samples
 

@@ -12,7 +12,7 @@ from ff_planner.model.params import Scara2Params
 from ff_planner.model.profile import PlanRequest
 from ff_planner.optimize.certificate2d import CERT_H
 from ff_planner.optimize.planner import plan
-from ff_planner.optimize.robust2d import LIMITS_MARGIN2
+from ff_planner.optimize.limits2d import LIMITS_MARGIN2
 from ff_planner.optimize.sample_box import box_corners, box_fractions, box_uniform
 
 P = Scara2Params()
