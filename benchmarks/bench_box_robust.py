@@ -167,7 +167,9 @@ def main() -> None:
                            x_better=d["better_than_energy_optimal_x"] >= 90.0),
            "N=12 (default N if BOX_DEFAULT_STEPS = 12)": dict(
                meets(n12, 5e-3, 0.5), x_better=n12["better_than_energy_optimal_x"] >= 90.0),
-           "N=5": meets(f, 25e-3, 0.1), "steps=0": meets(g, 5e-3, 0.5)}
+           "N=5": meets(f, 25e-3, 0.1), "steps=0": meets(g, 5e-3, 0.5),
+           "default within 100 ms (quiet machine asked; read time_cpu on a loaded one)":
+               meets(d, 5e-3, 0.1)}
     out = {"benchmark": "box_robust", "task": "table 2 arm, 0 -> 1 rad in 1 s, pv pc pt",
            "judge": "rest position over the +-20 % box: 8 corners + centre + 256 uniform "
                     "(seed 0)", "seeds": a.seeds, "rows": rows, "targets": targets,

@@ -39,11 +39,11 @@ import numpy as np
 
 from ff_planner.model.arm1dof import FRICTION, TR_REST, track
 from ff_planner.model.params import Arm1DofParams
-from ff_planner.model.profile import CurrentProfile, PlanRequest
+from ff_planner.model.profile import CurrentProfile, GridPlanRequest, PlanRequest
 from ff_planner.optimize.certificate import certify_1dof
 from ff_planner.optimize.drive_grid import (DriveCertificate, drive_grid_from_config,
                                             latched_times, snap_times)
-from ff_planner.optimize.planner import DrivePlanRequest, plan
+from ff_planner.optimize.planner import plan
 from ff_planner.optimize.quantize import quantize_profile
 from ff_planner.optimize.sample_box import box_corners
 
@@ -88,7 +88,7 @@ def main() -> None:
         t1 = time.perf_counter()
         exact = plan(req, drive=grid)
         t2 = time.perf_counter()
-        gridded = plan(DrivePlanRequest(seed=seed, grid=grid.period))
+        gridded = plan(GridPlanRequest(seed=seed, grid=grid.period))
         p = cont.params
         assert isinstance(p, Arm1DofParams) and cont.profile is not None
         assert exact.profile is not None and isinstance(exact.certificate, DriveCertificate)

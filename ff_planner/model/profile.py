@@ -215,6 +215,15 @@ class PlanRequest:
 
 
 @dataclass
+class GridPlanRequest(PlanRequest):
+    """A PlanRequest whose switch times the robust 1-DOF planners put on a grid of ``grid`` s
+    (None = anywhere): a drive's SYNC period (the facade, ``planner.on_drive_grid``) or a motion
+    library's switch grid."""
+
+    grid: Optional[float] = None
+
+
+@dataclass
 class RobustnessCertificate:
     """How far a plan's rest position strays over an uncertainty box (judged on the exact
     model, zero current after tf until the arm stops).

@@ -3,31 +3,29 @@
 A request with ``tolerance`` (rad: the certificate's worst |rest − qf| over the friction box) and
 ``move_time_max`` (s, default DEFAULT_MOVE_TIME_MAX) asks for the shortest tf ≤ move_time_max
 whose plan is a success (within the limits, when the request has some) and certified within the
-tolerance. The certified error is not exactly monotone in tf (each plan is a multistart search),
-so the search brackets coarse to fine and keeps the best certified plan it has seen:
+tolerance. The certified error of one seeded plan is not monotone in tf: it falls steeply up to a
+knee, then hovers in a band whose spread is the multistart's (measured, 0 → 1 rad, N = 12, one
+seed per tf: 54 mrad at 0.82 s, 9.6 at 0.90 s, then 1.96-4.5 mrad from 0.92 s to 1.5 s; five
+seeds at 1.0 s: 1.67-2.52 mrad). A tolerance inside that band is met at a tf by some seeds and
+not others, so the search treats the seed as part of the test:
 
-1. tf = move_time_max first (measured: a longer tf is not always better, 1 rad in 2.1 s was
-   certified at 2.9 mrad, in 1 s at 2.0 mrad);
-2. a coarse descent tf_max · coarse_ratio^k down to the shortest tf the reach bound allows; it
-   goes on past tfs that fail the tolerance (measured: 1 rad passed at 1.84 s and 1.71 s, failed
-   at 1.57 and 1.33 s, passes at 1 s in other runs) and stops after ``hopeless_to_stop`` tfs in
-   a row without a plan that meets its objective (robust: a truly robust one) or certified
-   beyond ``hopeless_factor`` × the tolerance;
-3. bisection between the shortest passing coarse tf and the failing one below it until the
-   bracket is within ``rel_resolution`` of it (tfs on a ``tf_step`` grid). When no tf passes,
-   the answer is the plan of least certified worst, labelled (not a success, NO_ROBUST_PLAN);
-4. a scan upward in steps of ``scan_rel`` × tf from the shortest near miss below the shortest
-   pass (or below tf_max when none passed; a near miss: a success certified within
-   ``retry_within`` × the tolerance) until a tf passes (measured:
-   the passes are scattered where the certified error hovers near the tolerance — 0 → 1 rad,
-   2 mrad, seed 0: 1.00 s passed, 1.02–1.32 s failed, 1.34 s passed).
+1. tf = move_time_max first (a near miss there, a success certified within ``retry_within`` ×
+   the tolerance, is planned again with the next ``retries`` seeds);
+2. the knee, by bisection over [shortest reachable tf, move_time_max]: the shortest tf whose first
+   seed is certified within ``hopeless_factor`` × the tolerance (below the knee the error grows
+   fast, so one seed decides; inside the band it does not, so the knee is not looked for
+   there), to ``knee_resolution`` × tf;
+3. an upward scan from the knee in steps of ``scan_rel`` × tf until a tf passes, a near miss
+   planned again with the next seeds;
+4. bisection between the shortest pass and the tf tried just below it, until the bracket is
+   within ``rel_resolution`` of it (tfs on a ``tf_step`` grid; a near miss gets the seeds too).
 
-Each plan is a seeded multistart search, so a near miss (certified within ``retry_within`` ×
-the tolerance) is planned again with the next seed (``retries``). Every plan is reported
-(``extra["tolerance_search"]["trials"]``: tf, seed, certified worst, whether it met the
-tolerance, time). A plan that fails the tolerance is never answered as a success. Each plan gets
-at most ``trial_share`` of the time budget (and what is left of it); the whole search keeps to
-the request's ``time_budget`` (s).
+When no tf passes, the answer is the plan of least certified worst, labelled (not a success,
+NO_ROBUST_PLAN). Every plan is reported (``extra["tolerance_search"]["trials"]``: tf, seed,
+certified worst, whether it met the tolerance, time). A plan that fails the tolerance is never
+answered as a success. Each plan gets at most ``trial_share`` of the time budget (and what is
+left of it); the whole search keeps to the request's ``time_budget`` (s), and when the budget
+ends it the message says so.
 """
 from __future__ import annotations
 
@@ -35,13 +33,15 @@ import math
 import time
 from dataclasses import dataclass, field
 from dataclasses import replace as dc_replace
+from functools import partial
 from typing import Callable, Optional, Union
 
 import numpy as np
 
 from ff_planner.core.errors import PlanningError
 from ff_planner.model.profile import PlanRequest, PlanResult
-from ff_planner.optimize.planner import CheckedRequest, Progress, check, plan, reach
+from ff_planner.optimize.drive_grid import DriveGrid
+from ff_planner.optimize.planner import CheckedRequest, Progress, check, on_drive_grid, plan, reach
 
 DEFAULT_MOVE_TIME_MAX = 3.0   # s, longest tf a tolerance search considers when the request says none
 
@@ -50,19 +50,17 @@ PlanFn = Callable[..., PlanResult]   # plan_fn(request, progress) -> PlanResult
 
 @dataclass(frozen=True)
 class SearchSettings:
-    """How the tf search brackets: coarse steps (ratio), resolution, grid and time per plan."""
+    """How the tf search brackets: knee, scan, seeds, resolution, grid and time per plan."""
 
-    coarse_ratio: float = 0.85      # coarse descent: each tf this fraction of the one before
-    rel_resolution: float = 0.01    # bisection stops when the bracket is within this share of tf
-    scan_rel: float = 0.02          # near-miss scan: step, share of tf (0 = no scan)
+    knee_resolution: float = 0.02   # the knee bisection stops within this share of tf
+    rel_resolution: float = 0.01    # the final bisection stops when the bracket is within this
+    scan_rel: float = 0.03          # upward scan from the knee: step, share of tf (0 = no scan)
     tf_step: float = 1e-3           # s, tfs tried are multiples of this (the drives' 1 ms SYNC)
     trial_share: float = 0.125      # at most this share of the time budget per plan (s / s)
-    hopeless_to_stop: int = 2       # the descent stops after this many hopeless tfs in a row
-    retries: int = 1                # a near miss is planned again with the next seed(s) ...
+    retries: int = 1                # a near miss is planned again with up to this many seeds ...
     retry_within: float = 2.0       # ... when certified within this many times the tolerance
-    hopeless_factor: float = 5.0    # hopeless: no plan meeting the objective (robust ones: no
-    #                                 truly robust plan), or certified worse than
-    #                                 this many times the tolerance (shorter tfs are harder still)
+    hopeless_factor: float = 5.0    # the knee: the first seed certified within this many times
+    #                                 the tolerance (below it the error grows fast with less tf)
     min_trial_budget: float = 1.0   # s, ... but at least this much while the budget lasts
 
 
@@ -92,7 +90,6 @@ class _State:
     best_pass: Optional[PlanResult] = None     # the shortest tf that met the tolerance
     best_fail: Optional[PlanResult] = None     # least certified worst among the others
     first_error: Optional[PlanningError] = None
-    hopeless_last: bool = False                # the last trial was far from the tolerance
 
 
 def _worst(result: PlanResult) -> Optional[float]:
@@ -127,15 +124,23 @@ def shortest_reachable_tf(req: PlanRequest, params, tf_max: float, step: float) 
 
 def plan_fastest(request: Union[PlanRequest, CheckedRequest], progress: Progress = None,
                  initial_currents: Optional[np.ndarray] = None, plan_fn: PlanFn = plan,
-                 settings: SearchSettings = SearchSettings()) -> PlanResult:
+                 settings: SearchSettings = SearchSettings(),
+                 drive: Optional[DriveGrid] = None) -> PlanResult:
     """The plan of the fastest tf ≤ move_time_max certified within ``request.tolerance`` (rad).
 
-    ``plan_fn(sub_request, progress)`` plans one tf (default: the facade). ``initial_currents``
-    is not used (each tf is its own task). Raises PlanningError when the request is invalid or
-    the move is unreachable even at move_time_max; otherwise returns a PlanResult whose
-    ``extra["tolerance_search"]`` lists every tf tried."""
+    ``plan_fn(sub_request, progress)`` plans one tf (default: the facade). ``drive`` (or a
+    CheckedRequest's drive): every plan drive-exact for it (the facade's ``drive``) and the tfs
+    tried on its SYNC grid. ``initial_currents`` is not used (each tf is its own task). Raises
+    PlanningError when the request is invalid or the move is unreachable even at move_time_max;
+    otherwise returns a PlanResult whose ``extra["tolerance_search"]`` lists every tf tried."""
     t0 = time.perf_counter()
     req: PlanRequest = request.request if isinstance(request, CheckedRequest) else request
+    if drive is None and isinstance(request, CheckedRequest):
+        drive = request.drive
+    if drive is not None:
+        req = on_drive_grid(req, drive)
+        if plan_fn is plan:
+            plan_fn = partial(plan, drive=drive)
     if req.tolerance is None:
         raise PlanningError("plan_fastest needs a request with a tolerance (rad)")
     tolerance = float(req.tolerance)
@@ -143,7 +148,7 @@ def plan_fastest(request: Union[PlanRequest, CheckedRequest], progress: Progress
     step = float(getattr(req, "grid", None) or settings.tf_step)
     tf_max = math.floor(tf_max / step + 1e-9) * step
     base = dc_replace(req, tf=tf_max, tolerance=None, move_time_max=None)
-    checked = check(base)            # invalid or unreachable at tf_max: refused as the facade does
+    checked = check(base, drive)     # invalid or unreachable at tf_max: refused as the facade does
     tf_lo = min(shortest_reachable_tf(base, checked.params, tf_max, step), tf_max)
     budget = float(req.time_budget)
     deadline = t0 + budget
@@ -162,15 +167,12 @@ def plan_fastest(request: Union[PlanRequest, CheckedRequest], progress: Progress
         try:
             r = plan_fn(sub, progress)
         except PlanningError as exc:
-            st.hopeless_last = True
             if st.first_error is None:
                 st.first_error = exc
             st.trials.append(Trial(tf, None, False, exc.code, time.perf_counter() - t1,
                                    seed=seed, note=" ".join(str(exc).split())[:200]))
             return False, None
         w = _worst(r)
-        st.hopeless_last = not (r.success and w is not None
-                                and w <= settings.hopeless_factor * tolerance)
         meets = bool(r.success and w is not None and math.isfinite(w) and w <= tolerance)
         note = "" if meets else (
             "no certificate" if w is None else
@@ -186,73 +188,86 @@ def plan_fastest(request: Union[PlanRequest, CheckedRequest], progress: Progress
                 st.best_fail = r
         return meets, (w if r.success else None)
 
-    def attempt(tf: float) -> bool:
-        """Plan tf; a near miss (certified within retry_within × the tolerance) is planned again
-        with the next seeds, up to ``retries`` times (each plan is a seeded search)."""
-        tf = round(tf / step) * step
-        seed = int(base.seed)
-        meets, w = one(tf, seed)
-        for k in range(1, settings.retries + 1):
-            if meets or w is None or not w <= settings.retry_within * tolerance or left() <= 0.0:
+    def within(w: Optional[float], factor: float) -> bool:
+        return w is not None and w <= factor * tolerance
+
+    def near(w: Optional[float]) -> bool:
+        return within(w, settings.retry_within)
+
+    first: dict[int, Optional[float]] = {}     # tf (grid index) -> seed-0 result (None: no plan)
+    seeds_done: dict[int, int] = {}             # tf (grid index) -> seeds planned there
+    passed: set[int] = set()
+
+    def key(tf: float) -> int:
+        return int(round(tf / step))
+
+    def attempt(tf: float, seeds: int = 1) -> tuple[bool, Optional[float]]:
+        """Plan tf with the next seed(s) not yet tried there, at most ``seeds`` of them, while
+        they are near misses: (met, the first seed's certified worst or None)."""
+        k = key(tf)
+        tf = k * step
+        if k in passed:
+            return True, first.get(k)
+        meets = False
+        while seeds_done.get(k, 0) < seeds and left() > 0.0:
+            j = seeds_done.get(k, 0)
+            if j > 0 and not near(first.get(k)):
+                break       # far from the tolerance: another seed will not do
+            meets, w = one(tf, int(base.seed) + j)
+            seeds_done[k] = j + 1
+            if j == 0:
+                first[k] = w
+            if meets:
+                passed.add(k)
                 break
-            meets, w = one(tf, seed + k)
-        if meets:
-            st.hopeless_last = False
-        return meets
+        return meets, first.get(k)
+
+    def shortest_pass() -> Optional[int]:
+        return min(passed) if passed else None
 
     complete = True
-    pass_tf: Optional[float] = None
-    fail_tf: Optional[float] = None
-    hopeless_in_row = 0       # hopeless trials in a row
-    t = tf_max
-    while t >= tf_lo - 1e-12:
+    kmax, klo = key(tf_max), key(tf_lo)
+    # 1. the longest tf (with the seeds when it is a near miss)
+    attempt(tf_max, 1 + settings.retries)
+    # 2. the knee: the shortest tf whose first seed is within hopeless_factor × the tolerance
+    lo, hi = klo - 1, kmax
+    if not within(first.get(kmax), settings.hopeless_factor):
+        hi = kmax + 1        # not even tf_max is close: the scan below has nothing to start from
+    while hi <= kmax and hi - lo > max(1, int(settings.knee_resolution * hi)):
         if left() <= 0.0:
             complete = False
             break
-        t = round(t / step) * step
-        if attempt(t):
-            pass_tf, fail_tf, hopeless_in_row = t, None, 0
+        mid = (lo + hi) // 2
+        attempt(mid * step)
+        if within(first.get(mid), settings.hopeless_factor):
+            hi = mid
         else:
-            hopeless_in_row = hopeless_in_row + 1 if st.hopeless_last else 0
-            if pass_tf is not None and fail_tf is None:
-                fail_tf = t   # the failing coarse tf just below the shortest pass
-            if hopeless_in_row >= settings.hopeless_to_stop:
-                break
-        t *= settings.coarse_ratio
-    if pass_tf is not None and fail_tf is None and complete:
-        fail_tf = tf_lo - step           # below the reach bound: no plan exists
-    while pass_tf is not None and fail_tf is not None and fail_tf < pass_tf and \
-            pass_tf - fail_tf > max(settings.rel_resolution * pass_tf, step) + 1e-12:
-        if left() <= 0.0:
-            complete = False
-            break
-        mid = round(0.5 * (pass_tf + fail_tf) / step) * step
-        if mid <= fail_tf + 1e-12 or mid >= pass_tf - 1e-12:
-            break
-        if attempt(mid):
-            pass_tf = mid
-        else:
-            fail_tf = mid
-    upper = pass_tf if pass_tf is not None else tf_max
-    near = [tr.tf for tr in st.trials
-            if tr.tf < upper - 1e-12 and tr.error_code == "OK" and tr.worst_rest_error is not None
-            and tr.worst_rest_error <= settings.retry_within * tolerance]
-    if near and complete and settings.scan_rel > 0.0:
-        tried = {round(tr.tf / step) for tr in st.trials}
-        t, below = min(near), min(near)
-        while True:
-            t = round((t + max(step, settings.scan_rel * t)) / step) * step
-            if t >= upper - 1e-12:
-                break
+            lo = mid
+    # 3. upward scan from the knee until a pass (a near miss gets the next seeds)
+    if hi <= kmax and settings.scan_rel > 0.0 and complete:
+        k = hi
+        while k < min(kmax, shortest_pass() or kmax):
             if left() <= 0.0:
                 complete = False
                 break
-            if round(t / step) in tried:
-                continue
-            if attempt(t):
-                pass_tf, fail_tf = t, below
+            if attempt(k * step, 1 + settings.retries)[0]:
                 break
-            below = t
+            k = max(k + 1, key(k * step * (1.0 + settings.scan_rel)))
+    # 4. bisection between the shortest pass and the tf tried just below it
+    pass_tf: Optional[float] = None
+    fail_tf: Optional[float] = None
+    while complete and passed:
+        top = shortest_pass()
+        assert top is not None
+        below = [k for k in first if k < top]
+        fk = max(below) if below else klo - 1
+        pass_tf, fail_tf = top * step, fk * step
+        if top - fk <= max(1, int(settings.rel_resolution * top + 1e-9)):
+            break
+        if left() <= 0.0:
+            complete = False
+            break
+        attempt(((top + fk) // 2) * step, 1 + settings.retries)
     elapsed = time.perf_counter() - t0
     return _answer(req, st, tolerance, tf_max, tf_lo, pass_tf, fail_tf, complete, elapsed)
 

@@ -3,7 +3,8 @@
 The toolkit of the held-joint 2-DOF planners (``robust2d``, ``robust2d_sequential``,
 ``robust2d_refine``): the 1-DOF arm each joint is while the other is held (``joint1_params``,
 ``joint2_params``), the joint-1 problem with an optional hold condition (``Joint1Problem``:
-least squares on [q1(tf) − q1f, ∂q1(tf)/∂p_i, stop inside the coast, hold margin]), and the
+least squares on [q1(tf) − q1f, ∂q1(tf)/∂p_i, stop inside the coast, hold margin, and, with
+``limits``, the moving joint's limit violations at the box corners]), and the
 held motor's torque that cancels the moving link's reaction step by step (``hold_torques``,
 ``joint2_hold_currents``): the midpoint of the reaction's range on each step, which maximises
 the stiction margin. The reaction on the held joint is, with d = q1 − q2,
@@ -25,6 +26,7 @@ from ff_planner.model import arm1dof, scara2
 from ff_planner.model.friction import net_torque_array, sliding_level, sliding_level_array, stop_speed
 from ff_planner.model.params import Arm1DofParams, Scara2Params
 from ff_planner.model.profile import CurrentProfile
+from ff_planner.optimize.limits1d import LIMIT_SCALE, Limits1D
 
 STOP_MARGIN = 0.005      # s, final stop at least this far inside the coast (both ends)
 HOLD_MIN = 0.25          # aim: joint 2 still holds with its friction 25 % lower
@@ -49,11 +51,12 @@ class Joint1Problem:
     def __init__(self, p1: Arm1DofParams, q0: float, qf: float, tf: float, coast: float, N: int,
                  names: tuple[str, ...], p2: Optional[Scara2Params] = None, q2: float = 0.0,
                  hold_min: float = HOLD_MIN, samples: int = 24, held: int = 2,
-                 zero_coast: bool = True):
+                 zero_coast: bool = True, limits: Optional[Limits1D] = None):
         self.J, self.c = p1.J, p1.n * p1.kt
         self.fr = {"pv": p1.pv, "pc": p1.pc, "pt": p1.pt}
         self.q0, self.qf, self.tf, self.coast, self.N = q0, qf, tf, coast, N
         self.names = names
+        self.limits = limits     # the moving joint's limits as this 1-DOF arm's (None: none)
         self.times = np.linspace(0.0, tf - coast, N + 1)
         self.tN = float(self.times[-1])
         self.v_lo = stop_speed(p1.J, p1.pv, p1.pc, STOP_MARGIN)
@@ -117,7 +120,8 @@ class Joint1Problem:
                                 False, self.seg, self.ev)
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
-        """[q(tf) − qf, ∂q(tf)/∂p_i (central differences), stop-speed bounds, hold margins]."""
+        """[q(tf) − qf, ∂q(tf)/∂p_i (central differences), stop-speed bounds, hold margins,
+        limit violations (rad, rad/s) at ``limits.corners``]."""
         x = np.ascontiguousarray(x, dtype=float)
         pv, pc, pt = self.fr["pv"], self.fr["pc"], self.fr["pt"]
         qT, vT, _, _ = self.final_state(x, self.tf, pv, pc, pt)
@@ -136,6 +140,9 @@ class Joint1Problem:
         if self.p2 is not None:
             _, frac = self.hold(x)
             r.extend(np.maximum(0.0, self.hold_min - frac))
+        if self.limits is not None:
+            g = self.limits.values(self.times, x, self.limits.corners) / LIMIT_SCALE
+            r.extend(np.maximum(0.0, -g))
         return np.array(r)
 
     def solve(self, x0: np.ndarray, max_nfev: int = 60) -> tuple[np.ndarray, np.ndarray, int]:

@@ -40,7 +40,7 @@ import numpy as np
 
 from ff_planner.core.errors import ParameterError, PlanningError, WarmStartUnavailable, error_code_of
 from ff_planner.model.params import Arm1DofParams, Params, Scara2Params
-from ff_planner.model.profile import DEFAULT_STARTS, MAX_TF, PlanRequest, PlanResult
+from ff_planner.model.profile import DEFAULT_STARTS, MAX_TF, GridPlanRequest, PlanRequest, PlanResult
 from ff_planner.model.simulate import rest_position
 from ff_planner.optimize.baselines import plan_baseline, reach_1dof
 from ff_planner.optimize.box_robust import plan_box_robust_1dof
@@ -332,12 +332,9 @@ GRID_ROUTES = frozenset({("arm1dof", "robust-derivative"), ("arm1dof", "robust-s
                          ("arm1dof", "robust-box")})
 
 
-@dataclass
-class DrivePlanRequest(PlanRequest):
-    """A PlanRequest whose switch times the inner planner puts on ``grid`` (s): what the facade
-    hands a gridding planner (``GRID_ROUTES``) for a drive."""
-
-    grid: Optional[float] = None
+#: what the facade hands a gridding planner (``GRID_ROUTES``) for a drive: the one request type
+#: with a switch grid (``model.profile.GridPlanRequest``)
+DrivePlanRequest = GridPlanRequest
 
 
 def on_drive_grid(req: PlanRequest, drive: Optional[DriveGrid]) -> PlanRequest:

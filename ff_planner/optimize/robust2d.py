@@ -19,6 +19,19 @@ both joints at rest at tf, and all 12 sensitivities by complex step (exact deriv
 which link 2 must move have no known truly robust plan (see docs/scara2-model.md): the planner
 says so (NO_ROBUST_PLAN) and returns its least-worst-case-error plan labelled best_effort.
 
+Limits (``request.limits``): with link 2 held, joint 1's excursion is the held 1-DOF arm's, so
+every verified candidate is checked against joint 1's position range and speed limit at the
+certificate's box points of the uncertain joint-1 parameters (``limits2d.joint1_limits``,
+exact); a held plan outside them is continued into them (a second continuation with
+``Joint1Problem``'s limit rows at the box corners, so that the first keeps its success rate). A
+candidate within them is also simulated on the full 2-DOF model at the corners of the whole box
+(``limits2d.corner_excess_2dof``: both joints, link 2 free to slip) before it is taken. The search
+goes on past a robust plan outside them and answers one only when no robust plan within them was
+found, labelled (not a success, ``extra["limits_joint1_excess"]``). Tasks that move link 2: the
+one-joint-at-a-time plans hold each phase's moving joint within its limits
+(``robust2d_sequential``); the least-worst plan does not search under limits. The facade checks
+the 2-DOF certificate's excursion against the limits and labels a plan that leaves them.
+
 Units: rad, A, s. No rclpy here.
 """
 from __future__ import annotations
@@ -33,6 +46,7 @@ from ff_planner.model import scara2
 from ff_planner.model.params import Scara2Params
 from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
 from ff_planner.optimize.hold_joint import Joint1Problem, joint1_params, joint2_hold_currents
+from ff_planner.optimize.limits2d import corner_excess_2dof, joint1_limits
 from ff_planner.optimize.robust1d import solve_block
 from ff_planner.optimize.robust2d_least_worst import plan_least_worst
 from ff_planner.optimize.robust2d_refine import refine_sampled
@@ -123,7 +137,10 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
     # stage 1: joint 1 robust with rest in the coast (robust1d's compiled LM, ``solve_block``);
     # stage 2: continuation along that solution set until link 2 is held with margin
     times = np.linspace(0.0, request.tf - request.coast, N + 1)
+    lim = joint1_limits(request, p)
     holds = [Joint1Problem(*args, p2=p, q2=float(q0[1]), hold_min=h) for h in HOLD_LEVELS]
+    holds_lim = [Joint1Problem(*args, p2=p, q2=float(q0[1]), hold_min=h, limits=lim)
+                 for h in HOLD_LEVELS] if lim is not None else []
     rng = np.random.default_rng(request.seed)
     best = None          # (score, profile, verification)
     best_cost = math.inf
@@ -158,6 +175,14 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
                 if float(np.max(np.abs(fun2))) <= 0.1 * tol:
                     x = x2
                     break
+            # then, from a held plan outside joint 1's limits, on along the set into them
+            if lim is not None and lim.excess(times, np.ascontiguousarray(x)) > 0.0:
+                for hp in holds_lim:
+                    x2, fun2, nfev2 = hp.solve(x, max_nfev=STAGE2_NFEV)
+                    iters += nfev2
+                    if float(np.max(np.abs(fun2))) <= 0.1 * tol:
+                        x = x2
+                        break
             prof1 = CurrentProfile(times, x.reshape(-1, 1), request.tf, request.coast)
             I2, frac = joint2_hold_currents(p, prof1, q0)
             profile = CurrentProfile(times, np.column_stack([x, I2]), request.tf, request.coast)
@@ -168,14 +193,19 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
             smax = max(abs(v) for k, v in sens.items() if _is_pos(k))
             err = float(np.max(np.abs(sim.q_f - qf)))
             ok = err <= tol and smax <= tol and sim.stuck_tf[0] and sim.stuck_tf[1]
-            score = (0 if ok else 1, -frac if ok else smax + err)
+            excess = lim.excess(times, np.ascontiguousarray(x, dtype=float)) if lim else 0.0
+            if ok and excess <= 0.0:     # and on the full model at the corners of the box
+                excess = corner_excess_2dof(request, p, profile)
+            ok_in = ok and excess <= 0.0
+            # robust within the limits, then robust nearest the limits, then least residual
+            score = ((0, -frac) if ok_in else (1, excess) if ok else (2, smax + err))
             if best is None or score < best[0]:
-                best = (score, profile, sim, sens, frac)
+                best = (score, profile, sim, sens, frac, excess)
             if progress:
                 progress({"stage": "verify", "starts_done": starts, "robust": ok,
                           "hold_fraction": frac, "max_sensitivity": smax, "error": err,
                           "elapsed": time.perf_counter() - t_start})
-            if ok:      # frac >= HOLD_FALLBACK > 0 here: first verified robust plan wins
+            if ok_in:   # frac >= HOLD_FALLBACK > 0 here: first verified robust plan wins
                 found = True
                 break
     elapsed = time.perf_counter() - t_start
@@ -183,31 +213,43 @@ def plan_robust_scara2(request: PlanRequest, progress: Progress = None) -> PlanR
         code = "TIME_BUDGET_EXHAUSTED" if time.perf_counter() >= deadline else "NO_ROBUST_PLAN"
         return _result(request, p, message=(
             f"no robust plan with N = {N} steps per joint after {starts} joint-1 starts and "
-            f"{candidates} continuations (best joint-1 residual {best_cost:.3g}); try a larger "
-            f"time budget, more starts, more steps or a longer tf"),
+            f"{candidates} continuations (best joint-1 residual {best_cost:.3g}); "
+            + (f"{lim.advice()}" if lim is not None else
+               "try a larger time budget, more starts, more steps or a longer tf")),
             error_code=code, starts_tried=starts, iterations=iters, solve_time=elapsed)
-    (ok_flag, _), profile, sim, sens, frac = best
-    robust = ok_flag == 0
+    (rank, _), profile, sim, sens, frac, excess = best
+    robust = rank == 0
+    outside = rank == 1      # robust, but joint 1 leaves its limits
     refined = None
     if robust and request.objective == "robust-sampled" and names1:
         refined = _refine(request, p, holds[0], profile, names, names1, deadline, progress,
                           t_start)
+        if refined is not None and lim is not None and not lim.ok(
+                times, np.ascontiguousarray(refined[0].currents[:, 0])):
+            refined = None       # the refinement left joint 1's limits: keep the plan within
         if refined is not None:
             profile, sim, sens, frac = refined
     elapsed = time.perf_counter() - t_start
     msg = (f"robust plan: joint 2 held by stiction (holds down to {100 * (1 - frac):.0f} % "
            f"of nominal joint-2 friction), max |dq/dp| = "
            f"{max(abs(v) for k, v in sens.items() if _is_pos(k)):.2g}")
-    if not robust:
+    if outside:
+        advice = (lim.advice() if lim is not None else "widen the limits or give a longer "
+                  "move time")
+        msg = (f"robust plan found, but it leaves the limits by {excess:.3g} rad (rad/s) over "
+               f"the box: {advice}; " + msg.split(": ", 1)[1])
+    elif not robust:
         msg = "best plan found is NOT robust to the tolerance: " + msg.split(": ", 1)[1]
+    limit_extra = {} if lim is None else {"limits_joint1_excess": float(excess)}
     return _result(
-        request, p, success=robust, robust=robust, best_effort=not robust,
+        request, p, success=robust, robust=robust or outside, best_effort=not robust,
         error_code="OK" if robust else "NO_ROBUST_PLAN", message=msg, profile=profile,
         q_final=sim.q_f, qd_final=sim.qd_f,
         sensitivities={k: v for k, v in sens.items() if _is_pos(k)},
         starts_tried=starts, iterations=iters, solve_time=elapsed,
         extra={"method": "hold-link2", "hold_fraction": frac, "candidates": candidates,
-               "joint1_inertia": p1.J, "sampled_refinement": refined is not None})
+               "joint1_inertia": p1.J, "sampled_refinement": refined is not None,
+               **limit_extra})
 
 
 def _refine(request, p, hp, profile, names, names1, deadline, progress, t_start):

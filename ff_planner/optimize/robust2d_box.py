@@ -16,6 +16,17 @@ Not reused from ``box_robust``: its free switch times and coast choice, because 
 it finds do not hold link 2 (measured on the section 4.2 task: hold fraction −1.4 … −1.8, i.e.
 link 2 slips; docs/scara2-model.md). Tasks that move link 2 go to ``plan_robust_scara2``
 (one joint at a time, else the least-worst-case plan, labelled). Units: rad, A, s.
+
+Limits (``request.limits``): while link 2 is held, joint 1's excursion is the held 1-DOF arm's
+(``limits2d.joint1_limits``: ``limits1d.Limits1D`` of ``joint1_params``, exact, held
+``limits2d.LIMITS_MARGIN2`` inside the request's): the minimax holds joint 1's position range
+and speed limit at the box corners and centre of the uncertain joint-1 parameters as SLSQP
+constraints and answers only a plan within them at every certificate box point of those
+parameters; from a start outside them, any such plan replaces the start. Among the starts, a plan
+within joint 1's limits wins over any outside them (``extra["limits_joint1_excess"]``: the largest
+violation, rad or rad/s, 0 = within). Link 2 held keeps joint 2 at q20 (inside its range by
+validation) at nominal joint-2 friction. The facade checks the 2-DOF certificate's excursion (both
+joints, all six parameters) against the limits and labels a plan that leaves them.
 """
 from __future__ import annotations
 
@@ -31,6 +42,8 @@ from ff_planner.model.arm1dof import FRICTION
 from ff_planner.model.params import Scara2Params
 from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
 from ff_planner.optimize.hold_joint import Joint1Problem, joint1_params, joint2_hold_currents
+from ff_planner.optimize.limits1d import Limits1D
+from ff_planner.optimize.limits2d import corner_excess_2dof, joint1_limits, shrink_limits
 from ff_planner.optimize.robust2d import plan_robust_scara2
 from ff_planner.optimize.robust2d_refine import refine_box, rest_errors
 from ff_planner.optimize.sample_box import box_fractions, box_samples
@@ -41,6 +54,8 @@ BOX2_DEFAULT_STEPS = 12   # steps per joint when unset (section 4.2 task, measur
 #                           worst ~0.12 rad at N = 12 against ~0.30 rad at N = 8)
 HOLD_MIN = 0.1            # link 2 keeps this share of its stiction unused (nominal friction)
 DERIVATIVE_SHARE = 0.5    # share of the remaining time budget for each derivative-robust start
+LIMITS_RETRIES = 2        # minimax reruns with joint 1's limits further inside (see _minimax)
+LIMITS_RETRY_GROW = 1.5   # ... by this many times the full model's excess at the box corners
 BOX2_STARTS = 3           # derivative-robust starts (seeds seed, seed + 1, ...), the next one
 #                           only when the minimax did not improve the last (measured: one in four)
 
@@ -68,8 +83,9 @@ def plan_box_robust_scara2(request: PlanRequest, progress: Progress = None) -> P
             if u.endswith("1")}
     scales = box_samples(box_fractions(list(names1), box1), FRICTION)
     p1 = joint1_params(p)
+    lim = joint1_limits(request, p)   # None with only joint-2 limits: link 2 held
     hp = Joint1Problem(p1, float(q0[0]), float(qf[0]), float(request.tf), float(request.coast), n,
-                       names1, p2=p, q2=float(q0[1]), hold_min=HOLD_MIN)
+                       names1, p2=p, q2=float(q0[1]), hold_min=HOLD_MIN, limits=lim)
     best: Optional[PlanResult] = None
     tried: list[dict] = []
     for s in range(BOX2_STARTS):
@@ -81,18 +97,18 @@ def plan_box_robust_scara2(request: PlanRequest, progress: Progress = None) -> P
                                time_budget=max(1e-3, DERIVATIVE_SHARE * left))
         start = plan_robust_scara2(start_req, progress)
         start.objective = request.objective
-        if not start.success or start.profile is None:
+        if start.profile is None or not start.robust:   # robust outside the limits: minimax
             if best is None:
                 start.extra = dict(start.extra or {}, box_minimax=False)
                 best = start
             continue
-        cand = _minimax(request, p, hp, scales, start, deadline)
+        cand = _minimax(request, p, hp, scales, start, deadline, lim)
         tried.append({"seed": int(request.seed) + s, "box_minimax": cand.extra["box_minimax"],
-                      "box_worst_joint1": cand.extra["box_worst_joint1"]})
-        if (best is None or not best.success or float(cand.extra["box_worst_joint1"])
-                < float(best.extra.get("box_worst_joint1", math.inf))):
+                      "box_worst_joint1": cand.extra["box_worst_joint1"],
+                      "limits_joint1_excess": cand.extra.get("limits_joint1_excess")})
+        if best is None or not best.success or _rank(cand) < _rank(best):
             best = cand
-        if cand.extra["box_minimax"]:
+        if cand.extra["box_minimax"] and cand.extra.get("limits_joint1_excess", 0.0) <= 0.0:
             break            # measured: further starts gain < 10 % at N = 12 for 3-10x the time
     assert best is not None
     best.extra = dict(best.extra, box_starts=tried)
@@ -103,21 +119,71 @@ def plan_box_robust_scara2(request: PlanRequest, progress: Progress = None) -> P
     return best
 
 
+def _rank(res: PlanResult) -> tuple[bool, float]:
+    """Order of the starts' answers: within joint 1's limits first, then the joint-1 box worst."""
+    ex = res.extra or {}
+    return (float(ex.get("limits_joint1_excess", 0.0)) > 0.0,
+            float(ex.get("box_worst_joint1", math.inf)))
+
+
 def _minimax(request: PlanRequest, p: Scara2Params, hp: Joint1Problem, scales: np.ndarray,
-             start: PlanResult, deadline: float) -> PlanResult:
-    """The held-link-2 box minimax from the derivative-robust plan ``start``, verified on the
-    full 2-DOF model; ``start`` itself (with its joint-1 box worst) when it does not improve."""
+             start: PlanResult, deadline: float, lim: Optional[Limits1D] = None) -> PlanResult:
+    """The held-link-2 box minimax from the derivative-robust plan ``start`` (under joint 1's
+    limits ``lim``), verified on the full 2-DOF model; ``start`` itself (with its joint-1 box
+    worst and limit excess) when it does not improve. Under limits the answer is also simulated
+    on the full model at the corners of the whole box (``corner_excess_2dof``); where it leaves
+    the limits there, the minimax runs again with joint 1's limits held that excess
+    (× LIMITS_RETRY_GROW) further inside, at most LIMITS_RETRIES times."""
+    assert start.profile is not None
+    x0 = np.ascontiguousarray(start.profile.currents[:, 0], dtype=float)
+    w0 = float(np.max(np.abs(rest_errors(hp, x0, scales))))
+    extra = dict(start.extra or {}, box_minimax=False, derivative_start_box_worst_joint1=w0,
+                 box_worst_joint1=w0, n_steps=hp.N)
+    if lim is not None:
+        extra["limits_joint1_excess"] = max(lim.excess(hp.times, x0),
+                                            corner_excess_2dof(request, p, start.profile))
+    start.extra = extra
+    hp_limits = hp.limits
+    try:
+        for _ in range(LIMITS_RETRIES + 1):
+            hp.limits = lim
+            got = _minimax_once(request, p, hp, scales, start, deadline, lim, x0)
+            if got is None:
+                return start
+            profile, sim, sens, frac, w, excess = got
+            if excess <= 0.0 or lim is None:
+                break
+            lim = shrink_limits(lim, LIMITS_RETRY_GROW * excess)
+    finally:
+        hp.limits = hp_limits
+    smax = max(abs(v) for v in sens.values()) if sens else 0.0
+    inside = excess <= 0.0
+    return dc_replace(
+        start, success=inside, robust=True, best_effort=not inside,
+        error_code="OK" if inside else "NO_ROBUST_PLAN",
+        profile=profile, q_final=sim.q_f, qd_final=sim.qd_f, sensitivities=sens,
+        extra=dict(extra, method="hold-link2-box", box_minimax=True, box_worst_joint1=w,
+                   hold_fraction=frac,
+                   **({"limits_joint1_excess": excess} if lim is not None else {})),
+        message=(f"robust-box plan: joint 2 held by stiction (holds down to "
+                 f"{100 * (1 - frac):.0f} % of nominal joint-2 friction), joint-1 worst rest "
+                 f"error {w * 1e3:.3g} mrad on the box samples (derivative-robust start: "
+                 f"{w0 * 1e3:.3g} mrad), max |dq/dp| = {smax:.2g}"))
+
+
+def _minimax_once(request: PlanRequest, p: Scara2Params, hp: Joint1Problem, scales: np.ndarray,
+                  start: PlanResult, deadline: float, lim: Optional[Limits1D], x0: np.ndarray
+                  ) -> Optional[tuple]:
+    """One minimax under ``lim``, verified (goal, at rest, sensitivities, hold): (profile, sim,
+    sensitivities, hold fraction, joint-1 worst (rad), limit excess (rad or rad/s, the held
+    model's at the certificate's joint-1 points and the full model's at the box corners)), or
+    None when it did not improve or does not verify."""
     assert start.profile is not None
     q0 = np.asarray(request.q0, float)
     qf = np.asarray(request.qf, float)
-    x0 = np.ascontiguousarray(start.profile.currents[:, 0], dtype=float)
-    w0 = float(np.max(np.abs(rest_errors(hp, x0, scales))))
-    out = refine_box(hp, x0, scales, deadline, float(request.tol))
-    extra = dict(start.extra or {}, box_minimax=False, derivative_start_box_worst_joint1=w0,
-                 box_worst_joint1=w0, n_steps=hp.N)
-    start.extra = extra
+    out = refine_box(hp, x0, scales, deadline, float(request.tol), limits=lim)
     if out is None:
-        return start
+        return None
     x, w = out
     times = start.profile.step_times
     prof1 = CurrentProfile(times, x.reshape(-1, 1), request.tf, request.coast)
@@ -129,12 +195,8 @@ def _minimax(request: PlanRequest, p: Scara2Params, hp: Joint1Problem, scales: n
     smax = max(abs(v) for v in sens.values()) if sens else 0.0
     err = float(np.max(np.abs(sim.q_f - qf)))
     if not (err <= request.tol and smax <= request.tol and all(sim.stuck_tf) and frac > 0.0):
-        return start
-    return dc_replace(
-        start, profile=profile, q_final=sim.q_f, qd_final=sim.qd_f, sensitivities=sens,
-        extra=dict(extra, method="hold-link2-box", box_minimax=True, box_worst_joint1=w,
-                   hold_fraction=frac),
-        message=(f"robust-box plan: joint 2 held by stiction (holds down to "
-                 f"{100 * (1 - frac):.0f} % of nominal joint-2 friction), joint-1 worst rest "
-                 f"error {w * 1e3:.3g} mrad on the box samples (derivative-robust start: "
-                 f"{w0 * 1e3:.3g} mrad), max |dq/dp| = {smax:.2g}"))
+        return None
+    excess = 0.0
+    if lim is not None:
+        excess = max(lim.excess(hp.times, x), corner_excess_2dof(request, p, profile))
+    return profile, sim, sens, frac, w, excess

@@ -9,7 +9,7 @@ either joint while the hold margin lasts. Units: rad, A, s.
 from __future__ import annotations
 
 import time
-from typing import Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 from scipy.optimize import minimize
@@ -17,6 +17,7 @@ from scipy.optimize import minimize
 from ff_planner.model import arm1dof
 from ff_planner.model.arm1dof import FRICTION
 from ff_planner.optimize.hold_joint import Joint1Problem
+from ff_planner.optimize.limits1d import Limits1D
 from ff_planner.optimize.sample_box import sample_scales
 
 
@@ -83,12 +84,18 @@ HOLD_SLACK = 0.005       # the minimax keeps this much hold margin above hp.hold
 
 
 def refine_box(hp: Joint1Problem, x0: np.ndarray, scales: np.ndarray, deadline: float,
-               tol: float, maxiter: int = BOX_ITER) -> tuple[np.ndarray, float] | None:
+               tol: float, maxiter: int = BOX_ITER, limits: Optional[Limits1D] = None
+               ) -> tuple[np.ndarray, float] | None:
     """Minimax for the box: among joint-1 currents that keep every constraint of ``hp`` (zero
     ∂q1(tf)/∂p_i, q1(tf) = q1f, stop inside the coast, link 2 held with ``hp.hold_min``), the
     least worst joint-1 REST error over the friction ``scales`` (S, 3) of (pv, pc, pt) — the
     box's corners, centre and face centres. Epigraph form: min w s.t. −w ≤ e_s ≤ w (w in mrad).
-    Returns (currents (A), worst sampled error (rad)) if it improved on ``x0``, else None."""
+    Returns (currents (A), worst sampled error (rad)) if it improved on ``x0``, else None.
+
+    ``limits`` (joint 1's position range / speed limit as the held 1-DOF arm, ``limits1d``):
+    also g_s ≥ 0 at the box corners and centre (``Limits1D.corners``, mrad) as SLSQP rows; the
+    answer must keep within them at every certificate box point (``Limits1D.ok``), and from a
+    start outside them any such answer counts as an improvement."""
     scales = np.ascontiguousarray(scales, dtype=float)
     k = len(hp.names)
     n = len(x0)
@@ -108,8 +115,10 @@ def refine_box(hp: Joint1Problem, x0: np.ndarray, scales: np.ndarray, deadline: 
         s = abs(vN)
         _, frac = hp.hold(xs)
         e = errs(z)
+        lim = (limits.values(hp.times, xs, limits.corners) if limits is not None
+               else np.empty(0))
         return np.concatenate([[s - hp.v_lo, hp.v_hi - s], frac - hp.hold_min - HOLD_SLACK,
-                               z[n] - e, z[n] + e])
+                               z[n] - e, z[n] + e, lim])
 
     z0 = np.append(np.asarray(x0, dtype=float), 1e3 * w0)
     try:
@@ -123,5 +132,8 @@ def refine_box(hp: Joint1Problem, x0: np.ndarray, scales: np.ndarray, deadline: 
     x2, fun, _ = hp.solve(x, max_nfev=40)
     if float(np.max(np.abs(fun))) > 0.1 * tol:
         return None
+    if limits is not None and not limits.ok(hp.times, x2):
+        return None
     w = float(np.max(np.abs(rest_errors(hp, x2, scales))))
-    return (x2, w) if w < w0 else None
+    start_inside = limits is None or limits.ok(hp.times, np.ascontiguousarray(x0, dtype=float))
+    return (x2, w) if (w < w0 or not start_inside) else None

@@ -10,10 +10,17 @@ its own friction (the held joint never slips), every ∂q_j(tf)/∂p_i is zero e
 Limits: each joint only has part of tf, and holding joint 1 while link 2 accelerates needs large
 motor-1 torque (joint 1's stiction at 10 A is only ~3.4 Nm), so it works for moderate moves, or
 when the links are near right angles (the coupling B·cos(q1 − q2) vanishes).
+
+Position / speed limits (``request.limits``): each phase's 1-DOF robust plan is asked to keep the
+moving joint within its limits (``limits2d.joint_limits``, the 1-DOF planner's own search under
+limits); a phase whose held continuation leaves them is dropped, and the joined plan is simulated
+on the full 2-DOF model at the corners of the whole box (``limits2d.corner_excess_2dof``) before
+it is answered.
 Units: rad, A, s.
 """
 from __future__ import annotations
 
+import math
 import time
 from typing import Callable, Optional
 
@@ -22,7 +29,9 @@ import numpy as np
 from ff_planner.model import scara2
 from ff_planner.model.params import Scara2Params
 from ff_planner.model.profile import CurrentProfile, PlanningError, PlanRequest, PlanResult
+from ff_planner.model.limits import MotionLimits
 from ff_planner.optimize.hold_joint import Joint1Problem, hold_torques, joint1_params, joint2_params
+from ff_planner.optimize.limits2d import corner_excess_2dof, joint_limits
 from ff_planner.optimize.robust1d import plan_robust_1dof
 
 SPLITS = {1: (0.7, 0.6, 0.5), 2: (0.3, 0.4, 0.5)}   # share of tf of the first phase, by its joint
@@ -40,12 +49,18 @@ def _phase(p: Scara2Params, joint: int, qa0: float, qaf: float, q_other: float, 
     pm = joint1_params(p) if joint == 1 else joint2_params(p)
     held = 2 if joint == 1 else 1
     k = len(names)
+    lim = joint_limits(request, p, joint, q0=qa0, tf=t)
+    fin = lambda v: [v] if lim is not None and math.isfinite(v) else None  # noqa: E731
+    limits = (MotionLimits.of(fin(lim.lo), fin(lim.hi), fin(lim.vmax)) if lim is not None
+              else None)
+    box = ({u[:-1]: f for u, f in (request.box or {}).items()
+            if u.endswith(str(joint)) and u[:-1] in names} if lim is not None else None)
     for n in (k + 2, k + 3, k + 5):
         for s in range(3):
             req = PlanRequest(objective="robust-derivative", model="arm1dof", q0=(qa0,), qf=(qaf,), tf=t,
                               uncertain=tuple(names) or ("pc",), steps=max(n, 3),
                               coast=request.coast, params=pm, starts=400, seed=seed + 7919 * s,
-                              time_budget=budget, tol=request.tol)
+                              time_budget=budget, tol=request.tol, limits=limits, box=box)
             try:
                 r = plan_robust_1dof(req)
             except PlanningError:
@@ -67,6 +82,8 @@ def _phase(p: Scara2Params, joint: int, qa0: float, qaf: float, q_other: float, 
                 x = x2
                 prof = CurrentProfile(prof0.step_times, x.reshape(-1, 1), t, request.coast)
                 T, frac = hold_torques(p, held, prof, qa0, q_other, zero_coast=zero_coast)
+            if lim is not None and not lim.ok(prof0.step_times, np.ascontiguousarray(x)):
+                continue        # the continuation left the moving joint's limits
             if frac.min() >= 0.5 * HOLD_MIN:
                 return prof0.step_times, x, T, float(frac.min())
     return None
@@ -127,6 +144,8 @@ def plan_sequential(request: PlanRequest, p: Scara2Params, progress: Optional[Ca
             smax = max(abs(v) for v in sens.values()) if sens else 0.0
             err = float(np.max(np.abs(sim.q_f - qf)))
             ok = err <= tol and smax <= tol and all(sim.stuck_tf)
+            excess = corner_excess_2dof(request, p, profile) if ok else 0.0
+            ok = ok and excess <= 0.0
             if progress:
                 progress({"stage": "sequential-verify", "robust": ok, "max_sensitivity": smax,
                           "error": err, "elapsed": time.perf_counter() - t_start})

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from ff_planner.model.arm1dof import batch_core
-from ff_planner.model.arm1dof_derivatives import Q_, hd_sim, workspace
+from ff_planner.model.arm1dof_derivatives import Q_, V_, VC_, hd_sim, hd_sim_p, workspace
 from ff_planner.model.params import Arm1DofParams
 from ff_planner.model.profile import BOX_DEFAULT_STEPS, PlanRequest
 from ff_planner.optimize.box_kernels import free_terms, free_values
@@ -28,6 +28,35 @@ def worst_over(result, scales: np.ndarray) -> float:
 
 def corner_worst(result) -> float:
     return worst_over(result, box_corners(box_fractions(KEYS), KEYS))
+
+
+def test_parameter_rows_and_resumed_differences_repeat_the_full_simulation():
+    """hd_sim_p's rows equal hd_sim's value and ∂/∂p columns; the switch-time columns of
+    free_terms (resumed from the switch states) equal central differences of simulations from
+    t = 0 to the last bit."""
+    p = Arm1DofParams()
+    nom = np.array([p.pv, p.pc, p.pt])
+    times = np.array([0.0, 0.2, 0.45, 0.7, 0.9, 0.95])
+    cur = np.array([-2.0, 6.0, 1.0, -5.0, 0.5])
+    W, Wp = workspace(5), workspace(0)
+    for to_rest in (False, True):
+        k1 = hd_sim(p.J, p.n * p.kt, p.pv, p.pc, p.pt, times, cur, 1.0, 0.0, to_rest, nom, W)
+        k2 = hd_sim_p(p.J, p.n * p.kt, p.pv, p.pc, p.pt, times, cur, 1.0, 0.0, to_rest, nom, Wp)
+        assert k1 == k2
+        for r in (Q_, V_, VC_):
+            assert np.all(np.isfinite(Wp[r, :4])) and np.array_equal(W[r, :4], Wp[r, :4])
+    scales = np.array([[0.8, 1.2, 1.2], [1.2, 0.8, 0.8], [1.0, 1.0, 1.0]])
+    h = 1e-6
+    _, Ge, _, _ = free_terms(p.J, p.n * p.kt, nom, np.abs(nom), scales, times, cur, 1.0, 0.0,
+                             1.0, h, W)
+    fr = np.ascontiguousarray(scales * nom)
+    for j in range(1, 5):
+        tp, tm = times.copy(), times.copy()
+        tp[j] += h
+        tm[j] -= h
+        qp, _ = batch_core(p.J, p.n * p.kt, fr, np.ones(3, bool), tp, cur, 1.0, 0.0)
+        qm, _ = batch_core(p.J, p.n * p.kt, fr, np.ones(3, bool), tm, cur, 1.0, 0.0)
+        assert np.array_equal(Ge[:, 5 + j - 1], (qp - qm) / (2 * h))
 
 
 def test_free_terms_match_the_simulator_and_its_derivatives():
