@@ -76,6 +76,8 @@ def build_parser(tolerance_search: bool = True, tradeoff: bool = True,
                "  ff-plan --qf 1 --tf 1 --q-min -0.3 --q-max 1.05 --qd-max 4   # limits, whole box\n"
                "  ff-plan --qf 1 --tolerance 0.002 --tf-max 3   # the fastest tf certified within 2 mrad\n"
                "  ff-plan --qf 1 --drive-config config/bridge_epos4_1dof.yaml -o move.json   # drive-exact\n"
+               "  ff-plan --cell config/arms/arm3h.cell.yaml --q0 0,0,0 --qf 0.5,-0.4,0.6 --tf 1.5  # an arm\n"
+               "      from a URDF + cell file (docs/arms.md; ff-plan --cell X --help for its options)\n"
                "exit codes: 0 plan meets its tolerances; 1 best-effort plan only (still written)\n"
                "or internal error; 2 bad input or unreachable goal.",
         formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -656,8 +658,12 @@ def _protect_numbers(argv: Sequence[str]) -> list[str]:
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
     """Entry point of ``ff-plan``; returns the exit code (see module docstring)."""
-    parser = build_parser()
     raw = list(sys.argv[1:] if argv is None else argv)
+    if any(a == opt or a.startswith(opt + "=") for a in raw for opt in ("--urdf", "--cell")):
+        from ff_planner.cli import plan_urdf     # an arm from a URDF + cell file (docs/arms.md)
+
+        return plan_urdf.main(raw)
+    parser = build_parser()
     debug = "--debug" in raw
     try:
         args = parser.parse_args(_protect_numbers(raw))

@@ -1,6 +1,6 @@
 """Plan a robust move for an arm from a URDF plus its cell file (docs/arms.md).
 
-    python -m ff_planner.cli.plan_urdf --cell config/arms/arm3h.cell.yaml \\
+    ff-plan --cell config/arms/arm3h.cell.yaml \\
         --q0 0,0,0 --qf 0.5,-0.4,0.6 --tf 1.5 -o plan.json
 
 Angles are the motor angles of the moving joints, base to tip (rad). The plan (currents per step
@@ -25,7 +25,7 @@ def _angles(text: str) -> list[float]:
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    ap = argparse.ArgumentParser(prog="ff-plan-urdf", description=__doc__.splitlines()[0])
+    ap = argparse.ArgumentParser(prog="ff-plan --cell", description=__doc__.splitlines()[0])
     ap.add_argument("--cell", required=True, help="cell file (YAML): motors, friction, box, limits, held joints")
     ap.add_argument("--urdf", default=None, help="URDF file (default: the one the cell names)")
     ap.add_argument("--q0", type=_angles, required=True, help="start, rad per moving joint, e.g. 0,0,0")
@@ -45,7 +45,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         res = plan_box_robust_arm(arm, args.q0, args.qf, args.tf, coast=args.coast, steps=args.steps,
                                   seed=args.seed, time_budget=args.time_budget)
     except (ParameterError, PlanningError) as exc:
-        print(f"ff-plan-urdf: {exc}", file=sys.stderr)
+        print(f"ff-plan: {exc}", file=sys.stderr)
         return 2
     out = dict(res.to_dict(), arm=arm.name, joints=list(arm.joints), held=list(arm.held))
     text = json.dumps(out, indent=2)

@@ -11,6 +11,7 @@ import argparse
 import sys
 import time
 
+from ff_planner.arm import sim as arm_sim
 from ff_planner.identify import measure
 from ff_planner.model import scara2
 from ff_planner.optimize import box_robust, robust1d, robust2d
@@ -28,7 +29,8 @@ def warm_all(log=print) -> dict[str, float]:
     times: dict[str, float] = {}
     for name, fn in (("arm1dof", robust1d.warmup), ("robust-box", box_robust.warmup),
                      ("scara2", scara2.warm_up),
-                     ("robust2d", robust2d.warm_up), ("sim-friction", _warm_mismatch)):
+                     ("robust2d", robust2d.warm_up), ("sim-friction", _warm_mismatch),
+                     ("arm-urdf", arm_sim.warm_up)):
         t0 = time.perf_counter()
         fn()
         times[name] = time.perf_counter() - t0

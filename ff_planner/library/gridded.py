@@ -1,6 +1,6 @@
 """Plans whose switch times lie on a time grid (the drives' SYNC period, e.g. 1 ms).
 
-``GridPlanRequest`` is a PlanRequest with ``grid`` (s): the robust 1-DOF planners
+``GridPlanRequest`` (``ff_planner.model.profile``) is a PlanRequest with ``grid`` (s): the robust 1-DOF planners
 (``ff_planner.optimize.robust1d``, ``box_robust``) read ``request.grid`` and round the switch
 times to it, so a drive that applies setpoints at its SYNC applies the plan exactly.
 ``GRID_OBJECTIVES`` are the objectives whose planner does that; ``on_grid`` checks a profile.
@@ -8,23 +8,15 @@ No ROS here.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Optional
-
 import numpy as np
 
-from ff_planner.model.profile import CurrentProfile, PlanRequest
+from ff_planner.model.profile import CurrentProfile, GridPlanRequest
 
 GRID_OBJECTIVES = ("robust-derivative", "robust-sampled", "robust-box")   # arm1dof planners that grid switches
 GRID_MODELS = ("arm1dof",)
 GRID_TOL = 1e-9           # s: a switch time this close to a grid point is on the grid
 
-
-@dataclass
-class GridPlanRequest(PlanRequest):
-    """A PlanRequest whose switch times go on a grid of ``grid`` s (None = anywhere)."""
-
-    grid: Optional[float] = None
+__all__ = ["GRID_MODELS", "GRID_OBJECTIVES", "GRID_TOL", "GridPlanRequest", "applies", "on_grid"]
 
 
 def applies(model: str, objective: str) -> bool:

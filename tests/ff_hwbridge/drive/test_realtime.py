@@ -42,6 +42,18 @@ def test_pauses_are_counted_and_timed_per_generation():
     assert p.count == before
 
 
+@pytest.fixture(autouse=True)
+def _collector_thresholds():
+    """Each test starts from the interpreter's default thresholds and leaves them as it found
+    them: an in-process master or player tested earlier in the same process may hold them."""
+    saved = gc.get_threshold()
+    gc.set_threshold(700, 10, 10)
+    try:
+        yield
+    finally:
+        gc.set_threshold(*saved)
+
+
 def test_held_full_collections_wait_for_the_idle_collector():
     before = hold_full_collections()
     try:

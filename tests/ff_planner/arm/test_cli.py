@@ -1,4 +1,4 @@
-"""python -m ff_planner.cli.plan_urdf: a plan for the 1-DOF arm from its URDF, and one-line
+"""ff-plan --cell (ff_planner.cli.plan hands it to ff_planner.cli.plan_urdf): a plan for the 1-DOF arm from its URDF, and one-line
 refusals of bad input."""
 from __future__ import annotations
 
@@ -45,12 +45,12 @@ def test_bad_input_is_one_line_and_exit_2(tmp_path):
     bad = tmp_path / "bad.cell.yaml"
     text = (ARMS / "arm1dof.cell.yaml").read_text().replace("i_max: 10.0", "i_max: -3")
     bad.write_text(text.replace("urdf: arm1dof.urdf", f"urdf: {ARMS / 'arm1dof.urdf'}"))
-    proc = subprocess.run([sys.executable, "-m", "ff_planner.cli.plan_urdf", "--cell", str(bad),
+    proc = subprocess.run([sys.executable, "-m", "ff_planner.cli.plan", "--cell", str(bad),
                            "--q0", "0", "--qf", "1"], capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and proc.stdout == ""
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "joint 'joint1'" in lines[0] and "motor.i_max" in lines[0]
-    proc = subprocess.run([sys.executable, "-m", "ff_planner.cli.plan_urdf", "--cell",
+    proc = subprocess.run([sys.executable, "-m", "ff_planner.cli.plan", "--cell",
                            str(ARMS / "arm1dof.cell.yaml"), "--q0", "0,0", "--qf", "1"],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and len(proc.stderr.strip().splitlines()) == 1
