@@ -105,10 +105,12 @@ def msg_to_profile(msg: Any) -> CurrentProfile:
 
 
 # --- setpoints --------------------------------------------------------------------------------
-def setpoint_msg(stamp_ns: int, currents: Sequence[float], seq: int, pid: str = "", last: bool = False):
-    """Build ff_msgs/msg/CurrentSetpoint taking effect at ``stamp_ns`` (ROS clock, ns)."""
+def setpoint_msg(stamp_ns: int, currents: Sequence[float], seq: int, pid: str = "", last: bool = False,
+                 token: str = ""):
+    """Build ff_msgs/msg/CurrentSetpoint taking effect at ``stamp_ns`` (ROS clock, ns), carrying the
+    drive's claim ``token`` ("" = none)."""
     return CurrentSetpoint(stamp=ns_to_time(stamp_ns), currents=[float(c) for c in currents],
-                           seq=int(seq), profile_id=pid, last=bool(last))
+                           seq=int(seq), profile_id=pid, last=bool(last), token=str(token))
 
 
 def setpoint_to_tuple(msg: Any) -> tuple[int, np.ndarray, int, str, bool]:
