@@ -54,6 +54,7 @@ CAN hub's ws://127.0.0.1:PORT/). Command line: ``ff-hwbridge [--autostart] [--co
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import gc
 import logging
 import math
@@ -75,8 +76,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
-from ff_hwbridge.drive.config import (OPTION_RANGES, BridgeConfig, ConfigError, config_from_mapping, load_config,
-                                      with_bus)
+from ff_hwbridge.drive.config import (OPTION_RANGES, BridgeConfig, BusConfig, ConfigError, config_from_mapping,
+                                      load_config, with_bus)
 from ff_hwbridge.drive.epos import EposError, EposMaster
 from ff_hwbridge.drive.player import SWITCH_INTERVAL, AppliedSetpoint, SetpointPlayer, SetpointRejected
 from ff_hwbridge.drive.gc_pauses import IdleCollector, freeze_heap, hold_full_collections
@@ -94,54 +95,92 @@ from ff_msgs_py.threads import in_thread
 READY_LINE = "ff_hwbridge ready"
 NODE_NAME = "ff_hwbridge"
 
+#: BridgeConfig's own defaults (ff_hwbridge.drive.config): the flat parameters' defaults come from
+#: them, never typed twice; an unset rpdo_timeout_ms (None) is -1 here (ROS has no None)
+_CONFIG_DEFAULTS: dict[str, Any] = {f.name: f.default for f in dataclasses.fields(BridgeConfig)
+                                    if f.default is not dataclasses.MISSING}
+_UNITS = DriveUnits()
+_BUS = BusConfig()
+
+
+def _default(name: str) -> Any:
+    """The default of BridgeConfig field ``name`` as a ROS parameter value."""
+    value = _CONFIG_DEFAULTS[name]
+    return -1 if value is None else value
+
+
 # name: (default, description) — the flat form of config/bridge_*.yaml
 PARAMS: dict[str, tuple[Any, str]] = {
     "config_file": ("", "bridge YAML; when set, the flat joint/bus parameters are ignored"),
     "bus_interface": ("", "python-can interface override (socketcan, pcan, kvaser, remote, virtual)"),
     "bus_channel": ("", "python-can channel override (e.g. can0, ws://127.0.0.1:54701/)"),
-    "bus_bitrate": (1_000_000, "bit/s"),
+    "bus_bitrate": (_BUS.bitrate, "bit/s"),
     "joint_names": (["joint1"], "one per drive"),
     "node_ids": ([1], "CANopen node id per joint"),
-    "families": (["epos4"], "'epos4' (CST) or 'epos2' (current mode) per joint"),
+    "families": ([_UNITS.family], "'epos4' (CST) or 'epos2' (current mode) per joint"),
     "current_limits": ([10.0], "A per joint; every command is clamped to it"),
-    "nominal_currents": ([3.0], "A per joint (motor nominal current; EPOS4 per mille base)"),
-    "torque_constants": ([0.0267], "Nm/A per joint"),
-    "counts_per_rev": ([2048.0], "encoder increments per motor revolution, per joint"),
-    "gear_ratios": ([54.0], "per joint"),
-    "sync_period": (0.01, "s, SYNC period (10 ms supported from Python; 1 ms experimental)"),
-    "heartbeat_producer_ms": (10, "ms, written to each drive's 0x1017"),
-    "heartbeat_timeout": (0.0, "s, heartbeat consumer timeout -> safe state "
+    "nominal_currents": ([_UNITS.nominal_current], "A per joint (motor nominal current; EPOS4 per mille base)"),
+    "torque_constants": ([_UNITS.torque_constant], "Nm/A per joint"),
+    "counts_per_rev": ([_UNITS.counts_per_rev], "encoder increments per motor revolution, per joint"),
+    "gear_ratios": ([_UNITS.gear_ratio], "per joint"),
+    "sync_period": (_default("sync_period"), "s, SYNC period (10 ms supported from Python; 1 ms experimental)"),
+    "heartbeat_producer_ms": (_default("heartbeat_producer_ms"), "ms, written to each drive's 0x1017"),
+    "heartbeat_timeout": (_default("heartbeat_timeout"), "s, heartbeat consumer timeout -> safe state "
                                "(0 = 3 x heartbeat_producer_ms + timeout_margin)"),
-    "timeout_margin": (0.1, "s, scheduling margin of the derived heartbeat / SYNC / feedback timeouts"),
-    "master_heartbeat_ms": (100, "ms, > 0: produce a master heartbeat the drives consume (0x1016); 0 = off"),
-    "master_heartbeat_timeout_ms": (0, "ms, the drives' consumer time "
+    "timeout_margin": (_default("timeout_margin"),
+        "s, scheduling margin of the derived heartbeat / SYNC / feedback timeouts"),
+    "master_heartbeat_ms": (_default("master_heartbeat_ms"),
+        "ms, > 0: produce a master heartbeat the drives consume (0x1016); 0 = off"),
+    "master_heartbeat_timeout_ms": (_default("master_heartbeat_timeout_ms"), "ms, the drives' consumer time "
                                        "(0 = max(3 x master_heartbeat_ms, heartbeat_timeout))"),
-    "master_node_id": (127, "node id of the master's heartbeat"),
-    "rpdo_timeout_ms": (-1, "ms, RxPDO1 event timer 0x1400:05 where a drive has it (nothing relies on it: "
+    "master_node_id": (_default("master_node_id"), "node id of the master's heartbeat"),
+    "rpdo_timeout_ms": (_default("rpdo_timeout_ms"),
+        "ms, RxPDO1 event timer 0x1400:05 where a drive has it (nothing relies on it: "
                             "the drive's interpolation supervision stops a hung bridge); 0 = off, "
                             "-1 = max(500, 2 x heartbeat_timeout)"),
-    "quick_stop_option": (2, "0x605A quick stop option code (maxon: 0, 1, 2, 5, 6)"),
-    "fault_reaction_option": (2, "0x605E fault reaction option code (0 disable drive, 1/2 ramp)"),
-    "abort_connection_option": (1, "0x6007 on a communication error: 0 none, 1 fault, 2 disable voltage, 3 quick stop"),
-    "communication_error_behaviour": (0, "0x1029:01: 0 pre-operational, 1 unchanged, 2 stopped"),
-    "scaling_source": ("check", "motor data: 'check' against the drive, 'drive' (use its), 'config' (write ours)"),
-    "scaling_tolerance": (0.01, "relative tolerance of the motor data check"),
-    "setpoint_timing": ("sync", "'sync': setpoint RPDOs latched by the drives at SYNC (transmission "
+    "quick_stop_option": (_default("quick_stop_option"), "0x605A quick stop option code (maxon: 0, 1, 2, 5, 6)"),
+    "fault_reaction_option": (_default("fault_reaction_option"),
+        "0x605E fault reaction option code (0 disable drive, 1/2 ramp)"),
+    "abort_connection_option": (_default("abort_connection_option"),
+        "0x6007 on a communication error: 0 none, 1 fault, 2 disable voltage, 3 quick stop"),
+    "communication_error_behaviour": (_default("communication_error_behaviour"),
+        "0x1029:01: 0 pre-operational, 1 unchanged, 2 stopped"),
+    "scaling_source": (_default("scaling_source"),
+        "motor data: 'check' against the drive, 'drive' (use its), 'config' (write ours)"),
+    "scaling_tolerance": (_default("scaling_tolerance"), "relative tolerance of the motor data check"),
+    "setpoint_timing": (_default("setpoint_timing"),
+        "'sync': setpoint RPDOs latched by the drives at SYNC (transmission "
                                 "type 1, sent the cycle before); 'on_receipt': type 255"),
-    "sync_producer": ("master", "'master': this bridge produces SYNC; 'external': another node "
+    "sync_producer": (_default("sync_producer"), "'master': this bridge produces SYNC; 'external': another node "
                                 "(the simulation's CAN hub)"),
-    "sync_timeout": (0.0, "s, no SYNC this long -> safe state "
+    "sync_timeout": (_default("sync_timeout"), "s, no SYNC this long -> safe state "
                           "(0 = max(3 x sync_period + timeout_margin, heartbeat_timeout))"),
-    "missed_cycle_tolerance": (1, "SYNC cycles a setpoint may take effect late before the safe state"),
-    "feedback_every": (1, "SYNCs per feedback TPDO (their transmission type 1..240)"),
-    "boot_timeout": (2.0, "s per NMT reset communication waiting for the boot-up frame"),
-    "boot_wait": (10.0, "s in all waiting for a drive to boot (retries every boot_timeout)"),
-    "check_identity": (True, "0x1000 profile 402 and 0x1018:01 vendor maxon"),
+    "missed_cycle_tolerance": (_default("missed_cycle_tolerance"),
+        "SYNC cycles a setpoint may take effect late before the safe state"),
+    "feedback_every": (_default("feedback_every"), "SYNCs per feedback TPDO (their transmission type 1..240)"),
+    "boot_timeout": (_default("boot_timeout"), "s per NMT reset communication waiting for the boot-up frame"),
+    "boot_wait": (_default("boot_wait"), "s in all waiting for a drive to boot (retries every boot_timeout)"),
+    "check_identity": (_default("check_identity"), "0x1000 profile 402 and 0x1018:01 vendor maxon"),
     "position_limits": ([0.0], "rad, [low1, high1, low2, high2, ...] per joint; [0.0] or [] = none"),
     "velocity_limits": ([0.0], "rad/s per joint, 0 = none"),
-    "setpoint_timeout": (0.5, "s, no fresh setpoint during a motion -> safe state"),
-    "spin_margin": (0.0003, "s, the scheduler sleeps until this long before a stamp, then spins"),
-    "scheduler_rt_priority": (-1, "1..99: SCHED_FIFO for the setpoint player and bus receiver "
+    "setpoint_timeout": (_default("setpoint_timeout"), "s, no fresh setpoint during a motion -> safe state"),
+    "feedback_timeout": (_default("feedback_timeout"), "s, no feedback TPDO this long -> safe state "
+                         "(0 = derived from sync_period x feedback_every + timeout_margin)"),
+    "sdo_timeout": (_default("sdo_timeout"), "s, answer time of one SDO transfer at configure"),
+    "state_timeout": (_default("state_timeout"), "s, a CiA 402 state change (enable, fault reset) must "
+                      "be reached within this"),
+    "monitor_period": (_default("monitor_period"), "s, period of the master's supervision loop"),
+    "reset_communication": (_default("reset_communication"), "NMT reset communication of each drive at "
+                            "configure (then wait for its boot-up)"),
+    "player_process": (_default("player_process"), "synchronous timing: the setpoint player in a process "
+                       "of its own"),
+    "setpoint_lead": (_default("setpoint_lead"), "s, hand each setpoint this early to the bus's transmit "
+                      "schedule (0 = sent in the cycle before its SYNC)"),
+    "stall_dump": (_default("stall_dump"), "s, the player away this long with setpoints pending dumps "
+                   "every thread's stack to the log (0 = off)"),
+    "spin_margin": (_default("spin_margin"), "s, the scheduler sleeps until this long before a stamp, then spins"),
+    "scheduler_rt_priority": (_default("scheduler_rt_priority"),
+        "1..99: SCHED_FIFO for the setpoint player and bus receiver "
                               "(needs CAP_SYS_NICE); 0 = off; -1 = auto (50 when synchronous)"),
     "command_topic": ("~/joint_commands", "sensor_msgs/JointState effort commands, N·m at the joint "
                       "(ros2_control joint_state_topic_hardware_interface); '' = none"),
@@ -165,7 +204,9 @@ RANGES: dict[str, tuple[float, float]] = {
     "scaling_tolerance": (0.0, 1.0), "sync_timeout": (0.0, 60.0), "timeout_margin": (0.0, 10.0),
     "missed_cycle_tolerance": (0, 1000),
     "feedback_every": (1, 240), "boot_timeout": (0.0, 600.0), "boot_wait": (0.0, 3600.0),
-    "setpoint_timeout": (0.0, 60.0),
+    "setpoint_timeout": (0.0, 60.0), "feedback_timeout": (0.0, 60.0), "sdo_timeout": (0.001, 60.0),
+    "state_timeout": (0.001, 600.0), "monitor_period": (0.0001, 1.0), "setpoint_lead": (0.0, 1.0),
+    "stall_dump": (0.0, 3600.0),
     "spin_margin": (0.0, 0.05), "scheduler_rt_priority": (-1, 99), "joint_state_rate": (0.1, 10_000.0),
     "diagnostics_rate": (0.01, 1000.0), "claim_lease": (0.05, 3600.0), "claim_max_lease": (0.05, 86400.0),
 }
@@ -226,7 +267,9 @@ FLAT_DRIVE_KEYS = ("master_heartbeat_timeout_ms", "rpdo_timeout_ms", "quick_stop
                    "fault_reaction_option", "abort_connection_option",
                    "communication_error_behaviour", "scaling_source", "scaling_tolerance",
                    "boot_timeout", "boot_wait", "check_identity", "setpoint_timing", "sync_producer",
-                   "sync_timeout", "missed_cycle_tolerance", "feedback_every", "timeout_margin")
+                   "sync_timeout", "missed_cycle_tolerance", "feedback_every", "timeout_margin",
+                   "feedback_timeout", "sdo_timeout", "state_timeout", "monitor_period",
+                   "reset_communication", "player_process", "setpoint_lead", "stall_dump")
 
 
 def _envelopes(get: Callable[[str], Any], n: int) -> list[dict[str, Any]]:
