@@ -41,6 +41,22 @@ Interfaces (relative to the node: /ff_hwbridge/...):
 - sub ``~/emergency_stop`` std_msgs/Bool: the same from a topic (an e-stop button's node, a safety
   PLC bridge): ``true`` latches with the reason "e-stop: topic ~/emergency_stop"; ``false`` does
   nothing (clearing is ``~/fault_reset`` only).
+- pub ``~/status``     ff_msgs/msg/DriveGroupStatus: the drive group typed (state, latch reason, a
+  failed configure's reason, drive states, EMCY, owner, lease, refusals), beside ``/diagnostics``;
+  published also while unconfigured (1 Hz).
+- srv ``~/claim``      ff_msgs/srv/ClaimDrive: CLAIM (-> token), RENEW, RELEASE.
+- srv ``~/owner_command`` ff_msgs/srv/OwnerCommand: the owner's FAULT_RESET and ENABLE (activate).
+
+Ownership (:mod:`ff_hwbridge.ownership`). Setpoints, effort commands, fault resets and enables
+move the arm only when they are the owner's: the client holding the claim (its token in
+``CurrentSetpoint.token``, the effort command's ``header.frame_id``, ``OwnerCommand.token``), or,
+while nobody holds a claim, the ``default_owner`` node (default ``ff_executor`` in the bridge's
+namespace) for token-less setpoints / effort commands when it is the topic's only publisher.
+While a claim is held, ``~/fault_reset`` and a lifecycle activate are refused (the owner uses
+``~/owner_command``); without one they are open as before. A claim lasts ``claim_lease`` s past
+the owner's latest renewal or accepted command; released or expired during a motion, the safe
+state latches. Every refusal is logged (at most once a second per kind) and counted
+(``owner.refused.*`` in ``/diagnostics``). The e-stop is open to everyone, always.
 
 After configure the flat parameters show the configuration in use (also when it came from
 ``config_file``); while configured they cannot be changed (refused with the reason: cleanup,
@@ -385,7 +401,7 @@ class BridgeNode(LifecycleNode):
         self.fifo_threads = False
         self._idle_gc = IdleCollector(self._player_idle)
         self._entities: list[tuple[str, Any]] = []
-        self._timers: list[Any] = []
+        self._interface_timers: list[Any] = []
         self._pub_js: Any = None
         self._pub_cur: Any = None
         self._pub_applied: Any = None
@@ -599,9 +615,9 @@ class BridgeNode(LifecycleNode):
         if self.master is not None:
             self._best_effort("disconnect", self.master.disconnect)
             self.master = None
-        for t in self._timers:
+        for t in self._interface_timers:
             self.destroy_timer(t)
-        self._timers.clear()
+        self._interface_timers.clear()
         for kind, ent in self._entities:
             if kind == "pub":
                 self.destroy_publisher(ent)
@@ -643,11 +659,11 @@ class BridgeNode(LifecycleNode):
                 JointState, topic, self._on_command, qos_profile_sensor_data,
                 callback_group=MutuallyExclusiveCallbackGroup())
             self._entities.append(("sub", cmd))
-        self._timers.append(self.create_timer(1.0 / float(self._get("joint_state_rate")),
+        self._interface_timers.append(self.create_timer(1.0 / float(self._get("joint_state_rate")),
                                               self._publish_joint_states))
-        self._timers.append(self.create_timer(1.0 / float(self._get("diagnostics_rate")),
+        self._interface_timers.append(self.create_timer(1.0 / float(self._get("diagnostics_rate")),
                                               self._publish_diagnostics))
-        self._timers.append(self.create_timer(0.01, self._fast_tick))
+        self._interface_timers.append(self.create_timer(0.01, self._fast_tick))
 
     def _on_setpoint(self, msg: Any) -> None:
         player = self.player
@@ -975,7 +991,7 @@ class BridgeNode(LifecycleNode):
         if self.ownership is not None:
             st.update(self.ownership.status())
         status = DiagnosticStatus()
-        status.name = f"{NODE_NAME}: drive group"
+        status.name = self._status_name()
         status.hardware_id = ",".join(f"node{j.node_id}" for j in self._cfg().joints)
         if self.master.latched:
             status.level, status.message = DiagnosticStatus.ERROR, f"safe state: {self.master.fault_reason}"
@@ -1028,11 +1044,15 @@ class BridgeNode(LifecycleNode):
         msg.sync_period = float(self._cfg().sync_period) if self._cfg().synchronous else 0.0
         self._pub_status.publish(msg)
 
+    def _status_name(self) -> str:
+        """``ff_hwbridge: drive group``; under a namespace ``arm_a/ff_hwbridge: drive group``."""
+        return f"{self.get_fully_qualified_name().lstrip('/')}: drive group"
+
     def _publish_unconfigured(self) -> None:
         """Unconfigured: /diagnostics and ~/status say so, with the reason of a failed configure."""
         if self.master is not None:
             return
-        status = DiagnosticStatus(name=f"{self.get_fully_qualified_name().lstrip('/')}: drive group")
+        status = DiagnosticStatus(name=self._status_name())
         if self.config_error:
             status.level, status.message = DiagnosticStatus.ERROR, self.config_error
         else:

@@ -9,7 +9,8 @@ from rcl_interfaces.msg import ParameterType
 from ff_executor.ros import ctl, record
 from ff_msgs_py.launch import client_ros_settings
 
-SUBCOMMANDS = ("graph", "lifecycle", "fault-reset", "diag", "param", "plan", "execute", "record")
+SUBCOMMANDS = ("graph", "lifecycle", "fault-reset", "diag", "param", "plan", "execute", "record", "claim",
+               "release", "enable", "status", "echo", "call")
 
 
 def test_every_subcommand_has_help(capsys):
@@ -79,7 +80,10 @@ def test_plan_options_are_ff_plans():
     req = ctl._plan_request(a)
     assert req.model == "arm1dof" and list(req.qf) == [0.5] and req.tf == 0.8 and list(req.uncertain) == ["pc"]
     assert req.resolved_params().pc == 0.2
-    assert isinstance(a, argparse.Namespace) and a.plan_service == "/ff_planner/plan"
+    assert isinstance(a, argparse.Namespace) and ctl._node_name(a.plan_service, a.namespace) == "/ff_planner/plan"
+    a = ctl.build_parser().parse_args(["plan", "--qf", "0.5", "--tf", "0.8", "--namespace", "arm_a"])
+    assert ctl._node_name(a.plan_service, a.namespace) == "/arm_a/ff_planner/plan"
+    assert ctl._node_name("/ff_planner/plan", "arm_a") == "/ff_planner/plan"
 
 
 def test_execute_prints_the_models_prediction_beside_the_measured_rest():
