@@ -72,6 +72,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import gc
+import json
 import logging
 import math
 import sys
@@ -249,6 +250,17 @@ def descriptor(name: str) -> ParameterDescriptor:
     if name in CHOICES:
         d.additional_constraints = CHOICES[name]
     return d
+
+
+def parameters_markdown() -> str:
+    """The Markdown table of the bridge's parameters (docs/parameters.md, between its markers)."""
+    rows = ["| name | default | range / values | description |", "|---|---|---|---|"]
+    for name, (default, text) in PARAMS.items():
+        rng = RANGES.get(name)
+        allowed = CHOICES.get(name, f"{rng[0]:g} .. {rng[1]:g}" if rng else "")
+        rows.append(f"| `{name}` | `{json.dumps(default, ensure_ascii=False)}` | {allowed} | "
+                    f"{text.replace('|', '/')} |")
+    return "\n".join(rows) + "\n"
 
 
 def _flat_config(get: Callable[[str], Any]) -> dict[str, Any]:

@@ -14,6 +14,7 @@ Console script: ``ff-planner-node`` (= ``ff_planner.ros.planner_node:main``).
 """
 from __future__ import annotations
 
+import json
 import sys
 import threading
 import time
@@ -112,6 +113,18 @@ def descriptor(name: str, value: Any = None) -> ParameterDescriptor:
 def shipped_defaults() -> dict[str, Any]:
     """The ``ros__parameters`` of the shipped config/planner.yaml: the node's defaults."""
     return node_parameters(*SHIPPED)
+
+
+def parameters_markdown() -> str:
+    """The Markdown table of the planner's parameters: every key of the shipped YAML, its value
+    there (the default) and its description (docs/parameters.md, between its markers)."""
+    rows = ["| name | default | range | description |", "|---|---|---|---|"]
+    for name, default in shipped_defaults().items():
+        rng = PARAMETERS.get(name, ("", None))[1]
+        text = descriptor(name, default).description.replace(" (read at start)", "")
+        rows.append(f"| `{name}` | `{json.dumps(default)}` | {f'{rng[0]:g} .. {rng[1]:g}' if rng else ''} | "
+                    f"{text.replace('|', '/')} |")
+    return "\n".join(rows) + "\n"
 
 
 def _tf_of(result: Any) -> str:

@@ -43,3 +43,13 @@ def test_the_shipped_parameter_file_sets_only_declared_parameters():
     values = node_parameters("bridge_ros_params_sim_1dof.yaml", "ff_hwbridge")
     assert values and set(values) <= set(PARAMS), sorted(set(values) - set(PARAMS))
     assert yaml.safe_load(config_path("bridge_ros_params_sim_1dof.yaml").read_text())
+
+
+def test_docs_table_is_the_declaration():
+    from pathlib import Path
+
+    from ff_hwbridge.ros.bridge_node import parameters_markdown
+
+    page = (Path(__file__).resolve().parents[3] / "docs" / "parameters.md").read_text(encoding="utf-8")
+    begin, end = "<!-- BEGIN ff_hwbridge parameters -->\n", "<!-- END ff_hwbridge parameters -->"
+    assert page[page.index(begin) + len(begin):page.index(end)] == parameters_markdown()

@@ -61,3 +61,13 @@ def test_descriptors_cover_every_shipped_key():
     per_model = {k for k in shipped if k.endswith(".preset")}
     assert set(shipped) - per_model == set(PARAMETERS), sorted((set(shipped) - per_model) ^ set(PARAMETERS))
     assert set(NODE_ONLY) <= set(shipped)
+
+
+def test_docs_table_is_the_shipped_yaml():
+    from pathlib import Path
+
+    from ff_planner.ros.planner_node import parameters_markdown
+
+    page = (Path(__file__).resolve().parents[3] / "docs" / "parameters.md").read_text(encoding="utf-8")
+    begin, end = "<!-- BEGIN ff_planner parameters -->\n", "<!-- END ff_planner parameters -->"
+    assert page[page.index(begin) + len(begin):page.index(end)] == parameters_markdown()
