@@ -607,11 +607,32 @@ def late_switches(statuses: Sequence[Any]) -> tuple[int, float]:
     return count, worst
 
 
-def timing_notes(before: Sequence[Any], after: Sequence[Any]) -> list[str]:
+def bridge_notes(before: Optional[Any], after: Optional[Any], node: str = "/ff_hwbridge") -> list[str]:
+    """What the bridge's typed status (ff_msgs/msg/DriveGroupStatus) says about a move, from the
+    one before and the one after it: a latched safe state and its reason, commands refused as not
+    the owner's (e.g. a client claimed the drive, so the executor's setpoints were refused)."""
+    if after is None:
+        return []
+    notes = []
+    if after.state == DriveGroupStatus.SAFE_STATE:
+        notes.append(f"{node}: safe state: {after.latch_reason}")
+    refused = int(after.refused) - (int(before.refused) if before is not None else 0)
+    if refused > 0:
+        notes.append(f"{node} refused {refused} command(s) that were not its owner's during the move "
+                     f"(owner {after.owner or 'none'}; latest: {after.last_refusal})")
+    return notes
+
+
+def timing_notes(before: Sequence[Any], after: Sequence[Any], bridge_before: Optional[Any] = None,
+                 bridge_after: Optional[Any] = None) -> list[str]:
     """What /diagnostics say about a move, from the statuses seen before and after it: a latched
-    safe state (level ERROR) and current changes the simulated arm started late."""
-    notes = [f"{st.name}: {st.message}" for st in after
-             if (st.level if isinstance(st.level, int) else int.from_bytes(st.level, "little")) >= 2]
+    safe state (level ERROR) and current changes the simulated arm started late. With the bridge's
+    typed status (``bridge_after``), the bridge's part comes from it (:func:`bridge_notes`)."""
+    typed = bridge_after is not None
+    notes = bridge_notes(bridge_before, bridge_after)
+    notes += [f"{st.name}: {st.message}" for st in after
+              if (st.level if isinstance(st.level, int) else int.from_bytes(st.level, "little")) >= 2
+              and not (typed and st.name.startswith(DRIVE_STATUSES[0]))]
     (n0, _w0), (n1, w1) = late_switches(before), late_switches(after)
     if n1 > n0:
         notes.append(f"the simulated arm started {n1 - n0} current change(s) late during the move (the "
@@ -622,12 +643,19 @@ def timing_notes(before: Sequence[Any], after: Sequence[Any]) -> list[str]:
 
 
 class _DiagWatch:
-    """The latest /diagnostics status per name and when it came (monotonic s), kept in the background."""
+    """The latest /diagnostics status per name and when it came (monotonic s), and the latest typed
+    status of the bridge (``bridge_status``), kept in the background."""
 
-    def __init__(self, s: Session, topic: str = "/diagnostics") -> None:
+    def __init__(self, s: Session, topic: str = "/diagnostics", bridge: str = "/ff_hwbridge") -> None:
         self._lock = threading.Lock()
         self.latest: dict[str, tuple[float, Any]] = {}
+        self.bridge_status: Optional[Any] = None
         s.node.create_subscription(DiagnosticArray, topic, self._on_msg, 50)
+        s.node.create_subscription(DriveGroupStatus, f"{bridge}/status", self._on_status, 10)
+
+    def _on_status(self, msg: Any) -> None:
+        with self._lock:
+            self.bridge_status = msg
 
     def _on_msg(self, msg: DiagnosticArray) -> None:
         now = time.monotonic()
@@ -653,7 +681,7 @@ class _DiagWatch:
 
 
 def _send_goal(s: Session, a: argparse.Namespace, profile_msg: Any) -> int:
-    watch = _DiagWatch(s)
+    watch = _DiagWatch(s, bridge=_node_name("ff_hwbridge", a.namespace))
     a.action_name = _node_name(a.action_name, a.namespace)
     client = SafeActionClient(s.node, ExecuteProfile, a.action_name)
     if not client.wait_for_server(timeout_sec=a.timeout):
@@ -670,7 +698,7 @@ def _send_goal(s: Session, a: argparse.Namespace, profile_msg: Any) -> int:
               f"q = {_fmt(fb.measured_positions)} rad   qd = {_fmt(fb.measured_velocities)} rad/s", flush=True)
 
     tf = float(profile_msg.move_time)
-    before = watch.statuses()
+    before, bridge_before = watch.statuses(), watch.bridge_status
     handle = s.wait(client.send_goal_async(ExecuteProfile.Goal(profile=profile_msg), feedback_callback=on_feedback),
                     a.timeout, "send goal")
     if not handle.accepted:
@@ -685,7 +713,8 @@ def _send_goal(s: Session, a: argparse.Namespace, profile_msg: Any) -> int:
         _print_result(res)
         return 130
     _print_result(res)
-    for note in timing_notes(before, watch.fresh_after(time.monotonic(), timeout=2.5)):
+    after = watch.fresh_after(time.monotonic(), timeout=2.5)
+    for note in timing_notes(before, after, bridge_before, watch.bridge_status):
         print(f"  diagnostics: {note}")
     if not (res.status == GoalStatus.STATUS_SUCCEEDED and res.result.success):
         return 1

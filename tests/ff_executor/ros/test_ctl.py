@@ -115,6 +115,22 @@ def test_timing_notes_say_when_the_simulator_was_late_or_the_bridge_latched():
     assert ctl.timing_notes(quiet, latched) == ["ff_hwbridge: drive group: safe state: setpoint missed its SYNC cycle"]
 
 
+def test_the_bridges_part_of_the_notes_comes_from_its_typed_status():
+    from ff_msgs.msg import DriveGroupStatus
+
+    quiet = [_status("ff_hwbridge: drive group", 0, "operation enabled")]
+    latched = [_status("ff_hwbridge: drive group", 2, "safe state: a string nobody parses")]
+    ok = DriveGroupStatus(state=DriveGroupStatus.ACTIVE, owner="/ff_executor", refused=2)
+    safe = DriveGroupStatus(state=DriveGroupStatus.SAFE_STATE, latch_reason="setpoint watchdog: no fresh "
+                            "setpoint", owner="/operator", claimed=True, refused=40,
+                            last_refusal="setpoint refused: the drive is claimed by /operator (no token)")
+    notes = ctl.timing_notes(quiet, latched, ok, safe)
+    assert notes[0] == "/ff_hwbridge: safe state: setpoint watchdog: no fresh setpoint"
+    assert "refused 38 command(s)" in notes[1] and "claimed by /operator" in notes[1]
+    assert len(notes) == 2                      # the diagnostics string is not read as well
+    assert ctl.timing_notes(quiet, quiet, ok, ok) == []
+
+
 def test_plan_takes_a_tolerance_search_and_execute_keeps_its_landing_tolerance():
     p = ctl.build_parser()
     a = p.parse_args(["plan", "--tolerance", "0.002", "--tf-max", "2", "--q-min", "-0.3",
