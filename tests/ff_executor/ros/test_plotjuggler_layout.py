@@ -86,7 +86,7 @@ def test_layout_names_match_the_suites_joints_bridge_status_and_diagnostic_keys(
     # the drive group's status is named after the node's full name: "ff_hwbridge: drive group"
     # without a namespace
     assert 'NODE_NAME = "ff_hwbridge"' in bridge and 'super().__init__(NODE_NAME' in bridge
-    assert 'return f"{self.get_fully_qualified_name().lstrip('/')}: drive group"' in bridge
+    assert "return f\"{self.get_fully_qualified_name().lstrip('/')}: drive group\"" in bridge
     keys = "".join(_method(text, name) for text in (player, player_process)
                    for name in ("diagnostics", "_switch_diagnostics"))
     sim = _method(sim, "_publish_diagnostics")
