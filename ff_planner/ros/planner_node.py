@@ -46,6 +46,8 @@ NODE_ONLY = ("diagnostics_period", "executor_threads")
 #: the shipped parameter file whose values are the node's defaults (the one source: a node started
 #: with no file, or with a file that leaves a key out, has that key as the shipped YAML gives it)
 SHIPPED = ("planner.yaml", "ff_planner")
+#: node-only parameters the shipped YAML leaves out, with their defaults
+NODE_DEFAULTS: dict[str, Any] = {"executor_threads": 0}
 ROS_BUILTIN = ("use_sim_time", "start_type_description_service")  # declared by every rclpy node
 #: name: (description with units, (from, to) range or None) of config/planner.yaml's parameters.
 #: All are read once, at start (read_only); types stay as the YAML gives them (dynamic typing),
@@ -117,9 +119,10 @@ def shipped_defaults() -> dict[str, Any]:
 
 def parameters_markdown() -> str:
     """The Markdown table of the planner's parameters: every key of the shipped YAML, its value
-    there (the default) and its description (docs/parameters.md, between its markers)."""
+    there (the default), then the node-only ones, each with its description (docs/parameters.md,
+    between its markers)."""
     rows = ["| name | default | range | description |", "|---|---|---|---|"]
-    for name, default in shipped_defaults().items():
+    for name, default in {**shipped_defaults(), **NODE_DEFAULTS}.items():
         rng = PARAMETERS.get(name, ("", None))[1]
         text = descriptor(name, default).description.replace(" (read at start)", "")
         rows.append(f"| `{name}` | `{json.dumps(default)}` | {f'{rng[0]:g} .. {rng[1]:g}' if rng else ''} | "
@@ -143,7 +146,7 @@ class PlannerNode(Node):
         # every key of the shipped config/planner.yaml with its value there as the default, and
         # every further parameter a given file sets (<model>.params.<key>, limits;
         # config_from_mapping refuses unknown names), each with its descriptor
-        names = shipped_defaults()
+        names = {**NODE_DEFAULTS, **shipped_defaults()}
         for name, param in self._parameter_overrides.items():
             if name not in ROS_BUILTIN and not name.startswith("qos_overrides"):
                 names.setdefault(name, param.value)

@@ -41,7 +41,9 @@ def _declared(args, monkeypatch, tmp_path):
 
 
 def test_no_file_is_the_shipped_yaml(monkeypatch, tmp_path, ros_env):
-    shipped = node_parameters("planner.yaml", "ff_planner")
+    from ff_planner.ros.planner_node import NODE_DEFAULTS
+
+    shipped = {**node_parameters("planner.yaml", "ff_planner"), **NODE_DEFAULTS}
     bare, bare_cfg = _declared(None, monkeypatch, tmp_path)
     assert set(bare) == set(shipped), (sorted(set(bare) ^ set(shipped)))
     assert bare == shipped
@@ -57,7 +59,9 @@ def test_no_file_is_the_shipped_yaml(monkeypatch, tmp_path, ros_env):
 def test_descriptors_cover_every_shipped_key():
     from ff_planner.ros.planner_node import NODE_ONLY, PARAMETERS
 
-    shipped = node_parameters("planner.yaml", "ff_planner")
+    from ff_planner.ros.planner_node import NODE_DEFAULTS
+
+    shipped = {**node_parameters("planner.yaml", "ff_planner"), **NODE_DEFAULTS}
     per_model = {k for k in shipped if k.endswith(".preset")}
     assert set(shipped) - per_model == set(PARAMETERS), sorted((set(shipped) - per_model) ^ set(PARAMETERS))
     assert set(NODE_ONLY) <= set(shipped)
