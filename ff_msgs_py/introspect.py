@@ -1,5 +1,6 @@
 """ROS messages by type name, as plain data and back (what ``ros2 topic echo`` / ``ros2 service
-call`` do with rosidl_runtime_py, which is not among the PyPI wheels).
+call`` do with rosidl_runtime_py, which is not among the PyPI wheels), for the suite's own
+interfaces and the standard ones its nodes use.
 
     cls = interface_type("ff_msgs/msg/DriveGroupStatus")
     to_data(msg)                       # nested dicts / lists / numbers / strings
@@ -7,25 +8,47 @@ call`` do with rosidl_runtime_py, which is not among the PyPI wheels).
 """
 from __future__ import annotations
 
-import importlib
 from typing import Any, Mapping
 
 
+def _modules() -> dict[str, Any]:
+    """The interface modules the suite's nodes use, by ``pkg/kind`` (imported by name here so that
+    the import contracts see them; an interface type named at run time picks one of these)."""
+    import action_msgs.msg
+    import builtin_interfaces.msg
+    import diagnostic_msgs.msg
+    import lifecycle_msgs.msg
+    import lifecycle_msgs.srv
+    import rcl_interfaces.msg
+    import rcl_interfaces.srv
+    import sensor_msgs.msg
+    import std_msgs.msg
+    import std_srvs.srv
+
+    import ff_msgs.action
+    import ff_msgs.msg
+    import ff_msgs.srv
+
+    mods = (action_msgs.msg, builtin_interfaces.msg, diagnostic_msgs.msg, lifecycle_msgs.msg,
+            lifecycle_msgs.srv, rcl_interfaces.msg, rcl_interfaces.srv, sensor_msgs.msg, std_msgs.msg,
+            std_srvs.srv, ff_msgs.action, ff_msgs.msg, ff_msgs.srv)
+    return {m.__name__.replace(".", "/"): m for m in mods}
+
+
 def interface_type(name: str) -> Any:
-    """The Python class of ``pkg/msg/Type`` (or ``pkg/srv/Type``, ``pkg/action/Type``)."""
+    """The Python class of ``pkg/msg/Type`` (or ``pkg/srv/Type``, ``pkg/action/Type``) among the
+    interfaces the suite uses (its own ff_msgs and the standard ones its nodes speak)."""
     parts = name.split("/")
     if len(parts) != 3 or parts[1] not in ("msg", "srv", "action") or not all(parts):
         raise ValueError(f"interface type {name!r}: expected pkg/msg/Type, pkg/srv/Type or pkg/action/Type")
-    pkg, kind, typ = parts
+    modules = _modules()
+    module = modules.get(f"{parts[0]}/{parts[1]}")
+    if module is None:
+        raise ValueError(f"interface type {name!r} is not one the suite knows ({', '.join(sorted(modules))})")
     try:
-        # an interface type named at run time (ros2 topic echo does the same): no contract to see
-        module = importlib.import_module(f"{pkg}.{kind}")  # noqa: TID251
-    except ImportError:
-        raise ValueError(f"interface package {pkg!r} is not installed in this Python") from None
-    try:
-        return getattr(module, typ)
+        return getattr(module, parts[2])
     except AttributeError:
-        raise ValueError(f"{pkg}/{kind} has no type {typ!r}") from None
+        raise ValueError(f"{parts[0]}/{parts[1]} has no type {parts[2]!r}") from None
 
 
 def _is_message(value: Any) -> bool:
