@@ -105,10 +105,12 @@ def msg_to_profile(msg: Any) -> CurrentProfile:
 
 
 # --- setpoints --------------------------------------------------------------------------------
-def setpoint_msg(stamp_ns: int, currents: Sequence[float], seq: int, pid: str = "", last: bool = False):
-    """Build ff_msgs/msg/CurrentSetpoint taking effect at ``stamp_ns`` (ROS clock, ns)."""
+def setpoint_msg(stamp_ns: int, currents: Sequence[float], seq: int, pid: str = "", last: bool = False,
+                 token: str = ""):
+    """Build ff_msgs/msg/CurrentSetpoint taking effect at ``stamp_ns`` (ROS clock, ns), carrying the
+    drive's claim ``token`` ("" = none)."""
     return CurrentSetpoint(stamp=ns_to_time(stamp_ns), currents=[float(c) for c in currents],
-                           seq=int(seq), profile_id=pid, last=bool(last))
+                           seq=int(seq), profile_id=pid, last=bool(last), token=str(token))
 
 
 def setpoint_to_tuple(msg: Any) -> tuple[int, np.ndarray, int, str, bool]:
@@ -118,48 +120,6 @@ def setpoint_to_tuple(msg: Any) -> tuple[int, np.ndarray, int, str, bool]:
 
 
 # --- plan service -----------------------------------------------------------------------------
-def request_from_msg(req: Any, defaults: PlanRequest | None = None, params=None) -> PlanRequest:
-    """PlanTrajectory.Request -> PlanRequest. Zero/empty fields take values from ``defaults``.
-
-    Parameter overrides are applied to ``params`` (or the model's preset); a ParameterError names
-    an unknown key. The box, coast_max, limits (empty = ``defaults.limits``) and a tolerance (> 0:
-    tf = move_time_max, default 3 s) are carried. Nothing here plans: call ``request.validate()``
-    next.
-    """
-    d = defaults or PlanRequest()
-    if len(req.box_names) != len(req.box_fractions):
-        raise ParameterError(f"{len(req.box_names)} box names but {len(req.box_fractions)} "
-                             f"fractions")
-    if len(req.override_names) != len(req.override_values):
-        raise ParameterError(f"{len(req.override_names)} override names but "
-                             f"{len(req.override_values)} values")
-    model = req.model or d.model
-    base = params if params is not None and params.model == model else default_params(model)
-    if req.override_names:
-        base = base.replace(**dict(zip(req.override_names, req.override_values)))
-    limits = limits_from_msg(req)
-    tolerance = float(req.tolerance) or None
-    tf_max = float(req.move_time_max) or None
-    return PlanRequest(
-        model=model, q0=list(req.q0), qf=list(req.qf),
-        tf=float(req.move_time) if tolerance is None else float(tf_max or 3.0),
-        uncertain=list(req.uncertain), objective=req.objective or d.objective,
-        steps=int(req.steps) or None, starts=int(req.starts) or d.starts, seed=int(req.seed),
-        time_budget=float(req.time_budget) or d.time_budget, coast=d.coast, params=base, tol=d.tol,
-        box=dict(zip(req.box_names, map(float, req.box_fractions))) or d.box,
-        coast_max=float(req.coast_max) or d.coast_max, limits=limits if limits is not None else d.limits,
-        tolerance=tolerance, move_time_max=tf_max if tolerance is not None else None)
-
-
-def limits_from_msg(req: Any) -> Optional[MotionLimits]:
-    """The request's ``position_min`` / ``position_max`` / ``velocity_max`` (rad, rad/s); None when
-    all are empty. Not validated here (``MotionLimits.validate``)."""
-    limits = MotionLimits.of(list(getattr(req, "position_min", [])),
-                             list(getattr(req, "position_max", [])),
-                             list(getattr(req, "velocity_max", [])))
-    return None if limits.empty else limits
-
-
 def request_to_msg(request: PlanRequest):
     """PlanRequest -> PlanTrajectory.Request (overrides = every parameter that differs from preset)."""
     p = request.resolved_params()

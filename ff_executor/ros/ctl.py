@@ -5,13 +5,17 @@
     ff-ctl lifecycle set ff_hwbridge deactivate   # a transition, or its goal state (inactive)
     ff-ctl diag --follow                          # /diagnostics, formatted
     ff-ctl fault-reset                            # clear the bridge's latched safe state
+    ff-ctl status                                 # the bridge: state, why not active, owner, refusals
+    ff-ctl claim --hold                           # own the drive until Ctrl-C (also: release, enable)
+    ff-ctl echo /ff_hwbridge/joint_states --count 1   # any topic as YAML; ff-ctl call SERVICE '{...}'
     ff-ctl param get ff_executor lead_time        # also: param set NODE NAME VALUE, param list NODE
     ff-ctl plan --qf 1 --tf 1 --uncertain pv pc pt -o move.json   # ff-plan's options, via the service
     ff-ctl execute move.json                      # an ff-motion/1 file (or plan options): live feedback
     ff-ctl record -o run_bag --duration 10        # = ff-record: the suite's topics into rosbag2/MCAP
 
 ROS settings: discovery on loopback only unless ROS_AUTOMATIC_DISCOVERY_RANGE is set; the domain
-from --domain-id, else ROS_DOMAIN_ID, else 0 (``ff-bringup`` prints its stack's domain).
+from --domain-id, else ROS_DOMAIN_ID, else 0 (``ff-bringup`` prints its stack's domain); relative
+names (ff_hwbridge, ff_planner/plan) under ``--namespace`` (a namespaced stack).
 Exit codes: 0 done; 1 the operation failed (nothing answered, refused, goal not succeeded); 2 bad usage.
 """
 from __future__ import annotations
@@ -34,14 +38,19 @@ from rcl_interfaces.msg import ParameterType
 from rcl_interfaces.srv import DescribeParameters, GetParameters, ListParameters, SetParameters
 from rclpy.action import get_action_names_and_types
 from rclpy.parameter import Parameter, parameter_value_to_python
+from rclpy.qos import QoSProfile, ReliabilityPolicy
 from std_srvs.srv import Trigger
 
 from ff_executor.ros.client import SafeActionClient
 from ff_executor.ros.record import add_record_arguments, run_record
 from ff_executor.ros.session import CallFailed, Session
 from ff_msgs.action import ExecuteProfile
-from ff_msgs.srv import PlanTrajectory
+from ff_msgs.msg import DriveGroupStatus
+from ff_msgs.srv import ClaimDrive, OwnerCommand, PlanTrajectory
+from ff_msgs_py.claims import ClaimError, DriveClaim, call_claim, owner_command
 from ff_msgs_py.convert import profile_to_msg, request_to_msg, response_to_result
+from ff_msgs_py.extras import missing_extra
+from ff_msgs_py.introspect import checked, fill, interface_type, to_data
 from ff_planner.cli import plan as plan_cli
 from ff_planner.export.motion_file import MotionFileError, read_motion
 from ff_planner.model.params import ParameterError
@@ -66,9 +75,13 @@ class _Parser(argparse.ArgumentParser):
         raise UsageError(f"{message} (see {self.prog} --help)")
 
 
-def _node_name(name: str) -> str:
-    """``ff_hwbridge`` or ``/ff_hwbridge`` -> ``/ff_hwbridge``."""
-    return name if name.startswith("/") else "/" + name
+def _node_name(name: str, namespace: str = "") -> str:
+    """A node, topic or service name made absolute: ``/x`` stays, ``x`` -> ``/<namespace>/x``
+    (``/x`` without a namespace)."""
+    if name.startswith("/"):
+        return name
+    ns = namespace.strip("/")
+    return f"/{ns}/{name}" if ns else f"/{name}"
 
 
 def _fmt(values: Any, digits: int = 4) -> str:
@@ -78,7 +91,7 @@ def _fmt(values: Any, digits: int = 4) -> str:
 # --- graph ------------------------------------------------------------------------------------
 def graph(s: Session, a: argparse.Namespace) -> int:
     """Nodes, topics (types, publisher/subscriber counts), services and actions of the domain."""
-    s.settle_graph(a.wait, expect=[_node_name(n) for n in a.expect])
+    s.settle_graph(a.wait, expect=[_node_name(n, a.namespace) for n in a.expect])
     me = s.node.get_fully_qualified_name()
     nodes = sorted(f"{ns.rstrip('/')}/{n}" for n, ns in s.node.get_node_names_and_namespaces()
                    if f"{ns.rstrip('/')}/{n}" != me and (a.all or not n.startswith("_")))
@@ -146,7 +159,7 @@ def _state(s: Session, node: str, timeout: float) -> str:
 def lifecycle(s: Session, a: argparse.Namespace) -> int:
     """``get``: the state (-v: and the transitions from it); ``set``: a transition or a goal state
     (``active`` from ``unconfigured`` runs configure, then activate)."""
-    node = _node_name(a.node)
+    node = _node_name(a.node, a.namespace)
     state = _state(s, node, a.timeout)
     avail = [t.transition.label for t in _transitions(s, node, a.timeout)]
     if a.action == "get":
@@ -182,10 +195,173 @@ def lifecycle(s: Session, a: argparse.Namespace) -> int:
 
 
 def fault_reset(s: Session, a: argparse.Namespace) -> int:
-    """Call the bridge's ``~/fault_reset`` (std_srvs/Trigger): leave a latched safe state."""
-    res = s.call(Trigger, f"{_node_name(a.node)}/fault_reset", Trigger.Request(), a.timeout)
-    print(f"{_node_name(a.node)}: fault reset {'done' if res.success else 'refused'}: {res.message}")
+    """Leave a latched safe state: the bridge's ``~/fault_reset`` (std_srvs/Trigger, open while no
+    client holds the drive), or with ``--token`` the owner's ``~/owner_command`` FAULT_RESET."""
+    node = _node_name(a.node, a.namespace)
+    if a.token:
+        res = owner_command(s.node, node, OwnerCommand.Request.FAULT_RESET, a.token, a.timeout)
+    else:
+        res = s.call(Trigger, f"{node}/fault_reset", Trigger.Request(), a.timeout)
+    print(f"{node}: fault reset {'done' if res.success else 'refused'}: {res.message}")
     return 0 if res.success else 1
+
+
+# --- ownership of the drive -------------------------------------------------------------------
+def claim(s: Session, a: argparse.Namespace) -> int:
+    """Claim the bridge's drive (``~/claim``): print the token; ``--hold`` keeps it (renewing)
+    until Ctrl-C, then releases it; ``--renew`` renews the claim of ``--token``."""
+    node = _node_name(a.node, a.namespace)
+    if a.renew:
+        if not a.token:
+            raise UsageError("claim --renew needs --token")
+        res = call_claim(s.node, node, ClaimDrive.Request.RENEW, token=a.token, timeout=a.timeout)
+        print(f"{node}: {'renewed' if res.success else 'refused'}: {res.message}")
+        return 0 if res.success else 1
+    if a.hold:
+        try:
+            held = DriveClaim(s.node, node, lease=a.lease, timeout=a.timeout)
+        except ClaimError as exc:
+            raise CallFailed(f"{node}: {exc}") from None
+        print(f"{node}: claimed by {s.node.get_fully_qualified_name()} (lease {held.lease:g} s, renewed "
+              f"every {held.lease / 3:g} s); token {held.token}; holding until Ctrl-C", flush=True)
+        try:
+            while not held.lost:
+                time.sleep(0.1)
+        except KeyboardInterrupt:
+            pass
+        if held.lost:
+            raise CallFailed(f"{node}: the claim was lost: {held.lost}")
+        res = held.release()
+        print(f"{node}: {res.message if res.success else 'release refused: ' + res.message}")
+        return 0 if res.success else 1
+    client = a.client or s.node.get_fully_qualified_name()
+    res = call_claim(s.node, node, ClaimDrive.Request.CLAIM, client=client, lease=a.lease, timeout=a.timeout)
+    if not res.success:
+        raise CallFailed(f"{node}: claim refused: {res.message}")
+    print(f"{node}: {res.message}; token {res.token}")
+    print(f"  carry it in CurrentSetpoint.token / the effort command's header.frame_id; renew within "
+          f"{res.lease:g} s (ff-ctl claim --renew --token T, or any accepted command); "
+          f"ff-ctl release --token T")
+    return 0
+
+
+def release(s: Session, a: argparse.Namespace) -> int:
+    """Release the claim of ``--token`` (``~/claim`` RELEASE)."""
+    node = _node_name(a.node, a.namespace)
+    res = call_claim(s.node, node, ClaimDrive.Request.RELEASE, token=a.token, timeout=a.timeout)
+    print(f"{node}: {res.message if res.success else 'release refused: ' + res.message}")
+    return 0 if res.success else 1
+
+
+def enable(s: Session, a: argparse.Namespace) -> int:
+    """The owner's ``~/owner_command`` ENABLE (lifecycle activate while it holds the drive)."""
+    node = _node_name(a.node, a.namespace)
+    res = owner_command(s.node, node, OwnerCommand.Request.ENABLE, a.token, a.timeout)
+    print(f"{node}: enable {'done' if res.success else 'refused'}: {res.message}")
+    return 0 if res.success else 1
+
+
+STATE_NAMES = {DriveGroupStatus.UNCONFIGURED: "unconfigured", DriveGroupStatus.INACTIVE: "inactive",
+               DriveGroupStatus.ACTIVE: "active", DriveGroupStatus.SAFE_STATE: "safe state"}
+
+
+def format_drive_status(node: str, m: Any) -> str:
+    """The bridge's typed ~/status (ff_msgs/msg/DriveGroupStatus) as text."""
+    lines = [f"{node}: {STATE_NAMES.get(m.state, str(m.state))}: {m.message}"]
+    if m.config_error:
+        lines.append(f"  configure failed: {m.config_error}")
+    if m.latch_reason:
+        lines.append(f"  safe state: {m.latch_reason} (ff-ctl fault-reset clears it)")
+    for name, state, emcy in zip(m.joint_names, m.drive_states, m.last_emcy):
+        lines.append(f"  {name}: {state}" + (f"; last EMCY {emcy}" if emcy else ""))
+    if m.state != DriveGroupStatus.UNCONFIGURED:
+        owner = m.owner or "nobody"
+        lines.append(f"  owner: {owner}" + (f" (claimed, {m.lease_left:.1f} s lease left)" if m.claimed
+                                            else " (default owner, no claim)" if m.owner else ""))
+        lines.append(f"  refused: {m.refused}" + (f" (latest: {m.last_refusal})" if m.last_refusal else ""))
+        lines.append(f"  setpoints: SYNC period {m.sync_period * 1e3:g} ms, {m.missed_setpoints} missed "
+                     f"their cycle")
+    return "\n".join(lines)
+
+
+def status(s: Session, a: argparse.Namespace) -> int:
+    """The bridge's typed ``~/status``: state, why it is not active (configure error, safe state),
+    drives, owner, refusals. Exit 0 when active, 1 otherwise."""
+    node = _node_name(a.node, a.namespace)
+    got: list[Any] = []
+    s.node.create_subscription(DriveGroupStatus, f"{node}/status", got.append, 10)
+    end = time.monotonic() + a.timeout
+    while not got and time.monotonic() < end:
+        time.sleep(0.05)
+    if not got:
+        raise CallFailed(f"no {node}/status within {a.timeout:g} s (is the bridge running, on "
+                         f"ROS_DOMAIN_ID={s.domain_id}?)")
+    m = got[-1]
+    print(format_drive_status(node, m))
+    return 0 if m.state == DriveGroupStatus.ACTIVE else 1
+
+
+# --- any topic or service ---------------------------------------------------------------------
+def _wait_for_type(s: Session, name: str, services: bool, timeout: float) -> str:
+    """The interface type of topic / service ``name`` once discovery shows it."""
+    end = time.monotonic() + timeout
+    while True:
+        found = dict((n, t) for n, t in (s.node.get_service_names_and_types() if services
+                                         else s.node.get_topic_names_and_types()))
+        if name in found and found[name]:
+            return str(found[name][0])
+        if time.monotonic() >= end:
+            what = "service" if services else "topic"
+            raise CallFailed(f"{what} {name} is not on ROS_DOMAIN_ID={s.domain_id} within {timeout:g} s "
+                             f"(ff-ctl graph lists what is)")
+        time.sleep(0.1)
+
+
+def echo(s: Session, a: argparse.Namespace) -> int:
+    """Print the messages of a topic as YAML documents (``--count N``: stop after N)."""
+    topic = _node_name(a.topic, a.namespace)
+    cls = interface_type(_wait_for_type(s, topic, False, a.timeout))
+    got: list[Any] = []
+    cond = threading.Condition()
+
+    def on_msg(m: Any) -> None:
+        with cond:
+            got.append(m)
+            cond.notify_all()
+
+    # best effort takes reliable and best-effort publishers alike
+    s.node.create_subscription(cls, topic, on_msg, QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT))
+    shown = 0
+    end = time.monotonic() + a.timeout
+    try:
+        while not a.count or shown < a.count:
+            with cond:
+                cond.wait(0.2)
+                batch, got[:] = list(got), []
+            for m in batch[: (a.count - shown) if a.count else None]:
+                print(yaml.safe_dump(to_data(m), sort_keys=False, allow_unicode=True) + "---", flush=True)
+                shown += 1
+            if a.count and not shown and time.monotonic() > end:
+                raise CallFailed(f"no message on {topic} within {a.timeout:g} s")
+    except KeyboardInterrupt:
+        return 0
+    return 0
+
+
+def call_service(s: Session, a: argparse.Namespace) -> int:
+    """Call a service with a request given as YAML (``'{field: value, ...}'``); print the response."""
+    name = _node_name(a.service, a.namespace)
+    typ = _wait_for_type(s, name, True, a.timeout)
+    cls = interface_type(typ)
+    try:
+        data = yaml.safe_load(a.request) if a.request else {}
+    except yaml.YAMLError as exc:
+        raise UsageError(f"the request is not YAML: {exc}") from None
+    request = fill(checked(cls.Request), data or {})
+    res = s.call(cls, name, request, a.timeout)
+    print(f"# {name} ({typ})")
+    print(yaml.safe_dump(to_data(res), sort_keys=False, allow_unicode=True), end="")
+    return 0
 
 
 # --- diagnostics ------------------------------------------------------------------------------
@@ -247,7 +423,7 @@ def _value_msg(text: str, current_type: int) -> Any:
 
 def param(s: Session, a: argparse.Namespace) -> int:
     """``list`` / ``get`` / ``describe`` / ``set`` a node's parameters (its parameter services)."""
-    node = _node_name(a.node)
+    node = _node_name(a.node, a.namespace)
     if a.action == "list":
         res = s.call(ListParameters, f"{node}/list_parameters", ListParameters.Request(), a.timeout)
         for n in sorted(res.result.names):
@@ -305,6 +481,7 @@ def _plan_request(a: argparse.Namespace) -> PlanRequest:
 def _plan(s: Session, a: argparse.Namespace, request: PlanRequest) -> tuple[Any, int]:
     """Call the planner service; print the answer; (response, exit code)."""
     t0 = time.monotonic()
+    a.plan_service = _node_name(a.plan_service, a.namespace)
     resp = s.call(PlanTrajectory, a.plan_service, request_to_msg(request), timeout=a.plan_timeout)
     wall = time.monotonic() - t0
     result = response_to_result(resp, request)
@@ -430,11 +607,32 @@ def late_switches(statuses: Sequence[Any]) -> tuple[int, float]:
     return count, worst
 
 
-def timing_notes(before: Sequence[Any], after: Sequence[Any]) -> list[str]:
+def bridge_notes(before: Optional[Any], after: Optional[Any], node: str = "/ff_hwbridge") -> list[str]:
+    """What the bridge's typed status (ff_msgs/msg/DriveGroupStatus) says about a move, from the
+    one before and the one after it: a latched safe state and its reason, commands refused as not
+    the owner's (e.g. a client claimed the drive, so the executor's setpoints were refused)."""
+    if after is None:
+        return []
+    notes = []
+    if after.state == DriveGroupStatus.SAFE_STATE:
+        notes.append(f"{node}: safe state: {after.latch_reason}")
+    refused = int(after.refused) - (int(before.refused) if before is not None else 0)
+    if refused > 0:
+        notes.append(f"{node} refused {refused} command(s) that were not its owner's during the move "
+                     f"(owner {after.owner or 'none'}; latest: {after.last_refusal})")
+    return notes
+
+
+def timing_notes(before: Sequence[Any], after: Sequence[Any], bridge_before: Optional[Any] = None,
+                 bridge_after: Optional[Any] = None) -> list[str]:
     """What /diagnostics say about a move, from the statuses seen before and after it: a latched
-    safe state (level ERROR) and current changes the simulated arm started late."""
-    notes = [f"{st.name}: {st.message}" for st in after
-             if (st.level if isinstance(st.level, int) else int.from_bytes(st.level, "little")) >= 2]
+    safe state (level ERROR) and current changes the simulated arm started late. With the bridge's
+    typed status (``bridge_after``), the bridge's part comes from it (:func:`bridge_notes`)."""
+    typed = bridge_after is not None
+    notes = bridge_notes(bridge_before, bridge_after)
+    notes += [f"{st.name}: {st.message}" for st in after
+              if (st.level if isinstance(st.level, int) else int.from_bytes(st.level, "little")) >= 2
+              and not (typed and st.name.startswith(DRIVE_STATUSES[0]))]
     (n0, _w0), (n1, w1) = late_switches(before), late_switches(after)
     if n1 > n0:
         notes.append(f"the simulated arm started {n1 - n0} current change(s) late during the move (the "
@@ -445,12 +643,19 @@ def timing_notes(before: Sequence[Any], after: Sequence[Any]) -> list[str]:
 
 
 class _DiagWatch:
-    """The latest /diagnostics status per name and when it came (monotonic s), kept in the background."""
+    """The latest /diagnostics status per name and when it came (monotonic s), and the latest typed
+    status of the bridge (``bridge_status``), kept in the background."""
 
-    def __init__(self, s: Session, topic: str = "/diagnostics") -> None:
+    def __init__(self, s: Session, topic: str = "/diagnostics", bridge: str = "/ff_hwbridge") -> None:
         self._lock = threading.Lock()
         self.latest: dict[str, tuple[float, Any]] = {}
+        self.bridge_status: Optional[Any] = None
         s.node.create_subscription(DiagnosticArray, topic, self._on_msg, 50)
+        s.node.create_subscription(DriveGroupStatus, f"{bridge}/status", self._on_status, 10)
+
+    def _on_status(self, msg: Any) -> None:
+        with self._lock:
+            self.bridge_status = msg
 
     def _on_msg(self, msg: DiagnosticArray) -> None:
         now = time.monotonic()
@@ -476,7 +681,8 @@ class _DiagWatch:
 
 
 def _send_goal(s: Session, a: argparse.Namespace, profile_msg: Any) -> int:
-    watch = _DiagWatch(s)
+    watch = _DiagWatch(s, bridge=_node_name("ff_hwbridge", a.namespace))
+    a.action_name = _node_name(a.action_name, a.namespace)
     client = SafeActionClient(s.node, ExecuteProfile, a.action_name)
     if not client.wait_for_server(timeout_sec=a.timeout):
         raise CallFailed(f"the executor action {a.action_name} is not available "
@@ -492,7 +698,7 @@ def _send_goal(s: Session, a: argparse.Namespace, profile_msg: Any) -> int:
               f"q = {_fmt(fb.measured_positions)} rad   qd = {_fmt(fb.measured_velocities)} rad/s", flush=True)
 
     tf = float(profile_msg.move_time)
-    before = watch.statuses()
+    before, bridge_before = watch.statuses(), watch.bridge_status
     handle = s.wait(client.send_goal_async(ExecuteProfile.Goal(profile=profile_msg), feedback_callback=on_feedback),
                     a.timeout, "send goal")
     if not handle.accepted:
@@ -507,7 +713,8 @@ def _send_goal(s: Session, a: argparse.Namespace, profile_msg: Any) -> int:
         _print_result(res)
         return 130
     _print_result(res)
-    for note in timing_notes(before, watch.fresh_after(time.monotonic(), timeout=2.5)):
+    after = watch.fresh_after(time.monotonic(), timeout=2.5)
+    for note in timing_notes(before, after, bridge_before, watch.bridge_status):
         print(f"  diagnostics: {note}")
     if not (res.status == GoalStatus.STATUS_SUCCEEDED and res.result.success):
         return 1
@@ -554,6 +761,9 @@ def _add_common(p: argparse.ArgumentParser) -> None:
                    help="ROS domain (default: ROS_DOMAIN_ID, else 0)")
     p.add_argument("--timeout", type=float, default=10.0, metavar="S",
                    help="s to wait for a service or action server (default 10)")
+    p.add_argument("--namespace", "-n", default="", metavar="NS",
+                   help="the stack's namespace: relative node, topic and service names are under it "
+                        "(e.g. arm_a: ff_hwbridge -> /arm_a/ff_hwbridge)")
 
 
 def _plan_parent(tolerance_search: bool = True) -> Any:
@@ -563,7 +773,8 @@ def _plan_parent(tolerance_search: bool = True) -> Any:
 
 
 def _add_plan_target(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--plan-service", default="/ff_planner/plan", help="the planner service")
+    p.add_argument("--plan-service", default="ff_planner/plan",
+                   help="the planner service (relative: under --namespace)")
     p.add_argument("--plan-timeout", type=float, default=120.0, metavar="S",
                    help="s to wait for the plan (default 120)")
 
@@ -598,10 +809,68 @@ def build_parser() -> argparse.ArgumentParser:
     lc.set_defaults(func=lifecycle)
 
     fr = sub.add_parser("fault-reset", help="clear the bridge's latched safe state (~/fault_reset)",
-                        description="Call NODE/fault_reset (std_srvs/Trigger); the reason is in ff-ctl diag.")
+                        description="Call NODE/fault_reset (std_srvs/Trigger; refused while a client holds "
+                                    "the drive), or with --token the owner's NODE/owner_command FAULT_RESET; "
+                                    "the reason is in ff-ctl status / diag.")
     _add_common(fr)
     fr.add_argument("node", nargs="?", default="ff_hwbridge", help="the bridge node (default ff_hwbridge)")
+    fr.add_argument("--token", default="", help="the claim's token (ff-ctl claim): reset as the owner")
     fr.set_defaults(func=fault_reset)
+
+    cl = sub.add_parser("claim", help="claim the bridge's drive: only the owner's commands move the arm",
+                        description="ff-ctl claim [NODE] [--lease S] [--client NAME]: claim and print the "
+                                    "token (the claim expires after its lease unless renewed); --hold: "
+                                    "keep it, renewed, until Ctrl-C, then release it; --renew --token T.")
+    _add_common(cl)
+    cl.add_argument("node", nargs="?", default="ff_hwbridge", help="the bridge node (default ff_hwbridge)")
+    cl.add_argument("--lease", type=float, default=0.0, metavar="S",
+                    help="s the claim lasts without renewal (default: the bridge's claim_lease)")
+    cl.add_argument("--client", default="", metavar="NODE",
+                    help="the owner's node name shown in the status (default: this tool's node)")
+    cl.add_argument("--hold", action="store_true", help="hold the drive until Ctrl-C, then release it")
+    cl.add_argument("--renew", action="store_true", help="renew the claim of --token")
+    cl.add_argument("--token", default="", help="for --renew: the claim's token")
+    cl.set_defaults(func=claim)
+
+    rl = sub.add_parser("release", help="release a claim on the bridge's drive",
+                        description="ff-ctl release [NODE] --token T")
+    _add_common(rl)
+    rl.add_argument("node", nargs="?", default="ff_hwbridge", help="the bridge node (default ff_hwbridge)")
+    rl.add_argument("--token", required=True, help="the claim's token")
+    rl.set_defaults(func=release)
+
+    en = sub.add_parser("enable", help="the owner enables the drives (lifecycle activate)",
+                        description="ff-ctl enable [NODE] --token T: NODE/owner_command ENABLE.")
+    _add_common(en)
+    en.add_argument("node", nargs="?", default="ff_hwbridge", help="the bridge node (default ff_hwbridge)")
+    en.add_argument("--token", required=True, help="the claim's token")
+    en.set_defaults(func=enable)
+
+    st = sub.add_parser("status", help="the bridge's typed status: state, why not active, owner",
+                        description="Print NODE/status (ff_msgs/msg/DriveGroupStatus): state, a failed "
+                                    "configure's reason, the safe state's reason, drives, owner, refusals. "
+                                    "Exit 0 when active, else 1.")
+    _add_common(st)
+    st.add_argument("node", nargs="?", default="ff_hwbridge", help="the bridge node (default ff_hwbridge)")
+    st.set_defaults(func=status)
+
+    ec = sub.add_parser("echo", help="print a topic's messages as YAML (like ros2 topic echo)",
+                        description="ff-ctl echo TOPIC [--count N]: the messages of TOPIC as YAML documents "
+                                    "(its type from discovery); until Ctrl-C, or N messages.")
+    _add_common(ec)
+    ec.add_argument("topic", help="e.g. /ff_hwbridge/status (relative: under --namespace)")
+    ec.add_argument("--count", type=int, default=0, metavar="N",
+                    help="stop after N messages (exit 1 if none within --timeout); 0 = until Ctrl-C")
+    ec.set_defaults(func=echo)
+
+    ca = sub.add_parser("call", help="call a service with a YAML request (like ros2 service call)",
+                        description="ff-ctl call SERVICE ['{field: value, ...}'] [options]: the request as YAML "
+                                    "(nested mappings for nested messages; its type from discovery); "
+                                    "prints the response as YAML.")
+    _add_common(ca)
+    ca.add_argument("service", help="e.g. /ff_hwbridge/claim (relative: under --namespace)")
+    ca.add_argument("request", nargs="?", default="", help="YAML mapping of the request's fields (default: {})")
+    ca.set_defaults(func=call_service)
 
     d = sub.add_parser("diag", help="formatted /diagnostics",
                        description="Print the latest report of each diagnostic status, or follow them.")
@@ -640,7 +909,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_common(ex)
     _add_plan_target(ex)
     ex.add_argument("motion", nargs="?", help="ff-motion/1 file (ff-plan -o / ff-ctl plan -o)")
-    ex.add_argument("--action-name", default="/ff_executor/execute", help="the executor action")
+    ex.add_argument("--action-name", default="ff_executor/execute",
+                    help="the executor action (relative: under --namespace)")
     ex.add_argument("--joint-names", nargs="+", default=None, metavar="NAME",
                     help="joint names of the profile (default joint1..N, as the executor's config)")
     ex.add_argument("--feedback-hz", type=float, default=10.0, help="feedback lines per second at most")
@@ -679,6 +949,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         return _fail(f"error: {exc}", 2)
     except CallFailed as exc:
         return _fail(str(exc), 1)
+    except ModuleNotFoundError as exc:
+        return _fail(missing_extra(exc), 1)
     except KeyboardInterrupt:
         return _fail("interrupted", 130)
     except Exception as exc:  # never a traceback for the user unless asked

@@ -41,6 +41,7 @@ from ff_executor.ros.session import Session
 from ff_msgs.action import ExecuteProfile
 from ff_msgs.msg import CurrentProfile, CurrentSetpoint
 from ff_msgs_py.definitions import message_definition
+from ff_msgs_py.extras import missing_extra
 
 PROG = "ff-record"
 #: the message types the recorder knows (imported here by name, so the import contracts see them)
@@ -282,6 +283,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     except (RecordUsageError, ValueError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr)
         return 2
+    except ModuleNotFoundError as exc:
+        print(f"{PROG}: {missing_extra(exc)}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -41,6 +41,22 @@ Interfaces (relative to the node: /ff_hwbridge/...):
 - sub ``~/emergency_stop`` std_msgs/Bool: the same from a topic (an e-stop button's node, a safety
   PLC bridge): ``true`` latches with the reason "e-stop: topic ~/emergency_stop"; ``false`` does
   nothing (clearing is ``~/fault_reset`` only).
+- pub ``~/status``     ff_msgs/msg/DriveGroupStatus: the drive group typed (state, latch reason, a
+  failed configure's reason, drive states, EMCY, owner, lease, refusals), beside ``/diagnostics``;
+  published also while unconfigured (1 Hz).
+- srv ``~/claim``      ff_msgs/srv/ClaimDrive: CLAIM (-> token), RENEW, RELEASE.
+- srv ``~/owner_command`` ff_msgs/srv/OwnerCommand: the owner's FAULT_RESET and ENABLE (activate).
+
+Ownership (:mod:`ff_hwbridge.ownership`). Setpoints, effort commands, fault resets and enables
+move the arm only when they are the owner's: the client holding the claim (its token in
+``CurrentSetpoint.token``, the effort command's ``header.frame_id``, ``OwnerCommand.token``), or,
+while nobody holds a claim, the ``default_owner`` node (default ``ff_executor`` in the bridge's
+namespace) for token-less setpoints / effort commands when it is the topic's only publisher.
+While a claim is held, ``~/fault_reset`` and a lifecycle activate are refused (the owner uses
+``~/owner_command``); without one they are open as before. A claim lasts ``claim_lease`` s past
+the owner's latest renewal or accepted command; released or expired during a motion, the safe
+state latches. Every refusal is logged (at most once a second per kind) and counted
+(``owner.refused.*`` in ``/diagnostics``). The e-stop is open to everyone, always.
 
 After configure the flat parameters show the configuration in use (also when it came from
 ``config_file``); while configured they cannot be changed (refused with the reason: cleanup,
@@ -54,7 +70,9 @@ CAN hub's ws://127.0.0.1:PORT/). Command line: ``ff-hwbridge [--autostart] [--co
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import gc
+import json
 import logging
 import math
 import sys
@@ -75,74 +93,120 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 from std_srvs.srv import Trigger
 
-from ff_hwbridge.drive.config import (OPTION_RANGES, BridgeConfig, ConfigError, config_from_mapping, load_config,
-                                      with_bus)
+from ff_hwbridge.drive.config import (OPTION_RANGES, BridgeConfig, BusConfig, ConfigError, config_from_mapping,
+                                      load_config, with_bus)
 from ff_hwbridge.drive.epos import EposError, EposMaster
 from ff_hwbridge.drive.player import SWITCH_INTERVAL, AppliedSetpoint, SetpointPlayer, SetpointRejected
 from ff_hwbridge.drive.gc_pauses import IdleCollector, freeze_heap, hold_full_collections
 from ff_hwbridge.drive.gc_pauses import pauses as gc_pauses
 from ff_hwbridge.drive.player_process import ProcessPlayer
 from ff_hwbridge.drive.scheduler import fifo_process
+from ff_hwbridge.ownership import ClaimRefused, Ownership, qualified_name
 from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.protocol.units import DriveUnits
-from ff_msgs.msg import CurrentSetpoint
+from ff_msgs.msg import CurrentSetpoint, DriveGroupStatus
+from ff_msgs.srv import ClaimDrive, OwnerCommand
 from ff_msgs_py.shutdown import shut_down
 from ff_msgs_py.threads import in_thread
 
 READY_LINE = "ff_hwbridge ready"
 NODE_NAME = "ff_hwbridge"
 
+#: BridgeConfig's own defaults (ff_hwbridge.drive.config): the flat parameters' defaults come from
+#: them, never typed twice; an unset rpdo_timeout_ms (None) is -1 here (ROS has no None)
+_CONFIG_DEFAULTS: dict[str, Any] = {f.name: f.default for f in dataclasses.fields(BridgeConfig)
+                                    if f.default is not dataclasses.MISSING}
+_UNITS = DriveUnits()
+_BUS = BusConfig()
+
+
+def _default(name: str) -> Any:
+    """The default of BridgeConfig field ``name`` as a ROS parameter value."""
+    value = _CONFIG_DEFAULTS[name]
+    return -1 if value is None else value
+
+
 # name: (default, description) — the flat form of config/bridge_*.yaml
 PARAMS: dict[str, tuple[Any, str]] = {
     "config_file": ("", "bridge YAML; when set, the flat joint/bus parameters are ignored"),
     "bus_interface": ("", "python-can interface override (socketcan, pcan, kvaser, remote, virtual)"),
     "bus_channel": ("", "python-can channel override (e.g. can0, ws://127.0.0.1:54701/)"),
-    "bus_bitrate": (1_000_000, "bit/s"),
+    "bus_bitrate": (_BUS.bitrate, "bit/s"),
     "joint_names": (["joint1"], "one per drive"),
     "node_ids": ([1], "CANopen node id per joint"),
-    "families": (["epos4"], "'epos4' (CST) or 'epos2' (current mode) per joint"),
+    "families": ([_UNITS.family], "'epos4' (CST) or 'epos2' (current mode) per joint"),
     "current_limits": ([10.0], "A per joint; every command is clamped to it"),
-    "nominal_currents": ([3.0], "A per joint (motor nominal current; EPOS4 per mille base)"),
-    "torque_constants": ([0.0267], "Nm/A per joint"),
-    "counts_per_rev": ([2048.0], "encoder increments per motor revolution, per joint"),
-    "gear_ratios": ([54.0], "per joint"),
-    "sync_period": (0.01, "s, SYNC period (10 ms supported from Python; 1 ms experimental)"),
-    "heartbeat_producer_ms": (10, "ms, written to each drive's 0x1017"),
-    "heartbeat_timeout": (0.0, "s, heartbeat consumer timeout -> safe state "
+    "nominal_currents": ([_UNITS.nominal_current], "A per joint (motor nominal current; EPOS4 per mille base)"),
+    "torque_constants": ([_UNITS.torque_constant], "Nm/A per joint"),
+    "counts_per_rev": ([_UNITS.counts_per_rev], "encoder increments per motor revolution, per joint"),
+    "gear_ratios": ([_UNITS.gear_ratio], "per joint"),
+    "sync_period": (_default("sync_period"), "s, SYNC period (10 ms supported from Python; 1 ms experimental)"),
+    "heartbeat_producer_ms": (_default("heartbeat_producer_ms"), "ms, written to each drive's 0x1017"),
+    "heartbeat_timeout": (_default("heartbeat_timeout"), "s, heartbeat consumer timeout -> safe state "
                                "(0 = 3 x heartbeat_producer_ms + timeout_margin)"),
-    "timeout_margin": (0.1, "s, scheduling margin of the derived heartbeat / SYNC / feedback timeouts"),
-    "master_heartbeat_ms": (100, "ms, > 0: produce a master heartbeat the drives consume (0x1016); 0 = off"),
-    "master_heartbeat_timeout_ms": (0, "ms, the drives' consumer time "
+    "timeout_margin": (_default("timeout_margin"),
+        "s, scheduling margin of the derived heartbeat / SYNC / feedback timeouts"),
+    "master_heartbeat_ms": (_default("master_heartbeat_ms"),
+        "ms, > 0: produce a master heartbeat the drives consume (0x1016); 0 = off"),
+    "master_heartbeat_timeout_ms": (_default("master_heartbeat_timeout_ms"), "ms, the drives' consumer time "
                                        "(0 = max(3 x master_heartbeat_ms, heartbeat_timeout))"),
-    "master_node_id": (127, "node id of the master's heartbeat"),
-    "rpdo_timeout_ms": (-1, "ms, RxPDO1 event timer 0x1400:05 where a drive has it (nothing relies on it: "
+    "master_node_id": (_default("master_node_id"), "node id of the master's heartbeat"),
+    "rpdo_timeout_ms": (_default("rpdo_timeout_ms"),
+        "ms, RxPDO1 event timer 0x1400:05 where a drive has it (nothing relies on it: "
                             "the drive's interpolation supervision stops a hung bridge); 0 = off, "
                             "-1 = max(500, 2 x heartbeat_timeout)"),
-    "quick_stop_option": (2, "0x605A quick stop option code (maxon: 0, 1, 2, 5, 6)"),
-    "fault_reaction_option": (2, "0x605E fault reaction option code (0 disable drive, 1/2 ramp)"),
-    "abort_connection_option": (1, "0x6007 on a communication error: 0 none, 1 fault, 2 disable voltage, 3 quick stop"),
-    "communication_error_behaviour": (0, "0x1029:01: 0 pre-operational, 1 unchanged, 2 stopped"),
-    "scaling_source": ("check", "motor data: 'check' against the drive, 'drive' (use its), 'config' (write ours)"),
-    "scaling_tolerance": (0.01, "relative tolerance of the motor data check"),
-    "setpoint_timing": ("sync", "'sync': setpoint RPDOs latched by the drives at SYNC (transmission "
+    "quick_stop_option": (_default("quick_stop_option"), "0x605A quick stop option code (maxon: 0, 1, 2, 5, 6)"),
+    "fault_reaction_option": (_default("fault_reaction_option"),
+        "0x605E fault reaction option code (0 disable drive, 1/2 ramp)"),
+    "abort_connection_option": (_default("abort_connection_option"),
+        "0x6007 on a communication error: 0 none, 1 fault, 2 disable voltage, 3 quick stop"),
+    "communication_error_behaviour": (_default("communication_error_behaviour"),
+        "0x1029:01: 0 pre-operational, 1 unchanged, 2 stopped"),
+    "scaling_source": (_default("scaling_source"),
+        "motor data: 'check' against the drive, 'drive' (use its), 'config' (write ours)"),
+    "scaling_tolerance": (_default("scaling_tolerance"), "relative tolerance of the motor data check"),
+    "setpoint_timing": (_default("setpoint_timing"),
+        "'sync': setpoint RPDOs latched by the drives at SYNC (transmission "
                                 "type 1, sent the cycle before); 'on_receipt': type 255"),
-    "sync_producer": ("master", "'master': this bridge produces SYNC; 'external': another node "
+    "sync_producer": (_default("sync_producer"), "'master': this bridge produces SYNC; 'external': another node "
                                 "(the simulation's CAN hub)"),
-    "sync_timeout": (0.0, "s, no SYNC this long -> safe state "
+    "sync_timeout": (_default("sync_timeout"), "s, no SYNC this long -> safe state "
                           "(0 = max(3 x sync_period + timeout_margin, heartbeat_timeout))"),
-    "missed_cycle_tolerance": (1, "SYNC cycles a setpoint may take effect late before the safe state"),
-    "feedback_every": (1, "SYNCs per feedback TPDO (their transmission type 1..240)"),
-    "boot_timeout": (2.0, "s per NMT reset communication waiting for the boot-up frame"),
-    "boot_wait": (10.0, "s in all waiting for a drive to boot (retries every boot_timeout)"),
-    "check_identity": (True, "0x1000 profile 402 and 0x1018:01 vendor maxon"),
+    "missed_cycle_tolerance": (_default("missed_cycle_tolerance"),
+        "SYNC cycles a setpoint may take effect late before the safe state"),
+    "feedback_every": (_default("feedback_every"), "SYNCs per feedback TPDO (their transmission type 1..240)"),
+    "boot_timeout": (_default("boot_timeout"), "s per NMT reset communication waiting for the boot-up frame"),
+    "boot_wait": (_default("boot_wait"), "s in all waiting for a drive to boot (retries every boot_timeout)"),
+    "check_identity": (_default("check_identity"), "0x1000 profile 402 and 0x1018:01 vendor maxon"),
     "position_limits": ([0.0], "rad, [low1, high1, low2, high2, ...] per joint; [0.0] or [] = none"),
     "velocity_limits": ([0.0], "rad/s per joint, 0 = none"),
-    "setpoint_timeout": (0.5, "s, no fresh setpoint during a motion -> safe state"),
-    "spin_margin": (0.0003, "s, the scheduler sleeps until this long before a stamp, then spins"),
-    "scheduler_rt_priority": (-1, "1..99: SCHED_FIFO for the setpoint player and bus receiver "
+    "setpoint_timeout": (_default("setpoint_timeout"), "s, no fresh setpoint during a motion -> safe state"),
+    "feedback_timeout": (_default("feedback_timeout"), "s, no feedback TPDO this long -> safe state "
+                         "(0 = derived from sync_period x feedback_every + timeout_margin)"),
+    "sdo_timeout": (_default("sdo_timeout"), "s, answer time of one SDO transfer at configure"),
+    "state_timeout": (_default("state_timeout"), "s, a CiA 402 state change (enable, fault reset) must "
+                      "be reached within this"),
+    "monitor_period": (_default("monitor_period"), "s, period of the master's supervision loop"),
+    "reset_communication": (_default("reset_communication"), "NMT reset communication of each drive at "
+                            "configure (then wait for its boot-up)"),
+    "player_process": (_default("player_process"), "synchronous timing: the setpoint player in a process "
+                       "of its own"),
+    "setpoint_lead": (_default("setpoint_lead"), "s, hand each setpoint this early to the bus's transmit "
+                      "schedule (0 = sent in the cycle before its SYNC)"),
+    "stall_dump": (_default("stall_dump"), "s, the player away this long with setpoints pending dumps "
+                   "every thread's stack to the log (0 = off)"),
+    "spin_margin": (_default("spin_margin"), "s, the scheduler sleeps until this long before a stamp, then spins"),
+    "scheduler_rt_priority": (_default("scheduler_rt_priority"),
+        "1..99: SCHED_FIFO for the setpoint player and bus receiver "
                               "(needs CAP_SYS_NICE); 0 = off; -1 = auto (50 when synchronous)"),
     "command_topic": ("~/joint_commands", "sensor_msgs/JointState effort commands, N·m at the joint "
                       "(ros2_control joint_state_topic_hardware_interface); '' = none"),
+    "default_owner": ("ff_executor", "node (relative: in the bridge's namespace) whose setpoints and effort "
+                      "commands need no claim while nobody holds one, when it is the topic's sole "
+                      "publisher; '' = every command needs a claim (~/claim)"),
+    "claim_lease": (2.0, "s, a claim expires this long after the owner's latest renewal or accepted "
+                         "command (its process died or hung), unless the claim asked for another lease"),
+    "claim_max_lease": (3600.0, "s, the longest lease a claim may ask for"),
     "joint_state_rate": (100.0, "Hz"),
     "diagnostics_rate": (2.0, "Hz"),
 }
@@ -157,9 +221,11 @@ RANGES: dict[str, tuple[float, float]] = {
     "scaling_tolerance": (0.0, 1.0), "sync_timeout": (0.0, 60.0), "timeout_margin": (0.0, 10.0),
     "missed_cycle_tolerance": (0, 1000),
     "feedback_every": (1, 240), "boot_timeout": (0.0, 600.0), "boot_wait": (0.0, 3600.0),
-    "setpoint_timeout": (0.0, 60.0),
+    "setpoint_timeout": (0.0, 60.0), "feedback_timeout": (0.0, 60.0), "sdo_timeout": (0.001, 60.0),
+    "state_timeout": (0.001, 600.0), "monitor_period": (0.0001, 1.0), "setpoint_lead": (0.0, 1.0),
+    "stall_dump": (0.0, 3600.0),
     "spin_margin": (0.0, 0.05), "scheduler_rt_priority": (-1, 99), "joint_state_rate": (0.1, 10_000.0),
-    "diagnostics_rate": (0.01, 1000.0),
+    "diagnostics_rate": (0.01, 1000.0), "claim_lease": (0.05, 3600.0), "claim_max_lease": (0.05, 86400.0),
 }
 #: allowed values of the string parameters
 CHOICES: dict[str, str] = {
@@ -184,6 +250,17 @@ def descriptor(name: str) -> ParameterDescriptor:
     if name in CHOICES:
         d.additional_constraints = CHOICES[name]
     return d
+
+
+def parameters_markdown() -> str:
+    """The Markdown table of the bridge's parameters (docs/parameters.md, between its markers)."""
+    rows = ["| name | default | range / values | description |", "|---|---|---|---|"]
+    for name, (default, text) in PARAMS.items():
+        rng = RANGES.get(name)
+        allowed = CHOICES.get(name, f"{rng[0]:g} .. {rng[1]:g}" if rng else "")
+        rows.append(f"| `{name}` | `{json.dumps(default, ensure_ascii=False)}` | {allowed} | "
+                    f"{text.replace('|', '/')} |")
+    return "\n".join(rows) + "\n"
 
 
 def _flat_config(get: Callable[[str], Any]) -> dict[str, Any]:
@@ -218,7 +295,9 @@ FLAT_DRIVE_KEYS = ("master_heartbeat_timeout_ms", "rpdo_timeout_ms", "quick_stop
                    "fault_reaction_option", "abort_connection_option",
                    "communication_error_behaviour", "scaling_source", "scaling_tolerance",
                    "boot_timeout", "boot_wait", "check_identity", "setpoint_timing", "sync_producer",
-                   "sync_timeout", "missed_cycle_tolerance", "feedback_every", "timeout_margin")
+                   "sync_timeout", "missed_cycle_tolerance", "feedback_every", "timeout_margin",
+                   "feedback_timeout", "sdo_timeout", "state_timeout", "monitor_period",
+                   "reset_communication", "player_process", "setpoint_lead", "stall_dump")
 
 
 def _envelopes(get: Callable[[str], Any], n: int) -> list[dict[str, Any]]:
@@ -334,10 +413,9 @@ class BridgeNode(LifecycleNode):
         self.fifo_threads = False
         self._idle_gc = IdleCollector(self._player_idle)
         self._entities: list[tuple[str, Any]] = []
-        self._timers: list[Any] = []
+        self._interface_timers: list[Any] = []
         self._pub_js: Any = None
         self._pub_cur: Any = None
-        self._pub_diag: Any = None
         self._pub_applied: Any = None
         self._diag_now = threading.Event()
         self._last_sample_ns = 0        # bus ns of the last published drive sample
@@ -350,11 +428,23 @@ class BridgeNode(LifecycleNode):
         self.commands_refused = 0
         self.last_command_refusal = ""
         self._refusal_cause = ""        # logged once per cause, until a command is accepted
+        self._refusal_logs: dict[str, float] = {}   # monotonic s of the latest refusal logged, per kind
         self._log_handler = _RosLogHandler(self.get_logger())
         for name in ("ff_hwbridge", "canopen"):
             logging.getLogger(name).addHandler(self._log_handler)
         self._showing_config = False
         self.add_on_set_parameters_callback(self._on_set_parameters)
+        #: who may command the drives (set up at configure from default_owner, claim_lease)
+        self.ownership: Optional[Ownership] = None
+        self._owner_enabling = False     # an activate the owner asked for (~/owner_command ENABLE)
+        self.config_error = ""           # why the latest configure failed
+        self._sub_setpoints: Any = None
+        self._sub_commands: Any = None
+        # the typed status and the diagnostics live as long as the node: a configure that fails
+        # is reported there too
+        self._pub_status = self.create_publisher(DriveGroupStatus, "~/status", 10)
+        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.create_timer(1.0, self._publish_unconfigured)
 
     # --- public state -----------------------------------------------------------------------------
     @property
@@ -418,12 +508,17 @@ class BridgeNode(LifecycleNode):
         """Connect and set up the drives (NMT, SDO, PDO, SYNC, heartbeat/EMCY)."""
         try:
             self.config = cfg = self._load_config()
+            self.ownership = Ownership(float(self._get("claim_lease")), float(self._get("claim_max_lease")),
+                                       qualified_name(str(self._get("default_owner")), self.get_namespace()))
             self.master = EposMaster(cfg, on_fault=self._on_fault)
             self.master.connect()
             self.master.configure()
         except (ValueError, EposError, OSError) as exc:
-            self.get_logger().error(f"configure failed: {exc}")
+            self.config_error = f"configure failed: {exc}"
+            self.get_logger().error(self.config_error)
+            self._publish_unconfigured()
             return TransitionCallbackReturn.ERROR
+        self.config_error = ""
         # player_process (sync only): guard, units, RPDO and SYNC watch in a process of its own,
         # which this node's executor (and its GIL) cannot stall; else a thread here
         kind = ProcessPlayer if cfg.player_process and cfg.synchronous else SetpointPlayer
@@ -448,8 +543,15 @@ class BridgeNode(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
-        """Enable operation with zero current (transitions 2, 3, 4)."""
+        """Enable operation with zero current (transitions 2, 3, 4). While a client holds the
+        drive, only its ``~/owner_command`` ENABLE activates (a lifecycle request is refused)."""
         assert self.master is not None
+        if self.ownership is not None and self.ownership.claimed and not self._owner_enabling:
+            d = self.ownership.authorize("enable")
+            self.get_logger().warning(f"activate (lifecycle ~/change_state) refused: {d.reason}; "
+                                      "the owner enables with ~/owner_command ENABLE")
+            self._diag_now.set()
+            return TransitionCallbackReturn.FAILURE
         try:
             self.master.enable()
         except EposError as exc:
@@ -518,15 +620,16 @@ class BridgeNode(LifecycleNode):
     def teardown(self) -> None:
         """Stop the player (zero current), close the bus, remove topics and timers (idempotent)."""
         self._active = False
+        self.ownership = None
         if self.player is not None:
             self._best_effort("stopping the setpoint player", self.player.close)
             self.player = None
         if self.master is not None:
             self._best_effort("disconnect", self.master.disconnect)
             self.master = None
-        for t in self._timers:
+        for t in self._interface_timers:
             self.destroy_timer(t)
-        self._timers.clear()
+        self._interface_timers.clear()
         for kind, ent in self._entities:
             if kind == "pub":
                 self.destroy_publisher(ent)
@@ -543,11 +646,10 @@ class BridgeNode(LifecycleNode):
         self._pub_js = self.create_publisher(JointState, "~/joint_states", 10)
         self._pub_cur = self.create_publisher(JointState, "~/motor_currents", 10)
         self._pub_applied = self.create_publisher(CurrentSetpoint, "~/applied", 100)
-        self._pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         # own callback groups: a fault reset (which waits for the drives) or a timer never
         # holds up the intake of setpoints
-        sub = self.create_subscription(CurrentSetpoint, "~/setpoints", self._on_setpoint, 100,
-                                       callback_group=MutuallyExclusiveCallbackGroup())
+        sub = self._sub_setpoints = self.create_subscription(
+            CurrentSetpoint, "~/setpoints", self._on_setpoint, 100, callback_group=MutuallyExclusiveCallbackGroup())
         self._wake = self.create_guard_condition(lambda: None)   # resumes awaited work (ff_msgs_py.threads)
         srv = self.create_service(Trigger, "~/fault_reset", self._on_fault_reset,
                                   callback_group=MutuallyExclusiveCallbackGroup())
@@ -556,19 +658,24 @@ class BridgeNode(LifecycleNode):
         self._entities.append(("sub", estop_sub))
         estop = self.create_service(Trigger, "~/estop", self._on_estop,
                                     callback_group=MutuallyExclusiveCallbackGroup())
+        claim = self.create_service(ClaimDrive, "~/claim", self._on_claim,
+                                    callback_group=MutuallyExclusiveCallbackGroup())
+        owner_cmd = self.create_service(OwnerCommand, "~/owner_command", self._on_owner_command,
+                                        callback_group=MutuallyExclusiveCallbackGroup())
         self._entities += [("pub", self._pub_js), ("pub", self._pub_cur), ("pub", self._pub_applied),
-                           ("pub", self._pub_diag), ("sub", sub), ("srv", srv), ("srv", estop)]
+                           ("sub", sub), ("srv", srv), ("srv", estop), ("srv", claim), ("srv", owner_cmd)]
         topic = str(self._get("command_topic"))
         if topic:
             # best effort: takes reliable and best-effort publishers; the newest command wins
-            cmd = self.create_subscription(JointState, topic, self._on_command, qos_profile_sensor_data,
-                                           callback_group=MutuallyExclusiveCallbackGroup())
+            cmd = self._sub_commands = self.create_subscription(
+                JointState, topic, self._on_command, qos_profile_sensor_data,
+                callback_group=MutuallyExclusiveCallbackGroup())
             self._entities.append(("sub", cmd))
-        self._timers.append(self.create_timer(1.0 / float(self._get("joint_state_rate")),
+        self._interface_timers.append(self.create_timer(1.0 / float(self._get("joint_state_rate")),
                                               self._publish_joint_states))
-        self._timers.append(self.create_timer(1.0 / float(self._get("diagnostics_rate")),
+        self._interface_timers.append(self.create_timer(1.0 / float(self._get("diagnostics_rate")),
                                               self._publish_diagnostics))
-        self._timers.append(self.create_timer(0.01, self._fast_tick))
+        self._interface_timers.append(self.create_timer(0.01, self._fast_tick))
 
     def _on_setpoint(self, msg: Any) -> None:
         player = self.player
@@ -577,6 +684,8 @@ class BridgeNode(LifecycleNode):
         if not self._active:
             self.get_logger().warning("setpoint ignored: bridge is not active",
                                       throttle_duration_sec=1.0)
+            return
+        if not self._authorized("setpoint", str(msg.token), self._sub_setpoints):
             return
         stamp_ns = int(msg.stamp.sec) * 1_000_000_000 + int(msg.stamp.nanosec)
         pid = str(msg.profile_id)
@@ -632,6 +741,8 @@ class BridgeNode(LifecycleNode):
         if not self._active:
             self._refuse_command("inactive", "bridge is not active")
             return
+        if not self._authorized("command", str(msg.header.frame_id), self._sub_commands):
+            return
         profile = self._profile_running()
         if profile is not None:
             self._refuse_command("profile", f"profile {profile} is running (a CurrentProfile and effort "
@@ -682,9 +793,133 @@ class BridgeNode(LifecycleNode):
         self._diag_now.set()
 
     async def _on_fault_reset(self, request: Any, response: Any) -> Any:
-        """Service ~/fault_reset: waits for the drive on its own thread (ff_msgs_py.threads)."""
-
+        """Service ~/fault_reset: waits for the drive on its own thread (ff_msgs_py.threads).
+        Open to anyone while no client holds a claim; refused while one does (the owner resets
+        with ~/owner_command FAULT_RESET)."""
+        if self.ownership is not None and self.ownership.claimed:
+            d = self.ownership.authorize("fault_reset")
+            self.get_logger().warning(f"~/fault_reset refused: {d.reason}; the owner resets with "
+                                      "~/owner_command FAULT_RESET")
+            self._diag_now.set()
+            response.success, response.message = False, d.reason
+            return response
         return await in_thread(self._fault_reset, response, wake=self._wake, name="ff_fault_reset")
+
+    # --- ownership --------------------------------------------------------------------------------
+    def _sole_publisher(self, sub: Any) -> str:
+        """The node publishing on ``sub``'s topic when it is the only one there, else "" (two
+        publishers, or a node whose name discovery has not yet told): a token-less message is
+        then certainly that node's."""
+        if sub is None:
+            return ""
+        names = {qualified_name(e.node_name, e.node_namespace)
+                 for e in self.get_publishers_info_by_topic(sub.topic_name)}
+        name = names.pop() if len(names) == 1 else ""
+        return "" if "_NODE_NAME_UNKNOWN_" in name else name
+
+    def _authorized(self, kind: str, token: str, sub: Any) -> bool:
+        """May this setpoint / effort command move the arm? A refusal is counted and logged."""
+        own = self.ownership
+        if own is None:
+            return False
+        sender = "" if token or own.claimed or not own.default_owner else self._sole_publisher(sub)
+        d = own.authorize(kind, token, sender)
+        if not d.accepted:
+            self._refusal_logs.setdefault(kind, 0)
+            now = time.monotonic()
+            if now - self._refusal_logs[kind] >= 1.0:      # at most once a second per kind
+                self._refusal_logs[kind] = now
+                self.get_logger().warning(f"{d.reason} ({own.refused[kind]} refused so far)")
+            self._diag_now.set()
+        return d.accepted
+
+    def _motion_live(self) -> bool:
+        """A profile runs or non-zero effort commands are live (a claim change must wait)."""
+        live = time.monotonic() - self._commands_live < self._cfg().setpoint_timeout
+        return self._profile_running() is not None or live
+
+    def _on_claim(self, request: Any, response: Any) -> Any:
+        """Service ~/claim (ff_msgs/srv/ClaimDrive): CLAIM, RENEW, RELEASE."""
+        own = self.ownership
+        response.success = False
+        if own is None:
+            response.message = "bridge is not configured"
+            return response
+        try:
+            if request.action == ClaimDrive.Request.CLAIM:
+                if not own.claimed and self._motion_live():
+                    raise ClaimRefused(f"a motion of {own.owner or 'another client'} is running; claim "
+                                       "after it ends")
+                c = own.claim(str(request.client), float(request.lease))
+                response.token, response.lease = c.token, c.lease
+                response.message = f"claimed by {c.client} (lease {c.lease:g} s)"
+                self.get_logger().info(f"drive {response.message}")
+            elif request.action == ClaimDrive.Request.RENEW:
+                c = own.renew(str(request.token))
+                response.lease, response.message = c.lease, f"renewed for {c.client} ({c.lease:g} s)"
+            elif request.action == ClaimDrive.Request.RELEASE:
+                live = self.master is not None and self._motion_live()
+                c = own.release(str(request.token))
+                response.message = f"released by {c.client}"
+                self.get_logger().info(f"drive {response.message}")
+                if live and self.master is not None:
+                    self.master.quick_stop(f"{c.client} released the drive during a motion")
+            else:
+                raise ClaimRefused(f"unknown action {request.action} (CLAIM 0, RENEW 1, RELEASE 2)")
+            response.success = True
+        except ClaimRefused as exc:
+            response.message = str(exc)
+            self.get_logger().warning(f"claim request refused: {exc}")
+        response.owner = own.owner
+        self._diag_now.set()
+        return response
+
+    async def _on_owner_command(self, request: Any, response: Any) -> Any:
+        """Service ~/owner_command (ff_msgs/srv/OwnerCommand): the owner's FAULT_RESET or ENABLE."""
+        own = self.ownership
+        if own is None or self.master is None:
+            response.success, response.message = False, "bridge is not configured"
+            return response
+        kind = {OwnerCommand.Request.FAULT_RESET: "fault_reset",
+                OwnerCommand.Request.ENABLE: "enable"}.get(request.command)
+        if kind is None:
+            response.success, response.message = False, f"unknown command {request.command}"
+            return response
+        d = own.authorize(kind, str(request.token))
+        if not d.accepted:
+            self.get_logger().warning(f"~/owner_command: {d.reason}")
+            self._diag_now.set()
+            response.success, response.message = False, d.reason
+            return response
+        if kind == "fault_reset":
+            return await in_thread(self._fault_reset, response, wake=self._wake, name="ff_fault_reset")
+        return await in_thread(self._owner_enable, response, wake=self._wake, name="ff_enable")
+
+    def _owner_enable(self, response: Any) -> Any:
+        if self._active:
+            response.success, response.message = True, "already active"
+            return response
+        self._owner_enabling = True
+        try:
+            self.trigger_activate()
+        finally:
+            self._owner_enabling = False
+        response.success = self._active
+        response.message = "active: operation enabled" if self._active else "activate failed (see the log)"
+        self._diag_now.set()
+        return response
+
+    def _expire_claim(self) -> None:
+        """A claim whose lease ran out: log it; during a motion, latch the safe state."""
+        own = self.ownership
+        gone = own.expire() if own is not None else None
+        if gone is None:
+            return
+        self.get_logger().warning(f"claim of {gone.client} expired: no renewal or accepted command for "
+                                  f"{gone.lease:g} s")
+        if self.master is not None and self._motion_live():
+            self.master.quick_stop(f"claim of {gone.client} expired during a motion")
+        self._diag_now.set()
 
     def _fault_reset(self, response: Any) -> Any:
         if self.master is None:
@@ -703,6 +938,7 @@ class BridgeNode(LifecycleNode):
 
     def _fast_tick(self) -> None:
 
+        self._expire_claim()
         reports: list[AppliedSetpoint] = self.player.take_applied() if self.player else []
         for a in reports:
             if a.last and self._profile is not None and a.profile_id == self._profile[0]:
@@ -764,8 +1000,10 @@ class BridgeNode(LifecycleNode):
         st["commands.refused"] = self.commands_refused
         st["commands.last_refusal"] = self.last_command_refusal
         st["profile_running"] = self._profile_running() or ""
+        if self.ownership is not None:
+            st.update(self.ownership.status())
         status = DiagnosticStatus()
-        status.name = f"{NODE_NAME}: drive group"
+        status.name = self._status_name()
         status.hardware_id = ",".join(f"node{j.node_id}" for j in self._cfg().joints)
         if self.master.latched:
             status.level, status.message = DiagnosticStatus.ERROR, f"safe state: {self.master.fault_reason}"
@@ -788,6 +1026,63 @@ class BridgeNode(LifecycleNode):
         arr.header.stamp = self.get_clock().now().to_msg()
         arr.status = [status]
         self._pub_diag.publish(arr)
+        self._publish_status(status, st)
+
+    def _publish_status(self, diag: Any, st: dict[str, Any]) -> None:
+        """The typed ~/status beside the /diagnostics one (same message)."""
+        msg = DriveGroupStatus()
+        msg.stamp = self.get_clock().now().to_msg()
+        msg.message = str(diag.message)
+        msg.config_error = self.config_error
+        if self.master is None:
+            msg.state = DriveGroupStatus.UNCONFIGURED
+            self._pub_status.publish(msg)
+            return
+        latched = bool(self.master.latched)
+        msg.state = (DriveGroupStatus.SAFE_STATE if latched else
+                     DriveGroupStatus.ACTIVE if self._active else DriveGroupStatus.INACTIVE)
+        msg.latch_reason = str(self.master.fault_reason or "") if latched else ""
+        names = list(self._cfg().joint_names)
+        msg.joint_names = names
+        msg.drive_states = [str(st.get(f"{n}.state", "unknown")) for n in names]
+        msg.last_emcy = [str(st.get(f"{n}.last_emcy", "")) for n in names]
+        own = self.ownership
+        if own is not None:
+            msg.owner, msg.claimed, msg.lease_left = own.owner, own.claimed, own.lease_left()
+            msg.refused = sum(own.refused.values()) + own.claims_refused
+            msg.last_refusal = own.last_refusal
+        msg.commands_accepted = int(self.commands_accepted)
+        msg.missed_setpoints = int(_count(st.get("missed_setpoints", 0)))
+        msg.sync_period = float(self._cfg().sync_period) if self._cfg().synchronous else 0.0
+        self._pub_status.publish(msg)
+
+    def _status_name(self) -> str:
+        """``ff_hwbridge: drive group``; under a namespace ``arm_a/ff_hwbridge: drive group``."""
+        return f"{self.get_fully_qualified_name().lstrip('/')}: drive group"
+
+    def _publish_unconfigured(self) -> None:
+        """Unconfigured: /diagnostics and ~/status say so, with the reason of a failed configure."""
+        if self.master is not None:
+            return
+        status = DiagnosticStatus(name=self._status_name())
+        if self.config_error:
+            status.level, status.message = DiagnosticStatus.ERROR, self.config_error
+        else:
+            status.level, status.message = DiagnosticStatus.WARN, "unconfigured"
+        status.values = [KeyValue(key="config_error", value=self.config_error)]
+        arr = DiagnosticArray()
+        arr.header.stamp = self.get_clock().now().to_msg()
+        arr.status = [status]
+        self._pub_diag.publish(arr)
+        self._publish_status(status, {})
+
+
+def _count(value: Any) -> float:
+    """A number from a diagnostics value (0 when it is none)."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return 0.0
 
 
 def main(argv: Optional[Sequence[str]] = None) -> None:

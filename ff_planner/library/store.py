@@ -36,7 +36,7 @@ from typing import Any, Optional, Sequence
 import numpy as np
 
 from ff_planner.export.motion_file import motion_to_dict
-from ff_planner.model.params import MODELS, Params, default_params
+from ff_planner.model.params import Params
 from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult
 
 SCHEMA_VERSION = 1
@@ -484,12 +484,3 @@ class MotionLibrary:
             out[s] = int(n)
         out["param_sets"] = int(con.execute("SELECT COUNT(DISTINCT params_hash) FROM motions").fetchone()[0])
         return out
-
-
-# --- parameters ----------------------------------------------------------------------------
-def params_for(model: str, overrides: Optional[dict] = None, base: Optional[Params] = None) -> Params:
-    """Model parameters = ``base`` (default: the model's preset) with ``overrides`` applied."""
-    if model not in MODELS:
-        raise LibraryError(f"unknown model {model!r}; known models: {', '.join(MODELS)}")
-    p = base if base is not None else default_params(model)
-    return p.replace(**(overrides or {})) if overrides else p

@@ -14,6 +14,7 @@ Console script: ``ff-planner-node`` (= ``ff_planner.ros.planner_node:main``).
 """
 from __future__ import annotations
 
+import json
 import sys
 import threading
 import time
@@ -30,6 +31,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from ff_msgs.action import PlanMotion
 from ff_msgs.srv import PlanTrajectory
+from ff_msgs_py.configs import node_parameters
 from ff_msgs_py.convert import error_response
 from ff_msgs_py.threads import in_thread
 from ff_planner.library.warm import PlanFn
@@ -41,6 +43,11 @@ from ff_planner.service.planner_service import (CANCELED, LIMIT_NAMES, PlannerSe
 FEEDBACK_PERIOD = 0.2   # s between PlanMotion feedback messages
 
 NODE_ONLY = ("diagnostics_period", "executor_threads")
+#: the shipped parameter file whose values are the node's defaults (the one source: a node started
+#: with no file, or with a file that leaves a key out, has that key as the shipped YAML gives it)
+SHIPPED = ("planner.yaml", "ff_planner")
+#: node-only parameters the shipped YAML leaves out, with their defaults
+NODE_DEFAULTS: dict[str, Any] = {"executor_threads": 0}
 ROS_BUILTIN = ("use_sim_time", "start_type_description_service")  # declared by every rclpy node
 #: name: (description with units, (from, to) range or None) of config/planner.yaml's parameters.
 #: All are read once, at start (read_only); types stay as the YAML gives them (dynamic typing),
@@ -105,6 +112,24 @@ def descriptor(name: str, value: Any = None) -> ParameterDescriptor:
     return d
 
 
+def shipped_defaults() -> dict[str, Any]:
+    """The ``ros__parameters`` of the shipped config/planner.yaml: the node's defaults."""
+    return node_parameters(*SHIPPED)
+
+
+def parameters_markdown() -> str:
+    """The Markdown table of the planner's parameters: every key of the shipped YAML, its value
+    there (the default), then the node-only ones, each with its description (docs/parameters.md,
+    between its markers)."""
+    rows = ["| name | default | range | description |", "|---|---|---|---|"]
+    for name, default in {**shipped_defaults(), **NODE_DEFAULTS}.items():
+        rng = PARAMETERS.get(name, ("", None))[1]
+        text = descriptor(name, default).description.replace(" (read at start)", "")
+        rows.append(f"| `{name}` | `{json.dumps(default)}` | {f'{rng[0]:g} .. {rng[1]:g}' if rng else ''} | "
+                    f"{text.replace('|', '/')} |")
+    return "\n".join(rows) + "\n"
+
+
 def _tf_of(result: Any) -> str:
     """The move time (s) a plan chose, for logs."""
     return f"{result.profile.tf:g} s" if result.profile is not None else "none"
@@ -118,11 +143,15 @@ class PlannerNode(Node):
 
     def __init__(self, plan_fn: PlanFn = plan, **kwargs: Any) -> None:
         super().__init__("ff_planner", **kwargs)
-        # every parameter the YAML gives (config_from_mapping refuses unknown names), each with its
-        # descriptor; the value (and so its type) is the YAML's
-        for name, param in sorted(self._parameter_overrides.items()):
+        # every key of the shipped config/planner.yaml with its value there as the default, and
+        # every further parameter a given file sets (<model>.params.<key>, limits;
+        # config_from_mapping refuses unknown names), each with its descriptor
+        names = {**NODE_DEFAULTS, **shipped_defaults()}
+        for name, param in self._parameter_overrides.items():
             if name not in ROS_BUILTIN and not name.startswith("qos_overrides"):
-                self.declare_parameter(name, param.value, descriptor(name, param.value))
+                names.setdefault(name, param.value)
+        for name, default in sorted(names.items()):
+            self.declare_parameter(name, default, descriptor(name, default))
         values = {name: p.value for name, p in self._parameters.items()
                   if name not in ROS_BUILTIN and not name.startswith("qos_overrides")}
         self.diagnostics_period = float(values.pop("diagnostics_period", 1.0))

@@ -9,7 +9,7 @@ from ff_msgs.srv import PlanTrajectory
 from ff_msgs_py import convert
 from ff_planner.core.errors import ERROR_NAMES
 from ff_planner.model.params import ParameterError, default_params
-from ff_planner.model.profile import BOX_DEFAULT_STEPS, CurrentProfile, PlanRequest, PlanResult
+from ff_planner.model.profile import BOX_DEFAULT_STEPS, CurrentProfile, PlanningError, PlanRequest, PlanResult
 
 
 def test_profile_round_trip_2dof():
@@ -49,6 +49,15 @@ def test_setpoint_round_trip():
     np.testing.assert_array_equal(cur, [1.5, -2.0])
 
 
+def _node_request(msg, config=None):
+    """What the planner node makes of a PlanTrajectory request (its message decoding and checks)."""
+    from ff_planner.ros.messages import fields_from_msg
+    from ff_planner.service.planner_service import PlannerService, ServiceConfig
+
+    service = PlannerService(config or ServiceConfig(library_path="", warmup=False))
+    return service.make_request(fields_from_msg(msg)).request
+
+
 def test_request_round_trip_with_overrides():
     params = default_params("arm1dof").replace(pc=0.25, J=0.2)
     req = PlanRequest(model="arm1dof", q0=[0.1], qf=[1.1], tf=0.9, uncertain=["pc"],
@@ -56,7 +65,7 @@ def test_request_round_trip_with_overrides():
                       params=params)
     msg = convert.request_to_msg(req)
     assert sorted(msg.override_names) == ["J", "pc"]
-    back = convert.request_from_msg(msg)
+    back = _node_request(msg)
     assert back.params == params
     assert (back.model, list(back.q0), list(back.qf), back.tf) == ("arm1dof", [0.1], [1.1], 0.9)
     assert (back.objective, back.steps, back.starts, back.seed, back.time_budget) == (
@@ -66,17 +75,18 @@ def test_request_round_trip_with_overrides():
 
 def test_request_defaults_and_bad_override():
     msg = PlanTrajectory.Request(model="arm1dof", q0=[0.0], qf=[1.0], move_time=1.0, uncertain=["pc"])
-    req = convert.request_from_msg(msg, defaults=PlanRequest(starts=7, time_budget=4.0))
+    from ff_planner.service.planner_service import ServiceConfig
+    req = _node_request(msg, ServiceConfig(library_path="", warmup=False, default_starts=7, default_time_budget=4.0))
     assert req.steps is None and req.starts == 7 and req.time_budget == 4.0
     assert req.objective == "robust-box" and req.n_steps() == BOX_DEFAULT_STEPS       # the planner's defaults
     msg.objective = "robust-derivative"
-    assert convert.request_from_msg(msg).n_steps() == 3                 # 2 + k for one parameter
+    assert _node_request(msg).n_steps() == 3                 # 2 + k for one parameter
     msg.override_names, msg.override_values = ["nope"], [1.0]
     with pytest.raises(ParameterError, match="nope"):
-        convert.request_from_msg(msg)
+        _node_request(msg)
     msg.override_names, msg.override_values = ["pc"], []
-    with pytest.raises(ParameterError, match="override"):
-        convert.request_from_msg(msg)
+    with pytest.raises(PlanningError, match="override"):
+        _node_request(msg)
 
 
 def test_result_to_response():

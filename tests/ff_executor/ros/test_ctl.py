@@ -9,7 +9,8 @@ from rcl_interfaces.msg import ParameterType
 from ff_executor.ros import ctl, record
 from ff_msgs_py.launch import client_ros_settings
 
-SUBCOMMANDS = ("graph", "lifecycle", "fault-reset", "diag", "param", "plan", "execute", "record")
+SUBCOMMANDS = ("graph", "lifecycle", "fault-reset", "diag", "param", "plan", "execute", "record", "claim",
+               "release", "enable", "status", "echo", "call")
 
 
 def test_every_subcommand_has_help(capsys):
@@ -79,7 +80,10 @@ def test_plan_options_are_ff_plans():
     req = ctl._plan_request(a)
     assert req.model == "arm1dof" and list(req.qf) == [0.5] and req.tf == 0.8 and list(req.uncertain) == ["pc"]
     assert req.resolved_params().pc == 0.2
-    assert isinstance(a, argparse.Namespace) and a.plan_service == "/ff_planner/plan"
+    assert isinstance(a, argparse.Namespace) and ctl._node_name(a.plan_service, a.namespace) == "/ff_planner/plan"
+    a = ctl.build_parser().parse_args(["plan", "--qf", "0.5", "--tf", "0.8", "--namespace", "arm_a"])
+    assert ctl._node_name(a.plan_service, a.namespace) == "/arm_a/ff_planner/plan"
+    assert ctl._node_name("/ff_planner/plan", "arm_a") == "/ff_planner/plan"
 
 
 def test_execute_prints_the_models_prediction_beside_the_measured_rest():
@@ -109,6 +113,22 @@ def test_timing_notes_say_when_the_simulator_was_late_or_the_bridge_latched():
     assert "started 3 current change(s) late" in note and "228.1 ms" in note and "simulation" in note
     latched = [_status("ff_hwbridge: drive group", 2, "safe state: setpoint missed its SYNC cycle"), quiet[1]]
     assert ctl.timing_notes(quiet, latched) == ["ff_hwbridge: drive group: safe state: setpoint missed its SYNC cycle"]
+
+
+def test_the_bridges_part_of_the_notes_comes_from_its_typed_status():
+    from ff_msgs.msg import DriveGroupStatus
+
+    quiet = [_status("ff_hwbridge: drive group", 0, "operation enabled")]
+    latched = [_status("ff_hwbridge: drive group", 2, "safe state: a string nobody parses")]
+    ok = DriveGroupStatus(state=DriveGroupStatus.ACTIVE, owner="/ff_executor", refused=2)
+    safe = DriveGroupStatus(state=DriveGroupStatus.SAFE_STATE, latch_reason="setpoint watchdog: no fresh "
+                            "setpoint", owner="/operator", claimed=True, refused=40,
+                            last_refusal="setpoint refused: the drive is claimed by /operator (no token)")
+    notes = ctl.timing_notes(quiet, latched, ok, safe)
+    assert notes[0] == "/ff_hwbridge: safe state: setpoint watchdog: no fresh setpoint"
+    assert "refused 38 command(s)" in notes[1] and "claimed by /operator" in notes[1]
+    assert len(notes) == 2                      # the diagnostics string is not read as well
+    assert ctl.timing_notes(quiet, quiet, ok, ok) == []
 
 
 def test_plan_takes_a_tolerance_search_and_execute_keeps_its_landing_tolerance():

@@ -83,7 +83,10 @@ def test_layout_names_match_the_suites_joints_bridge_status_and_diagnostic_keys(
     for c in curves:
         if c.startswith(("/ff_hwbridge/joint_states/", "/ff_hwbridge/motor_currents/", "/ff_sim_driver/ground_truth/")):
             assert c.split("/")[-2] in joints, c
-    assert 'NODE_NAME = "ff_hwbridge"' in bridge and 'status.name = f"{NODE_NAME}: drive group"' in bridge
+    # the drive group's status is named after the node's full name: "ff_hwbridge: drive group"
+    # without a namespace
+    assert 'NODE_NAME = "ff_hwbridge"' in bridge and 'super().__init__(NODE_NAME' in bridge
+    assert "return f\"{self.get_fully_qualified_name().lstrip('/')}: drive group\"" in bridge
     keys = "".join(_method(text, name) for text in (player, player_process)
                    for name in ("diagnostics", "_switch_diagnostics"))
     sim = _method(sim, "_publish_diagnostics")

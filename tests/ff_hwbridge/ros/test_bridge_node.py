@@ -33,7 +33,10 @@ def bridge(ros_env):
               Parameter("sync_timeout", value=2.0),   # the SYNC producer shares the GIL with the test too
               # and so does the setpoint player: a setpoint taking effect cycles late is counted,
               # not a safe state, here (the cycle timing is tested across processes)
-              Parameter("missed_cycle_tolerance", value=100)]
+              Parameter("missed_cycle_tolerance", value=100),
+              # the test's client is the default owner: its token-less setpoints move the arm
+              # while it is their sole publisher and nobody holds a claim
+              Parameter("default_owner", value="ff_bridge_test_client")]
     try:
         with ros_context() as ctx:
             node = BridgeNode(context=ctx, parameter_overrides=params)

@@ -96,7 +96,9 @@ def bridge(rig, ros_env):
               Parameter("heartbeat_timeout", value=1.0), Parameter("sync_timeout", value=2.0),
               Parameter("master_heartbeat_timeout_ms", value=3000), Parameter("rpdo_timeout_ms", value=0),
               Parameter("setpoint_timeout", value=SETPOINT_TIMEOUT),
-              Parameter("scheduler_rt_priority", value=0), Parameter("joint_state_rate", value=50.0)]
+              Parameter("scheduler_rt_priority", value=0), Parameter("joint_state_rate", value=50.0),
+              # the test's client commands as the default owner (no claim, sole publisher)
+              Parameter("default_owner", value="ff_topic_interface_test")]
     with ros_context() as ctx:
         node = BridgeNode(context=ctx, parameter_overrides=params)
         client = Node("ff_topic_interface_test", context=ctx)

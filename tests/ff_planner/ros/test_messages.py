@@ -122,9 +122,16 @@ def test_response_to_result_carries_the_certificate_into_the_motion_file(tmp_pat
 
 
 def test_request_to_msg_and_back_carries_limits_tolerance_box_and_coast_max():
-    from ff_msgs_py.convert import request_from_msg, request_to_msg
+    from ff_msgs_py.convert import request_to_msg
     from ff_planner.model.limits import MotionLimits
     from ff_planner.model.profile import PlanRequest
+    from ff_planner.ros.messages import fields_from_msg
+    from ff_planner.service.planner_service import PlannerService, ServiceConfig
+
+    service = PlannerService(ServiceConfig(library_path="", warmup=False))
+
+    def request_from_msg(m):        # what the planner node makes of a message
+        return service.make_request(fields_from_msg(m)).request
 
     req = PlanRequest(qf=(1.0,), tf=2.0, box={"pc": 0.3}, coast_max=0.2,
                       limits=MotionLimits.of([-0.3], [1.05], [4.0]), tolerance=2e-3,
@@ -135,7 +142,7 @@ def test_request_to_msg_and_back_carries_limits_tolerance_box_and_coast_max():
     back = request_from_msg(msg)
     assert (back.limits, back.tolerance, back.move_time_max, back.tf) == (req.limits, 2e-3, 2.0, 2.0)
     assert back.box == {"pc": 0.3} and back.coast_max == 0.2
-    plain = request_to_msg(PlanRequest())
+    plain = request_to_msg(PlanRequest(qf=(1.0,)))
     assert (list(plain.position_min), plain.tolerance, plain.move_time_max, plain.coast_max) == \
         ([], 0.0, 0.0, 0.0)
     assert request_from_msg(plain).limits is None and request_from_msg(plain).tolerance is None

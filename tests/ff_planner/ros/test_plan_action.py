@@ -22,6 +22,7 @@ def planner(ros_env, tmp_path_factory):
     params.write_text("""ff_planner:
   ros__parameters:
     library_path: ""
+    drive_config: ""                 # continuous plans (the shipped default is drive-exact)
     workers: 2
     warmup: false
     max_time_budget: 600.0

@@ -28,6 +28,7 @@ def planner_node(ros_env, tmp_path_factory):
   ros__parameters:
     library_path: "{folder / 'motions.sqlite'}"
     motion_dir: "{folder / 'motions'}"
+    drive_config: ""                 # continuous plans (the shipped default is drive-exact)
     workers: 2
     max_pending: 4
     default_time_budget: 150.0
