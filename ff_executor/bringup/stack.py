@@ -149,9 +149,6 @@ class StackOptions:
                                                # plus a jitter drawn uniformly in [0, this] (0: ideal)
     player_process: bool = True                # sync: the bridge's setpoint player in a process of
                                                # its own, which no ROS executor (nor its GIL) stalls
-    setpoint_lead: float = 0.1                 # s: with the player process, setpoints go to the
-                                               # hub's transmit schedule up to this early (the
-                                               # bridge's setpoint_lead; 0 = sent in the cycle before)
     stall_dump: float = 0.1                    # s: the bridge's setpoint cycle away this long while
                                                # setpoints are pending dumps every thread's stack
                                                # to ff_hwbridge.out (0 = off)
@@ -170,7 +167,7 @@ class StackOptions:
                                                # config/bridge_epos4_1dof.yaml) run as it is, only its
                                                # bus re-pointed at the hub: its SYNC producer, period,
                                                # player placement, heartbeats and derived timeouts;
-                                               # setpoint_timing, player_process, setpoint_lead,
+                                               # setpoint_timing, player_process,
                                                # stall_dump and rt_priority above then do not apply
                                                # to the bridge (None: the stack's own bridge config)
 
@@ -471,8 +468,6 @@ class Stack:
             bdata["sync_producer"] = "external"
         if self.options.setpoint_timing == "sync":
             bdata["player_process"] = bool(self.options.player_process)
-            if self.options.player_process:
-                bdata["setpoint_lead"] = float(self.options.setpoint_lead)
         bdata["stall_dump"] = float(self.options.stall_dump)
         if self.options.rt_priority:
             bdata["scheduler_rt_priority"] = int(self.options.rt_priority)
@@ -777,11 +772,8 @@ def build_parser() -> argparse.ArgumentParser:
     ap.add_argument("--bridge-config", default=None, metavar="YAML",
                     help="run this bridge config as a robot would (e.g. config/bridge_epos4_1dof.yaml: "
                          "in-process player, 10 ms SYNC from a kernel-like timer: the hub's), its bus re-pointed at "
-                         "the simulated hub; --setpoint-timing/--setpoint-lead/--rt-priority then do not "
+                         "the simulated hub; --setpoint-timing/--rt-priority then do not "
                          "apply to the bridge (default: the stack's own lenient config)")
-    ap.add_argument("--setpoint-lead", type=float, default=StackOptions.setpoint_lead, metavar="S",
-                    help="s: the bridge's player process hands setpoints to the hub's transmit "
-                         "schedule up to this early (0..0.25; 0 = sent in the cycle before)")
     return ap
 
 
@@ -792,15 +784,13 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         opts = StackOptions(model=a.model, true_scale=parse_key_values(a.true_scale, "--true-scale"),
                             true_params=parse_key_values(a.true_param, "--true-param"), planner=not a.no_planner,
                             hub_port=a.hub_port, start_timeout=a.start_timeout, rt_priority=a.rt_priority,
-                            setpoint_timing=a.setpoint_timing, setpoint_lead=a.setpoint_lead,
+                            setpoint_timing=a.setpoint_timing,
                             bridge_config_file=a.bridge_config, **environment_options(a))
         opts.true_friction()
         if a.bridge_config:
             robot_bridge_config(a.bridge_config, a.model, "ws://127.0.0.1:1/")
         if not 0 <= a.rt_priority <= 99:
             raise ValueError(f"--rt-priority must be 0..99, got {a.rt_priority}")
-        if not 0.0 <= a.setpoint_lead <= 0.25:
-            raise ValueError(f"--setpoint-lead must be 0..0.25 s, got {a.setpoint_lead}")
     except (ParameterError, ValueError) as exc:
         print(f"ff-bringup: {exc}", file=sys.stderr)
         return 2

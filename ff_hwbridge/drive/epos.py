@@ -362,10 +362,10 @@ class EposMaster(StateMachine, RpdoWriter, FeedbackReceiver, Watchdogs, Boot):
         self.guard.feed(self.clock(), motion_running)
         if starts:
             for d in self._drives:
-                d.limited_count, d.limited_first_ns = 0, 0
+                d.limited_count, d.limited_first_ns, d.limited_armed = 0, 0, True
 
     def motion_limits(self) -> list[tuple[int, int]]:
-        """Per joint, during the latest motion (from its first setpoint until it ended): how many
+        """Per joint, since the latest motion's first setpoint (through its applied end): how many
         feedback TPDOs had statusword bit 11 set (internal limit active: the drive clipped the
         command, so the move did not get the planned current) and the wall ns of the first
         (0: none)."""

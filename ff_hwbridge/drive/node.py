@@ -91,6 +91,7 @@ class _Drive:
     notes: list = field(default_factory=list)   # drive settings that could not be applied
     envelope_armed: bool = True   # False after a fault reset outside the envelope
     consumer_armed: bool = False  # 0x1016:01 consumes this master's heartbeat (disarmed on exit)
+    limited_armed: bool = False   # a motion has started: bit 11 counts until the next one starts
     limited_count: int = 0        # TPDO1s with statusword bit 11 (internal limit) in this motion
     limited_first_ns: int = 0     # wall ns (sample instant) of the first of them; 0: none
 

@@ -64,7 +64,9 @@ class FeedbackReceiver(MasterBase):
             if state is not before and self.external_player:
                 self._gate_changed()
             d.tpdo_seen = True
-            if sw & SW_INTERNAL_LIMIT and self.guard.motion_running:
+            # counted from a motion's start until the next one starts, not only while its
+            # setpoints arrive: they arrive a lead time ahead of the instants the drive applies them
+            if sw & SW_INTERNAL_LIMIT and d.limited_armed:
                 if not d.limited_count:
                     d.limited_first_ns = fb.sample_ns
                 d.limited_count += 1

@@ -191,8 +191,8 @@ PARAMS: dict[str, tuple[Any, str]] = {
                             "configure (then wait for its boot-up)"),
     "player_process": (_default("player_process"), "synchronous timing: the setpoint player in a process "
                        "of its own"),
-    "setpoint_lead": (_default("setpoint_lead"), "s, hand each setpoint this early to the bus's transmit "
-                      "schedule (0 = sent in the cycle before its SYNC)"),
+    "setpoint_lead": (_default("setpoint_lead"), "s, no longer used (accepted with a warning): the player "
+                      "sends every setpoint itself, in the cycle before its SYNC"),
     "stall_dump": (_default("stall_dump"), "s, the player away this long with setpoints pending dumps "
                    "every thread's stack to the log (0 = off)"),
     "spin_margin": (_default("spin_margin"), "s, the scheduler sleeps until this long before a stamp, then spins"),

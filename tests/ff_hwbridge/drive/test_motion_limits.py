@@ -1,6 +1,7 @@
 """Clipping is a failed move: statusword bit 11 (internal limit active) seen during a motion is
-latched per motion in the master's status (count and first instant), cleared when the next
-motion starts; outside a motion it is only the live flag. Simulated EPOS4 whose own current
+latched per motion in the master's status (count and first instant) from the motion's first
+setpoint until the next motion starts (its tail included); before any motion it is only the live
+flag. Simulated EPOS4 whose own current
 limit (1 A) is below the command, python-can virtual bus."""
 from __future__ import annotations
 
@@ -39,6 +40,13 @@ def test_internal_limit_during_a_motion_is_latched_until_the_next_motion():
         st = master.status()
         assert not st["joint1.internal_limit_active"]
         assert st["joint1.motion_limited_count"] >= count and st["joint1.motion_limited_first_ns"] == first
+        # the motion's tail: its setpoints have all arrived (they lead the drive), the drive
+        # still applies them: clipping there counts for this motion too
+        before = master.motion_limits()[0][0]
+        master.command_currents([2.0])
+        assert wait_for(lambda: master.motion_limits()[0][0] > before)
+        assert master.motion_limits()[0][1] == first
+        master.command_currents([0.5])
         master.note_setpoint(motion_running=True)           # the next motion: a clean record
         assert master.motion_limits() == [(0, 0)]
         time.sleep(0.1)

@@ -1,5 +1,5 @@
-"""ff-plan --cell (ff_planner.cli.plan hands it to ff_planner.cli.plan_urdf): a plan for the 1-DOF arm from its URDF, and one-line
-refusals of bad input."""
+"""ff-plan --cell (ff_planner.cli.plan hands it to ff_planner.cli.plan_urdf): a plan for the
+1-DOF arm from its URDF, and one-line refusals of bad input."""
 from __future__ import annotations
 
 import json
