@@ -47,6 +47,8 @@ def test_internal_limit_during_a_motion_is_latched_until_the_next_motion():
         assert wait_for(lambda: master.motion_limits()[0][0] > before)
         assert master.motion_limits()[0][1] == first
         master.command_currents([0.5])
+        assert wait_for(lambda: not master.status()["joint1.internal_limit_active"])
+        time.sleep(0.05)                                    # the last clipped TPDO is in
         master.note_setpoint(motion_running=True)           # the next motion: a clean record
         assert master.motion_limits() == [(0, 0)]
         time.sleep(0.1)
