@@ -481,6 +481,7 @@ class ExecutorNode(Node):
             self._effort_log = deque(maxlen=200_000)
             self._applied = {}
             missed_before = self._bridge_missed
+            refused_before = None if self._status is None else int(self._status.refused)
         back = [list(cfg.joint_names).index(n) for n in goal.profile.joint_names]
         lost = {"flag": False}
 
@@ -530,7 +531,7 @@ class ExecutorNode(Node):
         if pos is None:
             return self._finish(goal_handle, False, "no joint state to judge the move",
                                 motion, stream, start_delay, how="abort", missed_before=missed_before)
-        not_driven = self._not_driven(stream, received)
+        not_driven = self._not_driven(stream, received, refused_before)
         if not_driven:
             return self._finish(goal_handle, False, f"aborted: {not_driven}; the arm is at "
                                 f"{np.round(pos, 6).tolist()} rad", motion, stream, start_delay,
@@ -566,14 +567,22 @@ class ExecutorNode(Node):
         clips = clipped_joints(values, self.config.joint_names, since_ns)
         return clipping_message(clips, start_ns, period) if clips else ""
 
-    def _not_driven(self, stream: Stream, since_ns: int) -> str:
+    def _not_driven(self, stream: Stream, since_ns: int, refused_before: Optional[int] = None) -> str:
         """Why the bridge did not drive the profile as streamed ("" = it did): it latched its safe
-        state during the move, or it reports applied setpoints but not every current change."""
+        state during the move, its typed status counts setpoints refused since the move began
+        (``refused_before``: its refusal counter then; not the owner's, e.g. a claim or a second
+        publisher on the setpoint topic), or it reports applied setpoints but not every current
+        change."""
         with self._state_lock:
             latch_ns, latch = self._latch_seen_ns, self._bridge_latch
             applied, applied_rx = dict(self._applied), self._applied_rx_ns
+            status = self._status
         if latch_ns >= since_ns:
             return f"the bridge latched its {latch or 'safe state'} during the move"
+        if (refused_before is not None and status is not None and status.refused > refused_before
+                and str(status.last_refusal).startswith("setpoint")):
+            return (f"the bridge refused {status.refused - refused_before} command(s) during the move, "
+                    f"the latest: {status.last_refusal}")
         if applied_rx >= since_ns:
             switches = [p.setpoint for p in stream.published if p.setpoint.switch]
             got = sum((sp.profile_id, sp.seq) in applied for sp in switches)

@@ -62,6 +62,8 @@ class FakeBridge(Node):
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.status_pub = self.create_publisher(DriveGroupStatus, "~/status", 10)
         self.claimed_by = ""              # != "": the typed status shows this node's claim
+        self.refuse = False               # setpoints refused (not the owner's) and counted
+        self.refused = 0
         self.sync_period = 0.0            # s; > 0: setpoints latched at SYNC
         self.miss_seqs: set[int] = set()  # SYNC mode: these take effect one cycle late
         self.latch = ""                   # != "": report a latched safe state with this reason
@@ -89,6 +91,9 @@ class FakeBridge(Node):
                 period = int(round(self.sync_period * 1e9))
                 at = -(-stamp // period) * period + (period if seq in self.miss_seqs else 0)
             if seq in self.drop_seqs:
+                return
+            if self.refuse:
+                self.refused += 1
                 return
             self.pending.append((at, seq, float(cur[0]), pid, msg))
             self.pending.sort(key=lambda x: (x[0], x[1]))
@@ -154,7 +159,9 @@ class FakeBridge(Node):
         self.status_pub.publish(DriveGroupStatus(
             state=DriveGroupStatus.ACTIVE, message=text, joint_names=["joint1"],
             owner=self.claimed_by or "/ff_executor", claimed=bool(self.claimed_by),
-            lease_left=1.5 if self.claimed_by else 0.0))
+            lease_left=1.5 if self.claimed_by else 0.0, refused=self.refused,
+            last_refusal="setpoint refused: only the default owner /ff_executor commands without a claim; "
+                         "claim the drive first (~/claim)" if self.refused else ""))
 
 
 @pytest.fixture(scope="module")
@@ -301,6 +308,20 @@ def test_refuses_with_a_reason_and_sends_nothing(stack, kind, text):
     assert result.message.startswith("refused:") and text in result.message, result.message
     time.sleep(0.2)
     assert bridge.received == []
+
+
+def test_setpoints_the_bridge_refused_abort_the_move_with_its_reason(stack):
+    bridge, client, _ = stack
+    bridge.reset(0.0)
+    bridge.refuse = True
+    time.sleep(0.3)
+    try:
+        status, result = run_goal(client, goal_for()[0])
+    finally:
+        bridge.refuse = False
+    assert status == GoalStatus.STATUS_ABORTED and not result.success
+    assert "the bridge refused 6 command(s) during the move" in result.message, result.message
+    assert "only the default owner" in result.message
 
 
 @pytest.mark.parametrize("how", ["latched", "dropped"])
