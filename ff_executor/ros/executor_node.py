@@ -93,6 +93,8 @@ READY_LINE = "ff_executor ready"
 
 #: s, the longest the result waits for a bridge status newer than the last applied report
 DIAG_WAIT = 0.6
+#: s, the longest the result waits for the bridge's reports of the move's last current changes
+APPLIED_WAIT = 1.0
 #: Every parameter of this node, with its default, unit, range and description (the single
 #: source: ``config/executor.yaml`` and ``docs/parameters.md`` are written from it).
 PARAMETERS: ParamTable = EXECUTOR_PARAMETERS
@@ -585,7 +587,14 @@ class ExecutorNode(Node):
                     f"the latest: {status.last_refusal}")
         if applied_rx >= since_ns:
             switches = [p.setpoint for p in stream.published if p.setpoint.switch]
-            got = sum((sp.profile_id, sp.seq) in applied for sp in switches)
+            end = self._now_ns() + int(APPLIED_WAIT * NS)
+            while True:     # the latest reports may still be on their way from a busy bridge
+                got = sum((sp.profile_id, sp.seq) in applied for sp in switches)
+                if got == len(switches) or self._now_ns() >= end:
+                    break
+                time.sleep(0.01)
+                with self._state_lock:
+                    applied = dict(self._applied)
             if got < len(switches):
                 return f"the bridge applied {got} of the profile's {len(switches)} current changes"
         return ""
