@@ -6,6 +6,7 @@
     ff-bringup --print-config               # the effective configuration, nothing started
     ff-bringup --bridge-config config/bridge_epos4_1dof.yaml   # the shipped robot config, bus on the hub
     ff-bringup --record run_bag             # also record the topics (ff-record, rosbag2/MCAP)
+    ff-bringup --namespace arm_a            # every node under /arm_a (a second arm: --namespace arm_b)
 
 Safe defaults, always: ROS traffic on loopback only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``),
 the CAN hub on 127.0.0.1 in its own process (it also produces SYNC). The domain: ``--domain-id``, else
@@ -42,6 +43,12 @@ applies setpoints when they arrive instead, with the bridge producing SYNC), 50 
 3 s timeout on both sides and 3 s for the executor's joint-state watchdog (above the scheduling
 gaps of a normal-priority process on a loaded shared machine, measured up to 1.4 s); a bridge
 that fails its enable sequence is restarted once.
+
+``--namespace NS`` starts every node under ``/NS`` (``/NS/ff_executor``, ``/NS/ff_hwbridge``, ...)
+with its own CAN hub, so two stacks share one ROS domain: their parameters come from the same
+shipped files, merged and written for the namespaced node names; the executor's topics are the
+bridge's inside NS, and its ``bridge_node`` (relative) finds the bridge there. Talk to it with
+``ff-ctl --namespace NS``. ``--record`` is refused with it (ff-record records the root names).
 
 ``--bridge-config FILE`` runs a robot's bridge file instead, as it is, with only its ``bus``
 section replaced by the hub (``remote``, ws://127.0.0.1:PORT/): for the shipped
@@ -127,6 +134,7 @@ class StackOptions:
     planner: bool = True
     executor: bool = True
     hub_port: int = 0                          # 0 = a free port on 127.0.0.1
+    namespace: str = ""                        # ROS namespace of every node ("arm_a"); "" = root
     domain_id: Optional[int] = None            # None = random per run
     run_dir: Optional[str] = None              # logs, generated parameter files, motion library
     log_dir: Optional[str] = None              # ROS_LOG_DIR; None = <run_dir>/ros-log
@@ -206,6 +214,29 @@ def free_port() -> int:
 def _params_file(path: Path, node: str, params: Mapping[str, object]) -> Path:
     path.write_text(yaml.safe_dump({node: {"ros__parameters": dict(params)}}, sort_keys=False))
     return path
+
+
+def merged_parameters(files: Sequence[str], node: str, over: Mapping[str, object]) -> dict:
+    """``ros__parameters`` of ``node`` from each file in order, then ``over``."""
+    out: dict[str, object] = {}
+    for f in files:
+        data = yaml.safe_load(Path(f).read_text()) or {}
+        out.update((data.get(node) or {}).get("ros__parameters") or {})
+    out.update(over)
+    return out
+
+
+def check_namespace(namespace: str) -> str:
+    """``"/arm_a"`` for ``"arm_a"`` or ``"/arm_a"`` ("" for ""); ValueError on a name ROS refuses
+    (segments of letters, digits and ``_``, not starting with a digit)."""
+    ns = namespace.strip().strip("/")
+    if not ns:
+        return ""
+    for seg in ns.split("/"):
+        if not seg or not (seg[0].isalpha() or seg[0] == "_") or not all(c.isalnum() or c == "_" for c in seg):
+            raise ValueError(f"--namespace {namespace!r}: use letters, digits and _ (not first), "
+                             "segments separated by /, e.g. arm_a")
+    return "/" + ns
 
 
 def bridge_config(model: str, hub_url: str) -> dict:
@@ -314,6 +345,25 @@ class Stack:
         self._ctx: Optional[Context] = None
         self._node: Optional[Node] = None
         self._robot: Optional[dict] = None
+        self.ns = check_namespace(self.options.namespace)
+
+    def name(self, relative: str) -> str:
+        """The fully qualified name of a node, topic or service of the stack (``ff_hwbridge`` ->
+        ``/arm_a/ff_hwbridge`` under the namespace arm_a)."""
+        return f"{self.ns}/{relative.lstrip('/')}"
+
+    def _node_args(self, node: str, files: Sequence[str], over: Mapping[str, object], path: Path) -> list[str]:
+        """``--ros-args`` for ``node``: its parameter files then ``over`` (written to ``path``); under
+        a namespace all merged into ``path`` keyed by the namespaced name (a file's plain ``node``
+        key matches only the root one), and the namespace remap."""
+        if not self.ns:
+            args = ["--ros-args"] + [x for f in files for x in ("--params-file", f)]
+            if over:
+                args += ["--params-file", str(_params_file(path, node, over))]
+            return args
+        merged = merged_parameters(files, node, over)
+        return ["--ros-args", "-r", f"__ns:={self.ns}",
+                "--params-file", str(_params_file(path, self.name(node), merged))]
 
     @property
     def hub_url(self) -> str:
@@ -325,7 +375,7 @@ class Stack:
             apply_ros_environment(self.env)
             self._ctx = rclpy.Context()
             rclpy.init(context=self._ctx)
-            self._node = Node(f"ff_bringup_{os.getpid()}", context=self._ctx)
+            self._node = Node(f"ff_bringup_{os.getpid()}", namespace=self.ns or None, context=self._ctx)
         return self._node
 
     def has_service(self, name: str) -> bool:
@@ -335,7 +385,7 @@ class Stack:
     def lifecycle_state(self, node_name: str) -> Optional[str]:
         """The lifecycle state label of ``node_name`` (e.g. "active"), None if it does not answer."""
         node = self._probe()
-        cli = node.create_client(GetState, f"/{node_name}/get_state")
+        cli = node.create_client(GetState, f"{self.name(node_name)}/get_state")
         try:
             if not cli.wait_for_service(timeout_sec=0.5):
                 return None
@@ -507,25 +557,25 @@ class Stack:
             ep["joint_names"] = [j["name"] for j in bridge_config(o.model, self.hub_url)["joints"]]
         else:
             files = [o.executor_params]
+        if self.ns:     # the bridge's topics inside the namespace (bridge_node is relative)
+            given = merged_parameters(files, "ff_executor", {})
+            for key in ("setpoint_topic", "joint_state_topic", "current_topic", "applied_topic"):
+                topic = str(given.get(key, ""))
+                if topic.startswith("/"):
+                    ep[key] = self.name(topic)
         ep.update(o.executor_overrides)
         return files, ep
 
     def effective_config(self) -> dict:
         """Everything start() would use, with the value each process ends up with (for --print-config)."""
-        def merged(files: list[str], node: str, over: Mapping[str, object]) -> dict:
-            out: dict[str, object] = {}
-            for f in files:
-                data = yaml.safe_load(Path(f).read_text()) or {}
-                out.update((data.get(node) or {}).get("ros__parameters") or {})
-            out.update(over)
-            return out
-
+        merged = merged_parameters
         o = self.options
         pf, pov = self.planner_files()
         ef, eov = self.executor_files()
         return {
             "ros": {k: self.env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_LOG_DIR")},
             "run_dir": str(self.run_dir), "can_hub": self.hub_url, "record": o.record,
+            "namespace": self.ns or "/",
             "ff_sim_driver": {"source": ("generated (family, counts_per_rev, nominal_current from "
                                          f"{o.bridge_config_file or 'config/sim_arm1dof.yaml'})"),
                               "parameters": self.sim_parameters()},
@@ -558,21 +608,18 @@ class Stack:
                                  "--sync-jitter-model-us", str(float(o.sync_jitter_model_us))]
                 p = self._start("ff_can_hub", "ff_hwbridge.cli.can_hub", hub_args, timing=True)
                 self._wait(p, lambda: "CAN hub on" in p.output(), "serving on 127.0.0.1")
-            sim = self.sim_parameters()
-            pf = _params_file(self.run_dir / "sim_driver.yaml", "ff_sim_driver", sim)
-            p = self._start("ff_sim_driver", "ff_hwbridge.ros.sim_driver_node",
-                            ["--ros-args", "--params-file", str(pf)], timing=True)
-            self._wait(p, lambda: self.has_service("/ff_sim_driver/reset"), "service ~/reset")
+            sim_args = self._node_args("ff_sim_driver", [], self.sim_parameters(), self.run_dir / "sim_driver.yaml")
+            p = self._start("ff_sim_driver", "ff_hwbridge.ros.sim_driver_node", sim_args, timing=True)
+            self._wait(p, lambda: self.has_service(self.name("ff_sim_driver/reset")), "service ~/reset")
 
             bcfg = self.run_dir / "bridge.yaml"
             bdata = self.bridge_data()
             bcfg.write_text(yaml.safe_dump(bdata, sort_keys=False))
             bp: dict[str, object] = {"config_file": str(bcfg)}
             bp.update(o.bridge_overrides)
-            pf = _params_file(self.run_dir / "bridge_params.yaml", "ff_hwbridge", bp)
+            bargs = self._node_args("ff_hwbridge", [], bp, self.run_dir / "bridge_params.yaml")
             for attempt in (1, 2):   # a busy machine can stall the first enable sequence
-                p = self._start("ff_hwbridge", "ff_hwbridge.ros.bridge_node",
-                                ["--autostart", "--ros-args", "--params-file", str(pf)], timing=True)
+                p = self._start("ff_hwbridge", "ff_hwbridge.ros.bridge_node", ["--autostart", *bargs], timing=True)
                 try:
                     self._wait(p, lambda: self.lifecycle_state("ff_hwbridge") == "active",
                                "lifecycle state active")
@@ -586,19 +633,15 @@ class Stack:
 
             if o.planner:
                 files, pp = self.planner_files()
-                over = _params_file(self.run_dir / "planner_overrides.yaml", "ff_planner", pp)
-                args = ["--ros-args"] + [x for f in files for x in ("--params-file", f)]
-                p = self._start("ff_planner", "ff_planner.ros.planner_node", args + ["--params-file", str(over)])
-                self._wait(p, lambda: self.has_service("/ff_planner/plan"), "service ~/plan")
+                args = self._node_args("ff_planner", files, pp, self.run_dir / "planner_overrides.yaml")
+                p = self._start("ff_planner", "ff_planner.ros.planner_node", args)
+                self._wait(p, lambda: self.has_service(self.name("ff_planner/plan")), "service ~/plan")
 
             if o.executor:
                 files, ep = self.executor_files()
-                args = ["--ros-args"] + [x for f in files for x in ("--params-file", f)]
-                if ep:
-                    over = _params_file(self.run_dir / "executor_overrides.yaml", "ff_executor", ep)
-                    args += ["--params-file", str(over)]
+                args = self._node_args("ff_executor", files, ep, self.run_dir / "executor_overrides.yaml")
                 p = self._start("ff_executor", "ff_executor.ros.executor_node", args, timing=True)
-                self._wait(p, lambda: self.has_service("/ff_executor/execute/_action/send_goal"),
+                self._wait(p, lambda: self.has_service(self.name("ff_executor/execute/_action/send_goal")),
                            "action ~/execute")
             if o.record:
                 p = self._start("ff_record", "ff_executor.ros.record", ["-o", str(o.record)])
@@ -623,7 +666,7 @@ class Stack:
         """Set parameters of the running ``ff_sim_driver`` (double, integer, bool or string
         values), all in one call; BringupError if it refuses or does not answer."""
         node = self._probe()
-        cli = node.create_client(SetParameters, "/ff_sim_driver/set_parameters")
+        cli = node.create_client(SetParameters, self.name("ff_sim_driver/set_parameters"))
         try:
             if not cli.wait_for_service(timeout_sec=timeout):
                 raise BringupError("ff_sim_driver's set_parameters service is not available")
@@ -761,6 +804,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="set a true parameter of the simulated arm (SI units), e.g. pc=0.25")
     ap.add_argument("--no-planner", action="store_true", help="do not start the planner node")
     ap.add_argument("--hub-port", type=int, default=0, help="CAN hub port on 127.0.0.1 (0 = free)")
+    ap.add_argument("--namespace", default="", metavar="NS",
+                    help="start every node under /NS (e.g. arm_a), with its own CAN hub: a second arm on the "
+                         "same ROS domain gets another NS (default: the root namespace)")
     add_environment_arguments(ap)
     ap.add_argument("--start-timeout", type=float, default=90.0, help="s per process")
     ap.add_argument("--rt-priority", type=int, default=0, metavar="N",
@@ -785,7 +831,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                             true_params=parse_key_values(a.true_param, "--true-param"), planner=not a.no_planner,
                             hub_port=a.hub_port, start_timeout=a.start_timeout, rt_priority=a.rt_priority,
                             setpoint_timing=a.setpoint_timing,
-                            bridge_config_file=a.bridge_config, **environment_options(a))
+                            bridge_config_file=a.bridge_config, namespace=a.namespace,
+                            **environment_options(a))
+        check_namespace(a.namespace)
+        if a.namespace.strip("/ ") and a.record:
+            raise ValueError("--record records the root namespace's topics; record a namespaced stack "
+                             "with ros2 bag or leave --namespace out")
         opts.true_friction()
         if a.bridge_config:
             robot_bridge_config(a.bridge_config, a.model, "ws://127.0.0.1:1/")

@@ -110,14 +110,17 @@ class SafeActionClient(ActionClient):
 class StackClient:
     """rclpy node + executor thread in this process; apply the stack's env before creating it."""
 
-    def __init__(self, env: Mapping[str, str], name: str = "ff_client") -> None:
+    def __init__(self, env: Mapping[str, str], name: str = "ff_client", namespace: str = "") -> None:
+        """``namespace``: the stack's (``ff-bringup --namespace``, e.g. "arm_a"); "" = root."""
         apply_ros_environment(env)
+        ns = f"/{namespace.strip('/')}" if namespace.strip("/") else ""
+        self.ns = ns
         self.ctx = rclpy.Context()
         rclpy.init(context=self.ctx)
         self.node = Node(name, context=self.ctx)
-        self.plan_client = self.node.create_client(PlanTrajectory, "/ff_planner/plan")
-        self.reset_client = self.node.create_client(Trigger, "/ff_sim_driver/reset")
-        self.action = SafeActionClient(self.node, ExecuteProfile, "/ff_executor/execute")
+        self.plan_client = self.node.create_client(PlanTrajectory, f"{ns}/ff_planner/plan")
+        self.reset_client = self.node.create_client(Trigger, f"{ns}/ff_sim_driver/reset")
+        self.action = SafeActionClient(self.node, ExecuteProfile, f"{ns}/ff_executor/execute")
         qos = QoSProfile(depth=200, reliability=ReliabilityPolicy.BEST_EFFORT)
         self._lock = threading.Lock()
         self._truth: Optional[Recording] = None
@@ -125,10 +128,10 @@ class StackClient:
         self.last_truth: Optional[tuple[float, np.ndarray, np.ndarray]] = None   # (t s, q rad, qd rad/s)
         # monotonic s of the latest sample received from the simulated arm and from the bridge
         self._heard: dict[str, float] = {}
-        self.node.create_subscription(JointState, "/ff_sim_driver/ground_truth",
+        self.node.create_subscription(JointState, f"{ns}/ff_sim_driver/ground_truth",
                                       lambda m: self._on_js(m, "truth"), qos)
         # the bridge's samples with effort = motor current A (its joint_states carry N·m)
-        self.node.create_subscription(JointState, "/ff_hwbridge/motor_currents",
+        self.node.create_subscription(JointState, f"{ns}/ff_hwbridge/motor_currents",
                                       lambda m: self._on_js(m, "joints"), qos)
         self._stamps: dict[tuple[str, int], tuple[int, tuple[float, ...]]] = {}
         self._applied: dict[tuple[str, int], int] = {}
@@ -142,8 +145,8 @@ class StackClient:
                 self._applied[(m.profile_id, m.seq)] = time_to_ns(m.stamp)
 
         rel = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
-        self.node.create_subscription(CurrentSetpoint, "/ff_hwbridge/setpoints", on_setpoint, rel)
-        self.node.create_subscription(CurrentSetpoint, "/ff_hwbridge/applied", on_applied, rel)
+        self.node.create_subscription(CurrentSetpoint, f"{ns}/ff_hwbridge/setpoints", on_setpoint, rel)
+        self.node.create_subscription(CurrentSetpoint, f"{ns}/ff_hwbridge/applied", on_applied, rel)
         self.executor = MultiThreadedExecutor(num_threads=2, context=self.ctx)
         self.executor.add_node(self.node)
         self._spin = threading.Thread(target=self.executor.spin, daemon=True)

@@ -11,8 +11,16 @@ A thin adapter around :mod:`ff_executor.engine`. For each goal it
    ``settle_hold`` s, at most ``settle_timeout`` s), then returns final position and velocity,
    the error to the goal and the switch-time statistics.
 
-Refusals. A goal is refused, and no current is sent, when the profile is bad, the bridge is not
-active, the arm is not at rest at q0, or another goal is running. By default
+Refusals. A goal is refused, and no current is sent, when the profile is bad, another client
+holds the drive (the bridge's typed status ``<bridge>/status``, ff_msgs/msg/DriveGroupStatus,
+shows a claim of ``<bridge>/claim`` by another node: the message names it and since when this
+node saw it; the bridge would refuse our setpoints), the bridge is not active, the arm is not at
+rest at q0, or another goal is running. Without a claim the executor is the bridge's default
+owner and its setpoints carry no token.
+
+Names. ``bridge_node`` relative (the default ``ff_hwbridge``) is the bridge in this node's
+namespace: started as ``/arm_a/ff_executor`` it watches ``/arm_a/ff_hwbridge``. The topic
+parameters are used as given (``ff-bringup --namespace`` passes them inside the namespace). By default
 (``refuse_mode: abort``) the goal is accepted and at once aborted with ``success = false`` and the
 reason in ``message`` — ROS 2 goal rejections cannot carry a reason, and a client should learn
 what to change. ``refuse_mode: reject`` rejects such goals at the goal-request stage instead (the
@@ -76,7 +84,7 @@ from ff_executor.engine.clipping import clipped_joints, clipping_message
 from ff_executor.engine.config import EXECUTOR_PARAMETERS
 from ff_executor.engine.paramspec import ParamTable
 from ff_msgs.action import ExecuteProfile
-from ff_msgs.msg import CurrentSetpoint
+from ff_msgs.msg import CurrentSetpoint, DriveGroupStatus
 from ff_msgs_py.convert import msg_to_profile, predicted_rest_of, setpoint_msg, time_to_ns
 from ff_msgs_py.shutdown import shut_down
 from ff_msgs_py.threads import in_thread
@@ -85,6 +93,8 @@ READY_LINE = "ff_executor ready"
 
 #: s, the longest the result waits for a bridge status newer than the last applied report
 DIAG_WAIT = 0.6
+#: s, the longest the result waits for the bridge's reports of the move's last current changes
+APPLIED_WAIT = 1.0
 #: Every parameter of this node, with its default, unit, range and description (the single
 #: source: ``config/executor.yaml`` and ``docs/parameters.md`` are written from it).
 PARAMETERS: ParamTable = EXECUTOR_PARAMETERS
@@ -97,6 +107,24 @@ def _number(values: dict[str, str], key: str, default: Optional[float] = 0.0) ->
     except (KeyError, ValueError):
         return default
     return x if np.isfinite(x) else default
+
+
+def qualified(name: str, namespace: str) -> str:
+    """The fully qualified node name of ``name``: itself when absolute, else in ``namespace``."""
+    name = name.strip()
+    return name if name.startswith("/") else f"{namespace.rstrip('/')}/{name}"
+
+
+def claim_refusal(status: Any, me: str, since_ns: int, now_ns: int) -> str:
+    """Why a goal cannot run while the bridge's typed ``status`` (ff_msgs/msg/DriveGroupStatus)
+    shows a claim held by another client than ``me`` ("" = none does); ``since_ns``/``now_ns``:
+    ns (ROS clock) when the claim was first seen and now."""
+    if status is None or not status.claimed or not status.owner or status.owner == me:
+        return ""
+    since = time.strftime("%H:%M:%S", time.gmtime(since_ns / NS)) + f".{since_ns // 1_000_000 % 1000:03d} UTC"
+    return (f"the drive is claimed by {status.owner} (since {since}, {max(now_ns - since_ns, 0) / NS:.1f} s; "
+            f"lease {status.lease_left:.1f} s left): its setpoints alone move the arm, ours would be refused; "
+            "wait until it releases the claim (or its lease runs out)")
 
 
 def descriptor(name: str) -> ParameterDescriptor:
@@ -147,6 +175,9 @@ class ExecutorNode(Node):
         self._bridge_latch = ""                   # the bridge's safe-state message ("" = none)
         self._latch_seen_ns = 0                   # ns: the last status that said "safe state" arrived
         self._diag_values: dict[str, str] = {}    # the bridge's latest drive-group status (key -> value)
+        self._status: Optional[Any] = None        # the bridge's latest typed status (DriveGroupStatus)
+        self._status_rx_ns = 0                    # ns: it arrived
+        self._claim_since: tuple[str, int] = ("", 0)   # (claimant, ns of the first status showing its claim)
 
         sensor_qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.BEST_EFFORT,
                                 history=HistoryPolicy.KEEP_LAST)
@@ -165,9 +196,13 @@ class ExecutorNode(Node):
                                  setpoint_qos, callback_group=self._io_group)
         self.create_subscription(DiagnosticArray, "/diagnostics", self._on_diagnostics, 10,
                                  callback_group=self._io_group)
-        self._state_client = self.create_client(GetState, f"/{g('bridge_node')}/get_state",
-                                                callback_group=self._client_group)
+        # the bridge's name: a relative one lies in this node's namespace (arm_a/ff_hwbridge)
         self.config_bridge = str(g("bridge_node"))
+        self.bridge_fqn = qualified(self.config_bridge, self.get_namespace())
+        self.create_subscription(DriveGroupStatus, f"{self.bridge_fqn}/status", self._on_status, 10,
+                                 callback_group=self._io_group)
+        self._state_client = self.create_client(GetState, f"{self.bridge_fqn}/get_state",
+                                                callback_group=self._client_group)
         self._wake = self.create_guard_condition(lambda: None)   # resumes awaited work (ff_msgs_py.threads)
         self._server = ActionServer(
             self, ExecuteProfile, "~/execute", execute_callback=self._execute_in_thread,
@@ -234,8 +269,26 @@ class ExecutorNode(Node):
             self._applied[(msg.profile_id, int(msg.seq))] = time_to_ns(msg.stamp)
             self._applied_rx_ns = now
 
+    def _on_status(self, msg: DriveGroupStatus) -> None:
+        now = self._now_ns()
+        claimant = str(msg.owner) if msg.claimed else ""
+        with self._state_lock:
+            self._status, self._status_rx_ns = msg, now
+            if claimant != self._claim_since[0]:
+                self._claim_since = (claimant, now)
+
+    def _claim_refusal(self) -> str:
+        """Why another client's claim keeps this goal from running ("" = none does), from the
+        bridge's typed status of the last 5 s."""
+        now = self._now_ns()
+        with self._state_lock:
+            status, rx, since = self._status, self._status_rx_ns, self._claim_since[1]
+        if status is None or now - rx > 5 * NS:
+            return ""
+        return claim_refusal(status, self.get_fully_qualified_name(), since, now)
+
     def _on_diagnostics(self, msg: DiagnosticArray) -> None:
-        prefix = f"{self.config_bridge}:"
+        prefix = f"{self.bridge_fqn.lstrip('/')}:"
         for status in msg.status:
             if not status.name.startswith(prefix):
                 continue
@@ -305,6 +358,9 @@ class ExecutorNode(Node):
                                    self.config, msg.profile_id)
         except ValueError as exc:
             return None, f"bad profile: {exc}"
+        claimed = self._claim_refusal()
+        if claimed:
+            return None, claimed
         if self._p("require_bridge_active"):
             label = self._bridge_state()
             if label is None:
@@ -317,7 +373,7 @@ class ExecutorNode(Node):
             latch, fresh = self._bridge_latch, self._now_ns() - self._diag_rx_ns < 5 * NS
         if latch and fresh:
             return None, (f"the bridge is in its {latch}; nothing would move: clear it first "
-                          f"(ff-ctl fault-reset, or the service /{self._p('bridge_node')}/fault_reset)")
+                          f"(ff-ctl fault-reset, or the service {self.bridge_fqn}/fault_reset)")
         pos, vel, t = self._state()
         if pos is not None and self._now_ns() - t > self._p("joint_state_timeout") * NS:
             pos = None
@@ -427,6 +483,7 @@ class ExecutorNode(Node):
             self._effort_log = deque(maxlen=200_000)
             self._applied = {}
             missed_before = self._bridge_missed
+            refused_before = None if self._status is None else int(self._status.refused)
         back = [list(cfg.joint_names).index(n) for n in goal.profile.joint_names]
         lost = {"flag": False}
 
@@ -476,7 +533,7 @@ class ExecutorNode(Node):
         if pos is None:
             return self._finish(goal_handle, False, "no joint state to judge the move",
                                 motion, stream, start_delay, how="abort", missed_before=missed_before)
-        not_driven = self._not_driven(stream, received)
+        not_driven = self._not_driven(stream, received, refused_before)
         if not_driven:
             return self._finish(goal_handle, False, f"aborted: {not_driven}; the arm is at "
                                 f"{np.round(pos, 6).tolist()} rad", motion, stream, start_delay,
@@ -512,17 +569,32 @@ class ExecutorNode(Node):
         clips = clipped_joints(values, self.config.joint_names, since_ns)
         return clipping_message(clips, start_ns, period) if clips else ""
 
-    def _not_driven(self, stream: Stream, since_ns: int) -> str:
+    def _not_driven(self, stream: Stream, since_ns: int, refused_before: Optional[int] = None) -> str:
         """Why the bridge did not drive the profile as streamed ("" = it did): it latched its safe
-        state during the move, or it reports applied setpoints but not every current change."""
+        state during the move, its typed status counts setpoints refused since the move began
+        (``refused_before``: its refusal counter then; not the owner's, e.g. a claim or a second
+        publisher on the setpoint topic), or it reports applied setpoints but not every current
+        change."""
         with self._state_lock:
             latch_ns, latch = self._latch_seen_ns, self._bridge_latch
             applied, applied_rx = dict(self._applied), self._applied_rx_ns
+            status = self._status
         if latch_ns >= since_ns:
             return f"the bridge latched its {latch or 'safe state'} during the move"
+        if (refused_before is not None and status is not None and status.refused > refused_before
+                and str(status.last_refusal).startswith("setpoint")):
+            return (f"the bridge refused {status.refused - refused_before} command(s) during the move, "
+                    f"the latest: {status.last_refusal}")
         if applied_rx >= since_ns:
             switches = [p.setpoint for p in stream.published if p.setpoint.switch]
-            got = sum((sp.profile_id, sp.seq) in applied for sp in switches)
+            end = self._now_ns() + int(APPLIED_WAIT * NS)
+            while True:     # the latest reports may still be on their way from a busy bridge
+                got = sum((sp.profile_id, sp.seq) in applied for sp in switches)
+                if got == len(switches) or self._now_ns() >= end:
+                    break
+                time.sleep(0.01)
+                with self._state_lock:
+                    applied = dict(self._applied)
             if got < len(switches):
                 return f"the bridge applied {got} of the profile's {len(switches)} current changes"
         return ""

@@ -25,7 +25,7 @@ from sensor_msgs.msg import JointState
 
 from ff_executor.ros.client import SafeActionClient
 from ff_msgs.action import ExecuteProfile
-from ff_msgs.msg import CurrentSetpoint
+from ff_msgs.msg import CurrentSetpoint, DriveGroupStatus
 from ff_msgs_py.convert import ns_to_time, profile_to_msg, setpoint_to_tuple
 from ff_msgs_py.launch import start_module, wait_for_line
 from ff_planner.model.arm1dof import advance
@@ -60,6 +60,10 @@ class FakeBridge(Node):
         self.js_pub = self.create_publisher(JointState, "~/joint_states", 10)
         self.applied_pub = self.create_publisher(CurrentSetpoint, "~/applied", qos)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        self.status_pub = self.create_publisher(DriveGroupStatus, "~/status", 10)
+        self.claimed_by = ""              # != "": the typed status shows this node's claim
+        self.refuse = False               # setpoints refused (not the owner's) and counted
+        self.refused = 0
         self.sync_period = 0.0            # s; > 0: setpoints latched at SYNC
         self.miss_seqs: set[int] = set()  # SYNC mode: these take effect one cycle late
         self.latch = ""                   # != "": report a latched safe state with this reason
@@ -87,6 +91,9 @@ class FakeBridge(Node):
                 period = int(round(self.sync_period * 1e9))
                 at = -(-stamp // period) * period + (period if seq in self.miss_seqs else 0)
             if seq in self.drop_seqs:
+                return
+            if self.refuse:
+                self.refused += 1
                 return
             self.pending.append((at, seq, float(cur[0]), pid, msg))
             self.pending.sort(key=lambda x: (x[0], x[1]))
@@ -149,6 +156,12 @@ class FakeBridge(Node):
         st = DiagnosticStatus(name="fake_bridge: drive group", level=level, message=text,
                               values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
         self.diag_pub.publish(DiagnosticArray(status=[st]))
+        self.status_pub.publish(DriveGroupStatus(
+            state=DriveGroupStatus.ACTIVE, message=text, joint_names=["joint1"],
+            owner=self.claimed_by or "/ff_executor", claimed=bool(self.claimed_by),
+            lease_left=1.5 if self.claimed_by else 0.0, refused=self.refused,
+            last_refusal="setpoint refused: only the default owner /ff_executor commands without a claim; "
+                         "claim the drive first (~/claim)" if self.refused else ""))
 
 
 @pytest.fixture(scope="module")
@@ -276,23 +289,39 @@ def test_sync_latched_bridge_result_carries_prediction_sync_period_and_missed_cy
 
 @pytest.mark.parametrize("kind, text", [
     ("limit", "limit"), ("joints", "do not match"), ("inactive", "not 'active'"),
-    ("not_at_q0", "move the arm to q0"), ("latched", "safe state: e-stop")])
+    ("not_at_q0", "move the arm to q0"), ("latched", "safe state: e-stop"),
+    ("claimed", "the drive is claimed by /other_client (since ")])
 def test_refuses_with_a_reason_and_sends_nothing(stack, kind, text):
     bridge, client, _ = stack
     bridge.reset(0.5 if kind == "not_at_q0" else 0.0)
     bridge.state_label = "inactive" if kind == "inactive" else "active"
     bridge.latch = "e-stop: service ~/estop" if kind == "latched" else ""
+    bridge.claimed_by = "/other_client" if kind == "claimed" else ""
     time.sleep(0.3)
     try:
         goal, _ = goal_for(currents=[1.0, 12.0, -1.0] if kind == "limit" else CUR,
                            names=("elbow",) if kind == "joints" else ("joint1",))
         status, result = run_goal(client, goal)
     finally:
-        bridge.state_label, bridge.latch = "active", ""
+        bridge.state_label, bridge.latch, bridge.claimed_by = "active", "", ""
     assert status == GoalStatus.STATUS_ABORTED and not result.success
     assert result.message.startswith("refused:") and text in result.message, result.message
     time.sleep(0.2)
     assert bridge.received == []
+
+
+def test_setpoints_the_bridge_refused_abort_the_move_with_its_reason(stack):
+    bridge, client, _ = stack
+    bridge.reset(0.0)
+    bridge.refuse = True
+    time.sleep(0.3)
+    try:
+        status, result = run_goal(client, goal_for()[0])
+    finally:
+        bridge.refuse = False
+    assert status == GoalStatus.STATUS_ABORTED and not result.success
+    assert "the bridge refused 6 command(s) during the move" in result.message, result.message
+    assert "only the default owner" in result.message
 
 
 @pytest.mark.parametrize("how", ["latched", "dropped"])
