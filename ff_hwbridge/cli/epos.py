@@ -81,6 +81,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     saved: Optional[ProcessTiming] = None
     thresholds: Optional[tuple[int, int, int]] = None
     try:
+        # from configure on the watchdogs judge SYNC and heartbeats, and once enabled the bus
+        # receiver sends the setpoint RPDO every SYNC cycle (a cycle without it faults the drive,
+        # EMCY 0x8250), all on this process's GIL: one full garbage collection now, before
+        # anything is timed, what survives frozen out of later scans, no automatic full one
+        freeze_heap()
+        thresholds = hold_full_collections()
         master.configure()
         if cfg.rt_priority > 1:
             # the bus receiver (SCHED_FIFO since configure) writes every SYNC cycle's RPDO: no
@@ -103,11 +109,6 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             if not ok:
                 return 1
         if args.enable:
-            # from Operation enabled on the bus receiver sends the setpoint RPDO every SYNC cycle;
-            # a full garbage collection holding the GIL for a cycle would fault the drive (EMCY
-            # 0x8250): one now, what survives frozen out of later scans, no automatic full one
-            freeze_heap()
-            thresholds = hold_full_collections()
             master.enable()
             ok = master.wait_for_state(State.OPERATION_ENABLED, 2.0)
             print(json.dumps({"enabled": ok, "reason": master.fault_reason}), flush=True)

@@ -513,6 +513,9 @@ class BridgeNode(LifecycleNode):
             self.config = cfg = self._load_config()
             self.ownership = Ownership(float(self._get("claim_lease")), float(self._get("claim_max_lease")),
                                        qualified_name(str(self._get("default_owner")), self.get_namespace()))
+            # the long full collection before anything on the bus is timed (the watchdogs start
+            # at configure); activate's, just before enabling, then scans only what came since
+            freeze_heap()
             self.master = EposMaster(cfg, on_fault=self._on_fault)
             self.master.connect()
             self.master.configure()
