@@ -20,6 +20,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from pathlib import Path
 from typing import Any, Optional
 
 from _common import busy_load, log, report
@@ -38,6 +39,18 @@ def _stamp(line: str) -> Optional[float]:
     return float(m.group(1)) if m else None
 
 
+def first_safe_states(run_dir: str) -> list[str]:
+    """The bridge's safe-state reasons in ``run_dir`` (every bridge process, a retried one too:
+    the ROS log files keep each), oldest first."""
+    found: list[tuple[float, str]] = []
+    for f in sorted(Path(run_dir).glob("ros-log/*.log")):
+        for line in f.read_text(errors="replace").splitlines():
+            if "[ff_hwbridge]" in line and "safe state:" in line and "error processing" not in line:
+                t = _stamp(line)
+                found.append((t or 0.0, line.split("safe state:", 1)[1].strip()[:160]))
+    return [r for _, r in sorted(found)]
+
+
 def one(config: Optional[str], hold: float) -> dict[str, Any]:
     """One start-up and ``hold`` s idle: up or not, the bridge's latch (reason, s after active)."""
     run_dir = tempfile.mkdtemp(prefix="ff-startup-")
@@ -51,7 +64,8 @@ def one(config: Optional[str], hold: float) -> dict[str, Any]:
             time.sleep(hold)
             out = next(p for p in stack.procs if p.name == "ff_hwbridge").output()
     except BringupError as exc:
-        return {"up": False, "error": str(exc)[:400], "run_dir": run_dir}
+        return {"up": False, "error": str(exc)[:400], "safe_states": first_safe_states(run_dir),
+                "run_dir": run_dir}
     retried = [x[:300] for x in said if "retrying once" in x]
     lines = out.splitlines()
     active = next((_stamp(x) for x in lines if "active: operation enabled" in x), None)
@@ -63,7 +77,8 @@ def one(config: Optional[str], hold: float) -> dict[str, Any]:
     reason = latch.split("safe state:", 1)[1].strip()[:200] if latch else None
     # a bridge that fails its first enable sequence is started again once by the stack: counted
     return {"up": True, "up_s": round(up_s, 1), "latched": latch is not None, "reason": reason,
-            "latched_after_active_s": after, "bridge_restarted": retried, "run_dir": run_dir}
+            "latched_after_active_s": after, "bridge_restarted": retried,
+            "safe_states": first_safe_states(run_dir), "run_dir": run_dir}
 
 
 def main(argv: Any = None) -> int:
@@ -91,7 +106,11 @@ def main(argv: Any = None) -> int:
                       "latched": sum(bool(r.get("latched")) for r in rows),
                       "clean": sum(r["up"] and not r["latched"] and not r["bridge_restarted"] for r in rows),
                       "bridge_restarted": sum(bool(r.get("bridge_restarted")) for r in rows),
-                      "reasons": sorted({(r.get("reason") or "")[:60] for r in rows if r.get("latched")})}
+                      "reasons": sorted({(r.get("reason") or "")[:60] for r in rows if r.get("latched")}),
+                      # the defect this counts first: no setpoint RPDO in a SYNC cycle (EMCY 0x8250),
+                      # in any bridge process of the start-up, whether it came up or not
+                      "interpolation_faults_0x8250": sum(any("0x8250" in x for x in r.get("safe_states", []))
+                                                         for r in rows)}
     out["rows"] = rows
     report(out, a.out)
     return 0

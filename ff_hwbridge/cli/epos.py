@@ -12,6 +12,7 @@ heartbeat, ...) the states stop and the reason and the drive's error code are pr
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import logging
 import sys
@@ -20,7 +21,8 @@ from typing import Optional, Sequence
 
 from ff_hwbridge.drive.config import load_config, with_bus
 from ff_hwbridge.drive.epos import EposError, EposMaster
-from ff_hwbridge.drive.realtime import SWITCH_INTERVAL, ProcessTiming, RealtimeConfig, restore_process, setup_process
+from ff_hwbridge.drive.realtime import (SWITCH_INTERVAL, ProcessTiming, RealtimeConfig, freeze_heap,
+                                        hold_full_collections, restore_process, setup_process)
 from ff_hwbridge.protocol.cia402 import State
 
 __all__ = ["main"]
@@ -77,7 +79,14 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         print(f"ff-epos: {exc}", file=sys.stderr)
         return 2
     saved: Optional[ProcessTiming] = None
+    thresholds: Optional[tuple[int, int, int]] = None
     try:
+        # from configure on the watchdogs judge SYNC and heartbeats, and once enabled the bus
+        # receiver sends the setpoint RPDO every SYNC cycle (a cycle without it faults the drive,
+        # EMCY 0x8250), all on this process's GIL: one full garbage collection now, before
+        # anything is timed, what survives frozen out of later scans, no automatic full one
+        freeze_heap()
+        thresholds = hold_full_collections()
         master.configure()
         if cfg.rt_priority > 1:
             # the bus receiver (SCHED_FIFO since configure) writes every SYNC cycle's RPDO: no
@@ -124,6 +133,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         return 1
     finally:
         master.disconnect()
+        if thresholds is not None:      # main() called in a longer-lived process (tests)
+            gc.unfreeze()
+            gc.set_threshold(*thresholds)
         if saved is not None:           # main() called in a longer-lived process (tests)
             restore_process(saved)
 

@@ -107,13 +107,13 @@ def test_cancel_mid_move_stops_the_arm_across_the_chain(stack_client):
 SHIPPED_TOL = 0.002
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "the bridge (ff_hwbridge.ros.bridge_node, in-process player) sends no setpoint RPDO for two "
-    "or more SYNC cycles while it activates, after the drive reached Operation enabled, so the "
-    "drive faults 0x8250 at start-up (bench_startups: 5 of 8 here; a bus trace showed a 33 ms gap "
-    "during on_activate's full gc, freeze_heap, but with that moved before enable 5 of 6 still "
-    "latched 5-44 ms after active); under load the in-process player also misses cycles and the "
-    "derived 130 ms heartbeat / feedback timeouts trip (bench_execution --bridge-config)"))
+@pytest.mark.xfail(strict=False, reason=(
+    "intermittent: the shipped config's derived 130 ms watchdogs trip on this shared 2-core "
+    "machine: 2 of 3 runs passed at load 1.1-1.6, 0 of 4 at load 5-29 (heartbeat / feedback lost "
+    "130-131 ms during the hold; a first bridge tripped and the stack's retry found the drive in "
+    "Fault 0x8130; the planner not up in 90 s). The start-up 0x8250 (no setpoint RPDO for a SYNC "
+    "cycle while the bridge activated) no longer occurs: the drives are enabled last "
+    "(bench_startups: 0 of 16 start-ups faulted 0x8250, before 4 of 4)"))
 def test_the_shipped_robot_configuration_runs_a_robust_move_on_the_simulated_epos4(tmp_path):
     """config/bridge_epos4_1dof.yaml as a robot runs it (player in the bridge's process, SYNC
     every 10 ms from a timer outside it: the kernel's on SocketCAN, the hub's here; 10 ms

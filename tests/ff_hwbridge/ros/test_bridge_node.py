@@ -244,3 +244,45 @@ def test_every_parameter_has_a_descriptor_with_its_range_and_out_of_range_values
         res = node.set_parameters([Parameter("setpoint_timeout", value=0.2)])[0]   # unconfigured: taken
         assert res.successful and node.get_parameter("setpoint_timeout").value == 0.2
         node.destroy_node()
+
+
+def test_activate_enables_the_drives_last(bridge, monkeypatch):
+    """From Operation enabled on, the bus receiver must send the setpoint RPDO in every SYNC
+    cycle; so the work of activation that holds the GIL (the full collection and heap freeze,
+    the first status / diagnostics publications) runs before ``enable()``, and the automatic full
+    collections are already held when the drives are enabled."""
+    import gc
+
+    from ff_hwbridge.drive.realtime import FULL_HELD
+    from ff_hwbridge.ros import bridge_node as bn
+
+    node, _client, drive = bridge
+    node.trigger_configure()
+    assert node.master is not None
+    assert _wait(lambda: drive.node.nmt.state == "OPERATIONAL")
+    steps: list[str] = []
+    real_freeze, real_enable = bn.freeze_heap, node.master.enable
+    real_diag = node._pub_diag.publish
+
+    def freeze() -> int:
+        steps.append("freeze")
+        return real_freeze()
+
+    def enable() -> None:
+        steps.append("enable" + (" (full gc held)" if gc.get_threshold()[2] >= FULL_HELD else ""))
+        real_enable()
+
+    def diag(msg) -> None:
+        steps.append("diagnostics")
+        real_diag(msg)
+
+    monkeypatch.setattr(bn, "freeze_heap", freeze)
+    monkeypatch.setattr(node.master, "enable", enable)
+    monkeypatch.setattr(node._pub_diag, "publish", diag)
+    try:
+        node.trigger_activate()
+        assert node.active
+        first = steps[:steps.index("enable (full gc held)") + 1]
+        assert first == ["diagnostics", "freeze", "enable (full gc held)"], steps
+    finally:
+        node.trigger_deactivate()

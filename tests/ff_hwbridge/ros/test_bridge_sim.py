@@ -4,6 +4,7 @@ safe state within 50 ms (after the fault becomes detectable), reason reported, r
 fault reset."""
 from __future__ import annotations
 
+import gc
 import re
 import tempfile
 import time
@@ -11,6 +12,7 @@ import time
 import pytest
 
 from ff_hwbridge.drive.epos import EposError, EposMaster
+from ff_hwbridge.drive.realtime import freeze_heap, hold_full_collections
 from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.sim.rig_process import RigProcess, rig_master_config
 from tests.support.canopen_helpers import configure_and_enable, waiter
@@ -67,6 +69,11 @@ def master(sim):
     sim.cmd("clear 1")
     sim.cmd("reset 0")
     m = make_master(sim)
+    # the master's bus receiver shares this process's GIL: as the bridge and ff-epos do before
+    # enabling, no full collection of the test process's heap while the drive is enabled (one
+    # holds the GIL for longer than a SYNC cycle: no RPDO in it, EMCY 0x8250)
+    freeze_heap()
+    thresholds = hold_full_collections()
     try:
         configure_and_enable(m)
         # heartbeat loss is judged against heartbeat_timeout only once an OPERATIONAL heartbeat
@@ -75,6 +82,8 @@ def master(sim):
         yield m
     finally:
         m.disconnect()
+        gc.unfreeze()
+        gc.set_threshold(*thresholds)
         sim.cmd("clear 1")
 
 
