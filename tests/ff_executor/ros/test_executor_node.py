@@ -361,6 +361,7 @@ def test_a_move_the_drive_clipped_fails_and_says_so(stack):
     time.sleep(0.3)
     with bridge.lock:
         bridge.q, bridge.qd = 0.0, 0.0
+    time.sleep(0.5)                          # the executor has seen joint states at rest at 0 rad
     status, result = run_goal(client, goal)
     assert status == GoalStatus.STATUS_SUCCEEDED, result.message
 
