@@ -64,16 +64,26 @@ class DriveClaim:
     def __init__(self, node: Any, bridge: str = "/ff_hwbridge", lease: float = 0.0,
                  timeout: float = 10.0, renew: bool = True) -> None:
         self.node, self.bridge, self.timeout = node, bridge, timeout
-        res = call_claim(node, bridge, ClaimDrive.Request.CLAIM, client=node.get_fully_qualified_name(),
-                         lease=lease, timeout=timeout)
-        if not res.success:
-            raise ClaimError(f"claim refused: {res.message}")
+        # One client for the claim, its renewals and its release: a client created per call must
+        # be discovered anew each time, and a response sent before the bridge has matched the new
+        # client's reader is lost (the renewal then never arrives and the lease runs out).
+        self._cli = node.create_client(ClaimDrive, f"{bridge.rstrip('/')}/claim")
+        try:
+            if not self._cli.wait_for_service(timeout_sec=timeout):
+                raise ClaimError(f"service {bridge}/claim is not available (is the bridge configured?)")
+            req = ClaimDrive.Request(action=ClaimDrive.Request.CLAIM, client=node.get_fully_qualified_name(),
+                                     lease=float(lease))
+            res = _wait(self._cli.call_async(req), timeout, f"{bridge}/claim")
+            if not res.success:
+                raise ClaimError(f"claim refused: {res.message}")
+        except BaseException:
+            node.destroy_client(self._cli)
+            raise
         self.token: str = res.token
         self.lease: float = float(res.lease)
         self.lost = ""                       # why a renewal failed ("" = still held)
         self._lock = threading.Lock()
         self._timer: Optional[Any] = None
-        self._cli = node.create_client(ClaimDrive, f"{bridge.rstrip('/')}/claim")
         if renew:
             self._timer = node.create_timer(self.lease / 3.0, self._renew)
 
@@ -97,6 +107,9 @@ class DriveClaim:
         if self._timer is not None:
             self.node.destroy_timer(self._timer)
             self._timer = None
-        self.node.destroy_client(self._cli)
-        return call_claim(self.node, self.bridge, ClaimDrive.Request.RELEASE, token=self.token,
-                          timeout=self.timeout)
+        try:
+            return _wait(self._cli.call_async(ClaimDrive.Request(action=ClaimDrive.Request.RELEASE,
+                                                                 token=self.token)),
+                         self.timeout, f"{self.bridge}/claim")
+        finally:
+            self.node.destroy_client(self._cli)
