@@ -9,7 +9,6 @@ import os
 import signal
 import subprocess
 import sys
-import tempfile
 import threading
 import time
 
@@ -23,18 +22,6 @@ pytestmark = pytest.mark.integration
 LIMIT = 2.0          # A
 LEASE = 1.5          # s, the killed owner's lease
 _wait = waiter(5.0, 0.01)
-
-
-@pytest.fixture(scope="module")
-def rig(ros_env):
-    from ff_hwbridge.sim.rig_process import RigProcess
-    from tests.ff_hwbridge.ros.test_topic_interface import _rig_state
-
-    r = RigProcess(["--q0", "0.0"], env=ros_env, stderr=tempfile.TemporaryFile("w+"))
-    r.state = lambda: _rig_state(r)
-    yield r
-    code = r.stop()
-    assert code == 0, r.stderr_text()[-3000:]
 
 
 class Commander:

@@ -7,8 +7,6 @@ CurrentProfile keeps the commands out."""
 from __future__ import annotations
 
 import math
-import re
-import tempfile
 import threading
 import time
 
@@ -51,26 +49,6 @@ def test_commands_the_bridge_cannot_apply_are_refused_with_the_reason(kw, words)
     with pytest.raises(CommandRejected) as err:
         command_currents(names, effort, ("a", "b"), [_units(), _units()], **kw)
     assert words in str(err.value)
-
-
-def _rig_state(rig) -> tuple[float, float, float]:
-    """(q rad, qd rad/s, applied motor current A) of the rig's joint 1."""
-    reply = rig.cmd("state")
-    found = [re.search(rf"{k}=\[([^\],]*)", reply) for k in ("q", "qd", "i")]
-    assert all(m is not None for m in found), reply
-    q, qd, i = (float(m.group(1)) for m in found if m is not None)
-    return q, qd, i
-
-
-@pytest.fixture(scope="module")
-def rig(ros_env):
-    from ff_hwbridge.sim.rig_process import RigProcess   # (the simulator: imported only when used)
-
-    r = RigProcess(["--q0", "0.0"], env=ros_env, stderr=tempfile.TemporaryFile("w+"))
-    r.state = lambda: _rig_state(r)
-    yield r
-    code = r.stop()
-    assert code == 0, r.stderr_text()[-3000:]
 
 
 @pytest.fixture
