@@ -9,6 +9,7 @@ whose process died loses it a lease later.
 """
 from __future__ import annotations
 
+import secrets
 import threading
 import time
 from typing import Any, Optional
@@ -29,14 +30,42 @@ def _wait(future: Any, timeout: float, what: str) -> Any:
     return future.result()
 
 
+#: s, how long one CLAIM request waits for its answer before it is sent again
+CLAIM_RESEND = 2.0
+
+
+def _claim_until_answered(cli: Any, client: str, lease: float, timeout: float, what: str) -> Any:
+    """Send CLAIM with a fresh request id, again every CLAIM_RESEND s until one answer arrives
+    (within ``timeout`` s). A service answer can be lost while the bridge has not yet matched a new
+    client's response reader (``wait_for_service`` sees only the request side); the bridge answers
+    a repeated request id with the claim it already made, so a resend never locks the drive."""
+    req = ClaimDrive.Request(action=ClaimDrive.Request.CLAIM, client=client, lease=float(lease),
+                             token=secrets.token_hex(16))
+    end = time.monotonic() + timeout
+    futures = [cli.call_async(req)]
+    next_send = time.monotonic() + CLAIM_RESEND
+    while time.monotonic() < end:
+        for fut in futures:
+            if fut.done():
+                return fut.result()
+        if time.monotonic() >= next_send:
+            futures.append(cli.call_async(req))
+            next_send = time.monotonic() + CLAIM_RESEND
+        time.sleep(0.005)
+    raise ClaimError(f"{what}: no answer within {timeout:g} s ({len(futures)} requests sent)")
+
+
 def call_claim(node: Any, bridge: str, action: int, *, client: str = "", token: str = "",
                lease: float = 0.0, timeout: float = 10.0) -> Any:
     """One ``<bridge>/claim`` call (the node must be spun by an executor on another thread);
-    returns the response, ClaimError when the service is missing or silent."""
+    returns the response, ClaimError when the service is missing or silent. CLAIM is resent
+    until answered (``token`` is ignored for it)."""
     cli = node.create_client(ClaimDrive, f"{bridge.rstrip('/')}/claim")
     try:
         if not cli.wait_for_service(timeout_sec=timeout):
             raise ClaimError(f"service {bridge}/claim is not available (is the bridge configured?)")
+        if action == ClaimDrive.Request.CLAIM:
+            return _claim_until_answered(cli, client, lease, timeout, f"{bridge}/claim")
         req = ClaimDrive.Request(action=action, client=client, token=token, lease=float(lease))
         return _wait(cli.call_async(req), timeout, f"{bridge}/claim")
     finally:
@@ -71,9 +100,8 @@ class DriveClaim:
         try:
             if not self._cli.wait_for_service(timeout_sec=timeout):
                 raise ClaimError(f"service {bridge}/claim is not available (is the bridge configured?)")
-            req = ClaimDrive.Request(action=ClaimDrive.Request.CLAIM, client=node.get_fully_qualified_name(),
-                                     lease=float(lease))
-            res = _wait(self._cli.call_async(req), timeout, f"{bridge}/claim")
+            res = _claim_until_answered(self._cli, node.get_fully_qualified_name(), lease, timeout,
+                                        f"{bridge}/claim")
             if not res.success:
                 raise ClaimError(f"claim refused: {res.message}")
         except BaseException:

@@ -26,7 +26,7 @@ from ff_executor.engine import NS
 from ff_msgs.action import ExecuteProfile
 from ff_msgs.msg import CurrentSetpoint
 from ff_msgs.srv import PlanTrajectory
-from ff_msgs_py.convert import time_to_ns
+from ff_msgs_py.convert import ns_to_time, time_to_ns
 from ff_msgs_py.launch import apply_ros_environment
 
 
@@ -259,8 +259,12 @@ class StackClient:
         raise StackCallError(f"the simulated arm did not come back to {target.tolist()} at rest")
 
     def execute(self, profile_msg: Any, timeout: float = 30.0,
-                cancel_into_move: Optional[float] = None) -> MoveOutcome:
+                cancel_into_move: Optional[float] = None,
+                start_time: Optional[float] = None) -> MoveOutcome:
         """Send an ExecuteProfile goal and record ground truth and joint states until the result.
+
+        start_time (s, ROS clock): when step 0 must start (the goal's ``start_time``); None: as
+        soon as the executor can.
 
         cancel_into_move (s): cancel the goal this long after step 0's stamp, as the executor
         published it (``lead_time`` ahead of the step), wherever the executor put the start;
@@ -274,6 +278,8 @@ class StackClient:
             self._stamps, self._applied = {}, {}
         t_goal = self.now()
         goal = ExecuteProfile.Goal(profile=profile_msg)
+        if start_time is not None:
+            goal.start_time = ns_to_time(int(round(start_time * NS)))
         handle = self._wait(self.action.send_goal_async(
             goal, feedback_callback=lambda _m: fb_times.append(time.monotonic())), 15.0, "send goal")
         if not handle.accepted:

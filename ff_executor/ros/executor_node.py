@@ -70,7 +70,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.exceptions import ParameterException
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -319,7 +319,9 @@ class ExecutorNode(Node):
     # --- goal handling ------------------------------------------------------------------------
     def _on_goal(self, goal_request: ExecuteProfile.Goal) -> GoalResponse:
         if self._p("refuse_mode") == "reject":
-            reason = self._refusal(goal_request, check_busy=True)[1]
+            # no service call here: the goal callback runs on the executor's only thread, which
+            # must stay free to take the answer; the bridge's typed status stands in for get_state
+            reason = self._refusal(goal_request, check_busy=True, ask_bridge=False)[1]
             if reason:
                 self.get_logger().warn(f"goal rejected: {reason}")
                 return GoalResponse.REJECT
@@ -341,14 +343,28 @@ class ExecutorNode(Node):
             return None
         return future.result().current_state.label
 
+    def _bridge_state_from_status(self) -> Optional[str]:
+        """The bridge's state from its typed status of the last 5 s ("active", "inactive",
+        "unconfigured", "safe state"), None without one."""
+        with self._state_lock:
+            status, rx = self._status, self._status_rx_ns
+        if status is None or self._now_ns() - rx > 5 * NS:
+            return None
+        return {DriveGroupStatus.UNCONFIGURED: "unconfigured", DriveGroupStatus.INACTIVE: "inactive",
+                DriveGroupStatus.ACTIVE: "active", DriveGroupStatus.SAFE_STATE: "safe state"}.get(
+                    int(status.state), "unknown")
+
     def _busy_reason(self) -> str:
         rid = self._running_id
         what = f"profile {rid!r}" if rid else "a profile"
         return (f"another goal is running ({what}); this executor runs one motion at a time and does not "
                 "queue: wait for its result or cancel it")
 
-    def _refusal(self, goal: ExecuteProfile.Goal, check_busy: bool) -> tuple[Optional[Motion], str]:
-        """(motion, "") if the goal may run, else (None, reason)."""
+    def _refusal(self, goal: ExecuteProfile.Goal, check_busy: bool,
+                 ask_bridge: bool = True) -> tuple[Optional[Motion], str]:
+        """(motion, "") if the goal may run, else (None, reason). ``ask_bridge``: the bridge's
+        lifecycle state from its get_state service (blocks up to bridge_timeout s); False: from its
+        latest typed status (of the last 5 s; none = not checked here)."""
         if check_busy and self._busy.locked():
             return None, self._busy_reason()
         msg = goal.profile
@@ -361,7 +377,12 @@ class ExecutorNode(Node):
         claimed = self._claim_refusal()
         if claimed:
             return None, claimed
-        if self._p("require_bridge_active"):
+        if self._p("require_bridge_active") and not ask_bridge:
+            label = self._bridge_state_from_status()
+            if label is not None and label != "active":
+                return None, (f"bridge '{self._p('bridge_node')}' is '{label}', not 'active'; "
+                              "configure and activate it (or fault-reset it) first")
+        elif self._p("require_bridge_active"):
             label = self._bridge_state()
             if label is None:
                 return None, (f"bridge '{self._p('bridge_node')}' does not answer get_state; "
@@ -642,7 +663,10 @@ def main(argv: Optional[list[str]] = None) -> None:
     node = None
     try:
         node = ExecutorNode()
-        executor = MultiThreadedExecutor(num_threads=4)
+        # one executor thread: no callback waits on another callback (blocking work runs
+        # on its own thread, ff_msgs_py.threads), and rclpy's MultiThreadedExecutor costs ~4x
+        # the CPU per message (measured 47 % vs 11 % for 200 JointState/s in and out)
+        executor = SingleThreadedExecutor()
         executor.add_node(node)
         node.get_logger().info(f"{READY_LINE}: action {node.get_fully_qualified_name()}/execute, "
                                f"joints {list(node.config.joint_names)}")

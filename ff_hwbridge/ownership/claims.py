@@ -46,6 +46,7 @@ class Claim:
     client: str
     token: str
     lease: float
+    request_id: str = ""      # the client's id of the CLAIM request that made it ("" = none)
 
 
 @dataclass(frozen=True)
@@ -88,9 +89,13 @@ class Ownership:
             return None
         return self._claim
 
-    def claim(self, client: str, lease: float = 0.0) -> Claim:
+    def claim(self, client: str, lease: float = 0.0, request_id: str = "") -> Claim:
         """Claim the drive for node ``client`` for ``lease`` s (0 = the default); ClaimRefused
-        while another live claim is held (also one of the same name: the token proves the holder)."""
+        while another live claim is held (also one of the same name: the token proves the holder).
+
+        ``request_id``: the client's id of this request. The same request repeated (same client,
+        same non-empty id, e.g. because its answer was lost) gets the claim it made back, its lease
+        renewed, instead of a refusal."""
         client = client.strip()
         if not client:
             raise self._refuse_claim("a claim needs the client's node name")
@@ -99,11 +104,14 @@ class Ownership:
             raise self._refuse_claim(f"lease {lease:g} s is longer than the longest allowed, {self.max_lease:g} s")
         with self._lock:
             held = self._live()
+            if held is not None and request_id and held.request_id == request_id and held.client == client:
+                self._expires = self._clock() + held.lease
+                return held
             if held is not None:
                 left = self._expires - self._clock()
                 raise self._refuse_claim(f"the drive is claimed by {held.client} (lease {held.lease:g} s, "
                                          f"{left:.1f} s left unless renewed); it must release it first")
-            self._claim = Claim(client, secrets.token_hex(16), lease)
+            self._claim = Claim(client, secrets.token_hex(16), lease, request_id)
             self._expires = self._clock() + lease
             return self._claim
 

@@ -84,7 +84,7 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.signals import SignalHandlerOptions
@@ -871,7 +871,7 @@ class BridgeNode(LifecycleNode):
                 if not own.claimed and self._motion_live():
                     raise ClaimRefused(f"a motion of {own.owner or 'another client'} is running; claim "
                                        "after it ends")
-                c = own.claim(str(request.client), float(request.lease))
+                c = own.claim(str(request.client), float(request.lease), str(request.token))
                 response.token, response.lease = c.token, c.lease
                 response.message = f"claimed by {c.client} (lease {c.lease:g} s)"
                 self.get_logger().info(f"drive {response.message}")
@@ -1131,7 +1131,10 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
     try:
         node = BridgeNode(config_file=args.config, channel=args.channel)
         node.fifo_threads = True
-        executor = MultiThreadedExecutor(num_threads=4)
+        # one executor thread: no callback waits on another callback (blocking work runs
+        # on its own thread, ff_msgs_py.threads), and rclpy's MultiThreadedExecutor costs ~4x
+        # the CPU per message (measured 47 % vs 11 % for 200 JointState/s in and out)
+        executor = SingleThreadedExecutor()
         executor.add_node(node)
         if args.autostart:
             node.trigger_configure()

@@ -33,7 +33,7 @@ from typing import Any, Optional
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor, SetParametersResult
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
@@ -334,7 +334,10 @@ def main(argv: Optional[list[str]] = None) -> None:
     node: Optional[SimDriverNode] = None
     try:
         node = SimDriverNode()
-        executor = MultiThreadedExecutor(num_threads=2)
+        # one executor thread: no callback waits on another callback (blocking work runs
+        # on its own thread, ff_msgs_py.threads), and rclpy's MultiThreadedExecutor costs ~4x
+        # the CPU per message (measured 47 % vs 11 % for 200 JointState/s in and out)
+        executor = SingleThreadedExecutor()
         executor.add_node(node)
         executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):

@@ -36,6 +36,25 @@ def test_only_the_owner_commands_and_others_are_counted():
     assert own.authorize("setpoint", b.token).accepted
 
 
+def test_a_repeated_claim_request_gets_the_claim_it_made_and_nothing_else_does():
+    clock = Clock()
+    own = Ownership(lease=2.0, clock=clock)
+    a = own.claim("/a", request_id="r1")
+    clock.t += 1.5
+    again = own.claim("/a", request_id="r1")       # its answer was lost: the same claim, renewed
+    assert again.token == a.token
+    clock.t += 1.9
+    assert own.claimed and own.owner == "/a"
+    for client, rid in (("/a", "r2"), ("/b", "r1"), ("/a", "")):
+        with pytest.raises(ClaimRefused, match="claimed by /a"):
+            own.claim(client, request_id=rid)
+    own.release(a.token)
+    with pytest.raises(ClaimRefused):
+        own.renew(a.token)
+    b = own.claim("/a", request_id="r1")           # after release the id makes a new claim
+    assert b.token != a.token
+
+
 def test_the_lease_is_renewed_by_traffic_and_expires_without_it():
     clock = Clock()
     own = Ownership(lease=2.0, clock=clock)
