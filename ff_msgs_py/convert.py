@@ -22,6 +22,7 @@ from ff_planner.core.errors import ERROR_NAMES
 from ff_planner.model.limits import Excursion, MotionLimits
 from ff_planner.model.params import ParameterError, default_params, n_joints
 from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult, RobustnessCertificate
+from ff_planner.optimize.drive_grid import DriveCertificate
 
 
 # --- joint names ------------------------------------------------------------------------------
@@ -169,7 +170,9 @@ def result_to_response(result: PlanResult, response: Any, joint_names: Sequence[
 
 def certificate_to_msg(cert: Optional[RobustnessCertificate]) -> CertificateMsg:
     """RobustnessCertificate -> ff_msgs/RobustnessCertificate (``certified = false`` for None;
-    the excursion arrays empty when it has none)."""
+    the excursion arrays empty when it has none). A drive-exact certificate (``DriveCertificate``,
+    its ``drive`` dict) fills ``drive_exact``, the setpoint unit (A), the switch period (s) and
+    the configuration they came from; any other leaves them false / 0 / ""."""
     if cert is None:
         return CertificateMsg(certified=False)
     names = list(cert.box)
@@ -186,6 +189,11 @@ def certificate_to_msg(cert: Optional[RobustnessCertificate]) -> CertificateMsg:
     if ex is not None:
         for name in _EXCURSION_FIELDS:
             setattr(msg, f"excursion_{name}", [float(x) for x in getattr(ex, name)])
+    drive = getattr(cert, "drive", None) or {}
+    msg.drive_exact = bool(drive)
+    msg.drive_setpoint_unit = float(drive.get("current_quantum_A", 0.0) or 0.0)
+    msg.drive_switch_period = float(drive.get("switch_period_s", 0.0) or 0.0)
+    msg.drive_source = str(drive.get("source", "") or "")
     return msg
 
 
@@ -196,7 +204,9 @@ _EXCURSION_FIELDS = ("nominal_min", "nominal_max", "nominal_speed", "worst_min",
 def certificate_from_msg(msg: Any) -> Optional[RobustnessCertificate]:
     """ff_msgs/RobustnessCertificate -> RobustnessCertificate (None when ``certified`` is false).
     The inverse of :func:`certificate_to_msg`; ``switch_timing_per_joint`` comes back as rows of
-    one value per joint (the joint count from ``worst_per_joint``)."""
+    one value per joint (the joint count from ``worst_per_joint``). With ``drive_exact`` true it is a
+    ``DriveCertificate`` whose ``drive`` holds ``current_quantum_A``, ``switch_period_s`` and
+    ``source`` (the message does not carry ``certified_profile``)."""
     if not bool(msg.certified):
         return None
     names = list(msg.box_names)
@@ -206,7 +216,7 @@ def certificate_from_msg(msg: Any) -> Optional[RobustnessCertificate]:
     arrays = {name: [float(x) for x in getattr(msg, f"excursion_{name}", [])]
               for name in _EXCURSION_FIELDS}
     excursion = Excursion(**arrays) if any(arrays.values()) else None
-    return RobustnessCertificate(
+    fields: dict[str, Any] = dict(
         box=dict(zip(names, map(float, msg.box_fractions))),
         worst_rest_error=float(msg.worst_rest_error),
         worst_at=dict(zip(names, map(float, msg.worst_at))),
@@ -214,6 +224,11 @@ def certificate_from_msg(msg: Any) -> Optional[RobustnessCertificate]:
         moving_at_tf=float(msg.moving_at_tf), switch_timing=[float(x) for x in msg.switch_timing],
         samples=int(msg.samples), worst_per_joint=[float(x) for x in msg.worst_per_joint],
         switch_timing_per_joint=rows, excursion=excursion)
+    if bool(getattr(msg, "drive_exact", False)):
+        drive = {"current_quantum_A": float(msg.drive_setpoint_unit),
+                 "switch_period_s": float(msg.drive_switch_period), "source": str(msg.drive_source)}
+        return DriveCertificate(drive=drive, **fields)
+    return RobustnessCertificate(**fields)
 
 
 def error_response(response: Any, code: str, message: str):

@@ -137,3 +137,37 @@ def test_predicted_rest_travels_with_the_profile_and_the_plan_answer():
     assert list(res.profile.predicted_rest) == [0.501]
     back = convert.response_to_result(res, PlanRequest(model="arm1dof", q0=[0.0], qf=[0.5], tf=1.0))
     assert back.extra["predicted_rest"] == [0.501]
+
+
+def test_drive_exact_certificate_round_trips_with_its_drive_fields():
+    """A drive-exact certificate comes back from its message with the drive's unit, period and
+    source; a plain one comes back plain with the drive fields left at false / 0 / ""."""
+    from ff_planner.model.limits import Excursion
+    from ff_planner.model.profile import RobustnessCertificate
+    from ff_planner.optimize.drive_grid import DriveCertificate, DriveGrid
+
+    common = dict(box={"pv": 0.2, "pc": 0.2}, worst_rest_error=5.3e-3,
+                  worst_at={"pv": 0.8, "pc": 1.2}, per_parameter={"pv": 1e-3, "pc": 4e-3},
+                  moving_at_tf=0.25, switch_timing=[1e-4, -2e-4], samples=283,
+                  excursion=Excursion([-0.9], [1.1], [8.3], [-1.07], [1.13], [8.65]))
+    grid = DriveGrid(0.003, 0.01, "config/bridge_epos4_1dof.yaml")
+    cert = DriveCertificate(drive=grid.to_dict(), **common)
+    msg = convert.certificate_to_msg(cert)
+    assert msg.drive_exact and msg.drive_setpoint_unit == 0.003 and msg.drive_switch_period == 0.01
+    assert msg.drive_source == "config/bridge_epos4_1dof.yaml"
+    back = convert.certificate_from_msg(msg)
+    assert isinstance(back, DriveCertificate)
+    assert back.drive == {"current_quantum_A": 0.003, "switch_period_s": 0.01,
+                          "source": "config/bridge_epos4_1dof.yaml"}
+    assert back == cert
+    assert back.to_dict()["drive"] == cert.to_dict()["drive"]
+    # on receipt (period 0) keeps its zero period and stays drive-exact
+    on_receipt = DriveCertificate(drive=DriveGrid(0.001, 0.0, "bridge.yaml").to_dict(), **common)
+    back = convert.certificate_from_msg(convert.certificate_to_msg(on_receipt))
+    assert isinstance(back, DriveCertificate) and back.drive["switch_period_s"] == 0.0
+    assert back == on_receipt
+    plain = RobustnessCertificate(**common)
+    pmsg = convert.certificate_to_msg(plain)
+    assert not pmsg.drive_exact and pmsg.drive_setpoint_unit == 0.0 and pmsg.drive_source == ""
+    pback = convert.certificate_from_msg(pmsg)
+    assert type(pback) is RobustnessCertificate and pback == plain
