@@ -171,3 +171,33 @@ def test_drive_exact_certificate_round_trips_with_its_drive_fields():
     assert not pmsg.drive_exact and pmsg.drive_setpoint_unit == 0.0 and pmsg.drive_source == ""
     pback = convert.certificate_from_msg(pmsg)
     assert type(pback) is RobustnessCertificate and pback == plain
+
+
+def test_a_drive_exact_answer_writes_its_drive_into_the_motion_file(tmp_path):
+    """ff-ctl plan -o: a drive-exact plan's certificate comes back from the service's answer with
+    the drive it is for, and the motion file written from it says so."""
+    import json
+
+    from ff_planner.export.motion_file import write_motion
+    from ff_planner.model.profile import RobustnessCertificate
+    from ff_planner.optimize.drive_grid import DriveCertificate, DriveGrid
+
+    prof = CurrentProfile.uniform([[1.0], [-1.0], [0.5]], tf=1.0, coast=0.1)
+    cert = DriveCertificate(
+        drive=DriveGrid(0.003, 0.01, "config/bridge_epos4_1dof.yaml").to_dict(),
+        **vars(RobustnessCertificate(box={"pc": 0.2}, worst_rest_error=4e-3, worst_at={"pc": 0.8},
+                                     per_parameter={"pc": 4e-3}, moving_at_tf=0.0,
+                                     switch_timing=[0.0, 0.0, 0.0], samples=50)))
+    result = PlanResult(success=True, message="ok", profile=prof, model="arm1dof",
+                        params=default_params("arm1dof"), q0=np.zeros(1), qf=np.ones(1),
+                        uncertain=["pc"], objective="robust-box", q_final=np.ones(1),
+                        qd_final=np.zeros(1), certificate=cert)
+    res = convert.result_to_response(result, PlanTrajectory.Response())
+    assert res.certificate.drive_exact and res.certificate.drive_switch_period == 0.01
+    back = convert.response_to_result(res, PlanRequest(uncertain=("pc",)))
+    assert isinstance(back.certificate, DriveCertificate) and back.certificate == cert
+    path = tmp_path / "m.json"
+    write_motion(path, back)
+    drive = json.loads(path.read_text())["certificate"]["drive"]
+    assert drive == {"current_quantum_A": 0.003, "switch_period_s": 0.01,
+                     "source": "config/bridge_epos4_1dof.yaml"}
