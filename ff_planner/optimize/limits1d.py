@@ -167,6 +167,7 @@ class Limits1D:
     design: np.ndarray
     corners: np.ndarray
     pvals: np.ndarray = field(init=False)    # (pv, pc, pt) nominal values
+    _masks: dict = field(init=False, repr=False, compare=False, default_factory=dict)
 
     @classmethod
     def of(cls, limits: Optional[MotionLimits], params: Arm1DofParams, q0: float, tf: float,
@@ -224,8 +225,13 @@ class Limits1D:
         return LIMIT_SCALE * g[self._select(g.shape[0])]
 
     def _select(self, m: int) -> np.ndarray:
-        """Mask of the constraint rows of the limits given among m = 3·S rows."""
-        return np.any((np.arange(m) % 3)[:, None] == self.rows[None, :], axis=1)
+        """Mask of the constraint rows of the limits given among m = 3·S rows (kept per m: the
+        solvers ask for it at every evaluation)."""
+        mask = self._masks.get(m)
+        if mask is None:
+            mask = np.any((np.arange(m) % 3)[:, None] == self.rows[None, :], axis=1)
+            self._masks[m] = mask
+        return mask
 
     def worst_points(self, times: np.ndarray, cur: np.ndarray, count: int) -> np.ndarray:
         """The ``count`` design points of largest violation (> 0) (scale factors)."""
