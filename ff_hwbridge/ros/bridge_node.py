@@ -97,11 +97,11 @@ from std_srvs.srv import Trigger
 from ff_hwbridge.drive.config import (OPTION_RANGES, BridgeConfig, BusConfig, ConfigError, config_from_mapping,
                                       load_config, with_bus)
 from ff_hwbridge.drive.epos import EposError, EposMaster
-from ff_hwbridge.drive.player import SWITCH_INTERVAL, AppliedSetpoint, SetpointPlayer, SetpointRejected
-from ff_hwbridge.drive.gc_pauses import IdleCollector, freeze_heap, hold_full_collections
-from ff_hwbridge.drive.gc_pauses import pauses as gc_pauses
+from ff_hwbridge.drive.player import AppliedSetpoint, SetpointPlayer, SetpointRejected
 from ff_hwbridge.drive.player_process import ProcessPlayer
-from ff_hwbridge.drive.scheduler import fifo_process
+from ff_hwbridge.drive.realtime import (SWITCH_INTERVAL, IdleCollector, RealtimeConfig, freeze_heap,
+                                        hold_full_collections, setup_process)
+from ff_hwbridge.drive.realtime import pauses as gc_pauses
 from ff_hwbridge.ownership import ClaimRefused, Ownership, qualified_name
 from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.protocol.units import DriveUnits
@@ -535,7 +535,8 @@ class BridgeNode(LifecycleNode):
             # process of its own: nothing here is timing-critical then, and a child started
             # from a SCHED_FIFO thread would import numpy and canopen under SCHED_FIFO
             # (measured: the hub's SYNC 100-110 ms late while it did)
-            n = fifo_process(cfg.rt_priority - 1, "ff_hwbridge")
+            got = setup_process(RealtimeConfig(priority=cfg.rt_priority - 1, switch_interval=0.0), "ff_hwbridge")
+            n = got.get("fifo_threads", 0)
             if n:
                 self.get_logger().info(f"SCHED_FIFO {cfg.rt_priority - 1} for the node's {n} threads, "
                                        f"{cfg.rt_priority} for the setpoint player and the bus receiver")
@@ -1122,10 +1123,11 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
     ap.add_argument("--config", default="", help="bridge YAML (overrides the config_file parameter)")
     ap.add_argument("--channel", default="", help="bus channel override, e.g. ws://127.0.0.1:54701/")
     args = ap.parse_args(remove_ros_args(argv)[1:])
-    # the bus receiver and the setpoint player get the GIL back from the executor's threads
-    # within this (python's default 5 ms would be five SYNC cycles)
-    sys.setswitchinterval(SWITCH_INTERVAL)
-    gc_pauses.install()
+    # the process's real-time set-up, in one place: the bus receiver and the setpoint player get
+    # the GIL back from the executor's threads within SWITCH_INTERVAL (python's default 5 ms is
+    # half a 10 ms SYNC cycle), and every collection is timed for the diagnostics; SCHED_FIFO
+    # (rt_priority) is applied at configure, once the player's placement is known
+    setup_process(RealtimeConfig(switch_interval=SWITCH_INTERVAL, time_gc=True), "ff_hwbridge")
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:
