@@ -439,6 +439,8 @@ class BridgeNode(LifecycleNode):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         #: who may command the drives (set up at configure from default_owner, claim_lease)
         self.ownership: Optional[Ownership] = None
+        # (client, token, ROS time) of the latest claim granted: ~/status's claimed_since
+        self._claim_granted: Optional[tuple[str, str, Any]] = None
         self._owner_enabling = False     # an activate the owner asked for (~/owner_command ENABLE)
         self.config_error = ""           # why the latest configure failed
         self._sub_setpoints: Any = None
@@ -513,6 +515,7 @@ class BridgeNode(LifecycleNode):
             self.config = cfg = self._load_config()
             self.ownership = Ownership(float(self._get("claim_lease")), float(self._get("claim_max_lease")),
                                        qualified_name(str(self._get("default_owner")), self.get_namespace()))
+            self._claim_granted = None
             # the long full collection before anything on the bus is timed (the watchdogs start
             # at configure); activate's, just before enabling, then scans only what came since
             freeze_heap()
@@ -873,6 +876,8 @@ class BridgeNode(LifecycleNode):
                     raise ClaimRefused(f"a motion of {own.owner or 'another client'} is running; claim "
                                        "after it ends")
                 c = own.claim(str(request.client), float(request.lease), str(request.token))
+                if self._claim_granted is None or self._claim_granted[1] != c.token:
+                    self._claim_granted = (c.client, c.token, self.get_clock().now().to_msg())
                 response.token, response.lease = c.token, c.lease
                 response.message = f"claimed by {c.client} (lease {c.lease:g} s)"
                 self.get_logger().info(f"drive {response.message}")
@@ -1077,10 +1082,15 @@ class BridgeNode(LifecycleNode):
         own = self.ownership
         if own is not None:
             msg.owner, msg.claimed, msg.lease_left = own.owner, own.claimed, own.lease_left()
+            granted = self._claim_granted
+            if msg.claimed and granted is not None and granted[0] == msg.owner:
+                msg.claimed_since = granted[2]        # else zero: unclaimed
             msg.refused = sum(own.refused.values()) + own.claims_refused
             msg.last_refusal = own.last_refusal
         msg.commands_accepted = int(self.commands_accepted)
         msg.missed_setpoints = int(_count(st.get("missed_setpoints", 0)))
+        # the master's statusword bit-11 count of the latest motion, per joint
+        msg.current_limited_cycles = [int(_count(st.get(f"{n}.motion_limited_count", 0))) for n in names]
         msg.sync_period = float(self._cfg().sync_period) if self._cfg().synchronous else 0.0
         self._pub_status.publish(msg)
 
