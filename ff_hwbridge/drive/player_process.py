@@ -51,8 +51,8 @@ from ff_hwbridge.drive.epos import EposMaster
 from ff_hwbridge.drive.node import ECHO_INTERFACES, SYNC_COB_ID, PreparedCommand
 from ff_hwbridge.drive.player import (MAX_REPORTS, AppliedSetpoint, PlayerBase, PlayerConfig, SetpointPlayer,
                                       SetpointRejected)
-from ff_hwbridge.drive.rpdo import EchoMatch, RpdoChannel, SetpointRpdos
 from ff_hwbridge.drive.realtime import SWITCH_INTERVAL, IdleCollector, RealtimeConfig, setup_process, use_fifo
+from ff_hwbridge.drive.rpdo import EchoMatch, RpdoChannel, SetpointRpdos
 from ff_hwbridge.drive.safety import SafetyGuard
 from ff_hwbridge.drive.scheduler import SwitchStats
 from ff_hwbridge.drive.sync_watch import SyncWatch
