@@ -46,7 +46,7 @@ from _common import (busy_processes, enable_drive, feed_stream, match_stream, pe
                      stop_processes)
 
 from ff_hwbridge.drive.epos import EposMaster
-from ff_hwbridge.drive.gc_pauses import freeze_heap, hold_full_collections
+from ff_hwbridge.drive.realtime import freeze_heap, hold_full_collections
 from ff_hwbridge.drive.player import PlayerConfig, SetpointPlayer
 from ff_hwbridge.drive.player_process import ProcessPlayer
 from ff_hwbridge.sim.rig_process import RigProcess, free_port, rig_master_config

@@ -272,11 +272,17 @@ def format_drive_status(node: str, m: Any) -> str:
         lines.append(f"  configure failed: {m.config_error}")
     if m.latch_reason:
         lines.append(f"  safe state: {m.latch_reason} (ff-ctl fault-reset clears it)")
-    for name, state, emcy in zip(m.joint_names, m.drive_states, m.last_emcy):
-        lines.append(f"  {name}: {state}" + (f"; last EMCY {emcy}" if emcy else ""))
+    limited = list(m.current_limited_cycles) or [0] * len(m.joint_names)
+    for name, state, emcy, lim in zip(m.joint_names, m.drive_states, m.last_emcy, limited):
+        lines.append(f"  {name}: {state}" + (f"; last EMCY {emcy}" if emcy else "")
+                     + (f"; current limited in {lim} cycles of the latest motion (statusword bit 11: "
+                        "the drive clipped it)" if lim else ""))
     if m.state != DriveGroupStatus.UNCONFIGURED:
         owner = m.owner or "nobody"
-        lines.append(f"  owner: {owner}" + (f" (claimed, {m.lease_left:.1f} s lease left)" if m.claimed
+        since = m.claimed_since.sec + m.claimed_since.nanosec * 1e-9
+        held = (f", held since {time.strftime('%H:%M:%S', time.localtime(since))}"
+                f" ({max(0.0, time.time() - since):.1f} s)" if since > 0 else "")
+        lines.append(f"  owner: {owner}" + (f" (claimed{held}, {m.lease_left:.1f} s lease left)" if m.claimed
                                             else " (default owner, no claim)" if m.owner else ""))
         lines.append(f"  refused: {m.refused}" + (f" (latest: {m.last_refusal})" if m.last_refusal else ""))
         lines.append(f"  setpoints: SYNC period {m.sync_period * 1e3:g} ms, {m.missed_setpoints} missed "

@@ -34,7 +34,7 @@ import sys
 import threading
 from typing import Optional, Sequence
 
-from ff_hwbridge.drive.gc_pauses import freeze_heap
+from ff_hwbridge.drive.realtime import freeze_heap
 from ff_hwbridge.drive.scheduler import fifo_process
 from ff_hwbridge.sim.can_hub import CanHub, start_hub
 from ff_hwbridge.sim.drive import SimConfigError

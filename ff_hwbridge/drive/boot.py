@@ -175,8 +175,8 @@ class Boot(MasterBase):
         if self.echo:
             net.subscribe(0x200 + nid, self._make_echo_cb(d))
         d.target = State.SWITCH_ON_DISABLED
-        d.controlword = 0
-        d.setpoint = 0
+        d.rpdo.controlword = 0
+        d.rpdo.setpoint = 0
         d.seen_operational = False           # a PRE-OP heartbeat may still be under way
         d.tpdo_seen = False
         node.nmt.send_command(0x01)          # NMT start -> OPERATIONAL
@@ -236,7 +236,7 @@ class Boot(MasterBase):
                                     f"(tolerance {tol * 100.0:g} %): " + "; ".join(bad)
                                     + "; fix the config or the drive, or set scaling_source: drive "
                                     "(use the drive's) or config (write the config's)")
-        d.raw_limit = d.units.setpoint_limit(d.cfg.current_limit)
+        d.rpdo.raw_limit = d.units.setpoint_limit(d.cfg.current_limit)
         if d.cfg.write_current_limit:
             lim_ma = int(math.floor(d.cfg.current_limit * 1000.0))
             if fam == "epos4":

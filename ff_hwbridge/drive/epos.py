@@ -94,7 +94,9 @@ class EposMaster(StateMachine, RpdoWriter, FeedbackReceiver, Watchdogs, Boot):
         # wall ns (time.time_ns, the setpoints' stamp clock) of the latest safe state or fault
         # reset: the current is 0 from then on until a setpoint stamped after it
         self.reset_epoch_ns = 0
-        # the cycle contract: every SYNC seen, each operational drive's RPDO goes out once
+        # the setpoint RPDOs, and the cycle contract: every SYNC seen, each operational drive
+        # this master owns gets its RPDO once
+        self.rpdos = self._make_rpdos()
         self.sync_watch.add_listener(self._on_cycle)
 
     @property
@@ -137,8 +139,8 @@ class EposMaster(StateMachine, RpdoWriter, FeedbackReceiver, Watchdogs, Boot):
             out[p + "nmt"] = d.nmt_state or "unknown"
             out[p + "heartbeat_age_ms"] = (round((now - d.last_heartbeat) * 1000.0, 1)
                                            if d.last_heartbeat is not None else -1.0)
-            out[p + "setpoint_raw"] = d.setpoint
-            out[p + "cycle_repeats"] = d.cycle_repeats     # RPDOs repeating the value in force
+            out[p + "setpoint_raw"] = d.rpdo.setpoint
+            out[p + "cycle_repeats"] = d.rpdo.repeats     # RPDOs repeating the value in force
             out[p + "last_emcy"] = d.emcy[-1] if d.emcy else ""
             sw = fb.statusword
             out[p + "warning"] = bool(sw & SW_WARNING)                # statusword bit 7
@@ -177,10 +179,10 @@ class EposMaster(StateMachine, RpdoWriter, FeedbackReceiver, Watchdogs, Boot):
             node.sdo.MAX_RETRIES = 2            # a drive busy right after boot-up may answer late
             net.add_node(node)
             d.node = node
-            d.rx_fmt = struct_format(rpdo_layout(d.units.family))
+            d.rpdo.fmt = struct_format(rpdo_layout(d.units.family))
             d.tx1_fmt = struct_format(tpdo1_layout(d.units.family))
             d.tx2_fmt = struct_format(tpdo2_layout(d.units.family))
-            d.raw_limit = d.units.setpoint_limit(d.cfg.current_limit)
+            d.rpdo.raw_limit = d.units.setpoint_limit(d.cfg.current_limit)
             net.subscribe(0x700 + d.node_id, self._make_heartbeat_cb(d))
             node.emcy.add_callback(self._make_emcy_cb(d))
         net.subscribe(SYNC_COB_ID, self._on_sync)
@@ -334,7 +336,7 @@ class EposMaster(StateMachine, RpdoWriter, FeedbackReceiver, Watchdogs, Boot):
         self.reset_epoch_ns = max(self.reset_epoch_ns, time.time_ns())
         for d in self._drives:
             d.reset_until = now + self.config.state_timeout
-            d.setpoint = 0
+            d.rpdo.setpoint = 0
             d.envelope_armed = False     # armed again once back inside the envelope
             if d.operational and d.feedback.state in (State.FAULT, State.FAULT_REACTION_ACTIVE):
                 # make sure the reset bit rises even if it was left set

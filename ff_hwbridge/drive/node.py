@@ -24,7 +24,7 @@ from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.protocol.units import DriveUnits
 
 __all__ = ["ABORT_NO_OBJECT", "ECHO_INTERFACES", "NMT_STATES", "OPTIONAL_SUBS", "REFRESH_PERIOD",
-           "RESEND_PERIOD", "SYNC_COB_ID", "EposError", "MasterBase", "PreparedCommand"]
+           "RESEND_PERIOD", "SYNC_COB_ID", "EposError", "MasterBase", "PreparedCommand", "RpdoChannel"]
 
 NMT_STATES = {0x00: "BOOTUP", 0x04: "STOPPED", 0x05: "OPERATIONAL", 0x7F: "PRE-OPERATIONAL"}
 # python-can interfaces that echo the bus's own frames back with their bus timestamp
@@ -56,17 +56,36 @@ class EposError(RuntimeError):
 
 
 @dataclass
+class RpdoChannel:
+    """One drive's setpoint RPDO1 (written by ``drive.rpdo.SetpointRpdos``): its layout, the
+    value in force and its counters.
+
+    fmt: struct format (controlword, raw setpoint; ``protocol.epos_od.rpdo_layout``);
+    raw_limit: the raw setpoint limit (|raw| <= raw_limit, the configured current limit)."""
+
+    cob_id: int
+    fmt: str = "<Hh"
+    raw_limit: int = 0
+    controlword: int = 0          # the value in force
+    setpoint: int = 0             # raw, as sent (clamped)
+    cycle_sent: int = -1          # SYNC count (SyncWatch) seen when the latest RPDO was sent
+    repeats: int = 0              # RPDOs repeating the value in force (nothing new in a cycle)
+    tx_seq: int = 0               # RPDOs handed to the bus
+    tx_failing: int = 0           # sends failed since the last that went through
+    last_tx: float = 0.0          # clock s of the latest send
+    echo_seq: int = 0             # of ours, echoed back by the bus
+    echo_log: dict[int, int] = field(default_factory=dict)     # RPDO number -> bus ns
+    unechoed: deque[tuple[int, bytes]] = field(default_factory=lambda: deque(maxlen=1024))
+
+
+@dataclass
 class _Drive:
     cfg: JointConfig
     units: DriveUnits
     node: Any = None
-    rx_fmt: str = "<Hh"
     tx1_fmt: str = "<Hi"
     tx2_fmt: str = "<ii"
-    raw_limit: int = 0
     target: State = State.SWITCH_ON_DISABLED
-    controlword: int = 0
-    setpoint: int = 0
     feedback: JointFeedback = field(default_factory=JointFeedback)
     nmt_state: Optional[str] = None
     last_heartbeat: Optional[float] = None
@@ -76,14 +95,7 @@ class _Drive:
     operational: bool = False
     seen_operational: bool = False
     tpdo_seen: bool = False
-    last_tx: float = 0.0          # monotonic s of the latest RPDO
-    cycle_sent: int = -1          # SYNC count (SyncWatch) seen when the latest RPDO was sent
-    cycle_repeats: int = 0        # RPDOs repeated because nothing new went out in a cycle
-    tx_seq: int = 0               # setpoint RPDOs handed to the bus
-    tx_failing: int = 0           # setpoint RPDOs failed since the last that went through
     pairing: Optional[SamplePairing] = None   # TPDO1 <-> SYNC (the sample instant)
-    echo_seq: int = 0             # of those, echoed back by the bus (receive_own_messages)
-    echo_log: deque = field(default_factory=lambda: deque(maxlen=1024))  # (echo_seq, bus ns)
     emcy: deque = field(default_factory=lambda: deque(maxlen=20))   # recent EMCY texts
     warnings: deque = field(default_factory=lambda: deque(maxlen=20))  # recent warning EMCYs
     history_wanted: bool = False  # read 0x1003 / 0x603F (monitor thread) after a fault
@@ -94,6 +106,9 @@ class _Drive:
     limited_armed: bool = False   # a motion has started: bit 11 counts until the next one starts
     limited_count: int = 0        # TPDO1s with statusword bit 11 (internal limit) in this motion
     limited_first_ns: int = 0     # wall ns (sample instant) of the first of them; 0: none
+    index: int = 0                # position in the master's drive list
+    # the setpoint RPDO1 (``drive.rpdo``): layout, value in force, counters, echoes
+    rpdo: RpdoChannel = field(init=False, repr=False, compare=False)
 
     @property
     def node_id(self) -> int:

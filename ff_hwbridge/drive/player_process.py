@@ -10,10 +10,12 @@ thin wrapper:
   (``receive_own_messages`` where the interface has it; socketcan allows several sockets, the
   simulation's hub several clients), its own :class:`~ff_hwbridge.drive.sync_watch.SyncWatch`
   fed by its receiver thread, guard + units (``prepare_currents``: ±limit A, NaN → 0 A, raw
-  0x6071 ‰ / 0x2030 mA), RPDO1 per joint (controlword + setpoint, CiA 402) and, every SYNC it
-  sees, each enabled drive's RPDO1 once, the value in force repeated when no new setpoint went
-  out in that cycle (the drive's interpolation-period supervision, 0x60C2 / EMCY 0x8250, is what
-  stops a drive whose player froze);
+  0x6071 ‰ / 0x2030 mA) and the master's own RPDO writer, :class:`~ff_hwbridge.drive.rpdo.
+  SetpointRpdos` (RPDO1 per joint, controlword + setpoint clamped to the limit; every SYNC it
+  sees, each drive the gate lets it drive gets its RPDO1 once, the value in force repeated when
+  no new setpoint went out in that cycle: the drive's interpolation-period supervision, 0x60C2 /
+  EMCY 0x8250, is what stops a drive whose player froze), with this placement's parameters:
+  ownership from the gate, its own echoes told from the master's frames by their content;
 - what it may send comes from the master through shared memory (:meth:`EposMaster.gate`: per
   joint the controlword and whether a current may be sent; the master updates it before it
   sends a new controlword or its safe-state reaction), so the child never re-enables a drive
@@ -35,7 +37,6 @@ from __future__ import annotations
 
 import logging
 import multiprocessing as mp
-import struct
 import threading
 import time
 from collections import deque
@@ -51,6 +52,7 @@ from ff_hwbridge.drive.node import ECHO_INTERFACES, SYNC_COB_ID, PreparedCommand
 from ff_hwbridge.drive.player import (MAX_REPORTS, AppliedSetpoint, PlayerBase, PlayerConfig, SetpointPlayer,
                                       SetpointRejected)
 from ff_hwbridge.drive.realtime import SWITCH_INTERVAL, IdleCollector, RealtimeConfig, setup_process, use_fifo
+from ff_hwbridge.drive.rpdo import EchoMatch, RpdoChannel, SetpointRpdos
 from ff_hwbridge.drive.safety import SafetyGuard
 from ff_hwbridge.drive.scheduler import SwitchStats
 from ff_hwbridge.drive.sync_watch import SyncWatch
@@ -105,17 +107,15 @@ class ChildLink:
         self.pending_fn: Callable[[], bool] = lambda: False
         self._units = [j.units for j in config.joints]
         self._limits = [float(j.current_limit) for j in config.joints]
-        self._fmt = [struct_format(rpdo_layout(u.family)) for u in self._units]
-        self._cob = [0x200 + j.node_id for j in config.joints]
-        self._rx = {cob: i for i, cob in enumerate(self._cob)}
-        self._lock = threading.Lock()
-        self.raw = [0] * self.n                   # the value in force, per joint
-        self.cycle_sent = [-1] * self.n           # SYNC count when each joint's latest RPDO went
-        self.tx_seq = [0] * self.n
-        self.echo_seq = [0] * self.n
-        self._sent: list[deque[tuple[int, bytes]]] = [deque(maxlen=1024) for _ in range(self.n)]
-        self._echo_log: list[dict[int, int]] = [{} for _ in range(self.n)]
-        self.repeats = 0
+        # the setpoint RPDOs (``drive.rpdo``): this link owns a drive's while the gate lets it
+        # send a current (with the gate's controlword); the master's frames of the COB-ID reach
+        # this connection too, so its own echoes are told by their content
+        self.rpdos = SetpointRpdos(
+            [RpdoChannel(0x200 + j.node_id, struct_format(rpdo_layout(j.units.family)),
+                         j.units.setpoint_limit(j.current_limit)) for j in config.joints],
+            self._transmit, lambda: self.sync_watch.count, owner=self._owner, zero_current=lambda: self.latched,
+            echo=EchoMatch.SENT_FRAMES, forget_when_not_owned=True)
+        self._lock = self.rpdos.lock
         self.received = 0
         self.epoch = 0                            # the reset epoch last acted on
         self._listeners: list[Callable[[str], None]] = []
@@ -136,6 +136,15 @@ class ChildLink:
     @property
     def latched(self) -> bool:
         return bool(self.gate[2 * self.n])
+
+    @property
+    def raw(self) -> list[int]:
+        """The value in force (raw setpoint), per joint."""
+        return [ch.setpoint for ch in self.rpdos.channels]
+
+    @property
+    def repeats(self) -> int:
+        return self.rpdos.repeats
 
     @property
     def fault_reason(self) -> Optional[str]:
@@ -182,13 +191,12 @@ class ChildLink:
         marks = []
         for i, raw in enumerate(prepared.raw):
             with self._lock:            # a cycle's repeat never goes between a send and its record
-                cw, ok = self._gate(i)
-                if not ok:
-                    self.raw[i] = 0
+                cw = self._owner(i)
+                if cw is None:
+                    self.rpdos.channels[i].setpoint = 0
                     marks.append(0)
                     continue
-                self._tx(i, cw, int(raw))
-                marks.append(self.tx_seq[i])
+                marks.append(self.rpdos.send(i, cw, int(raw)))
         return tuple(marks)
 
     def command_zero(self) -> None:
@@ -199,19 +207,18 @@ class ChildLink:
         return np.array([u.setpoint_to_amps(r) for u, r in zip(self._units, self.raw)])
 
     def echo_time(self, marks: Sequence[int]) -> Optional[int]:
-        t = 0
-        for i, m in enumerate(marks):
-            if m <= 0:
-                continue
-            hit = self._echo_log[i].get(m)
-            if hit is None:
-                return None
-            t = max(t, hit)
-        return t
+        return self.rpdos.echo_time(marks)
 
     # --- the RPDOs ----------------------------------------------------------------------------
-    def _gate(self, i: int) -> tuple[int, bool]:
-        return int(self.gate[2 * i]), bool(self.gate[2 * i + 1]) and not self.gate[2 * self.n]
+    def _owner(self, i: int) -> Optional[int]:
+        """The gate's controlword while it lets this player send joint ``i`` a current, else
+        None (the master owns that RPDO)."""
+        if bool(self.gate[2 * i + 1]) and not self.gate[2 * self.n]:
+            return int(self.gate[2 * i])
+        return None
+
+    def _transmit(self, cob_id: int, data: bytes) -> None:
+        self.bus.send(can.Message(arbitration_id=cob_id, data=data, is_extended_id=False))
 
     def check_epoch(self) -> None:
         """A new reset epoch (a safe state / fault reset in the master): the value in force is
@@ -223,33 +230,14 @@ class ChildLink:
             if e == self.epoch:
                 return
             self.epoch = e
-            self.raw = [0] * self.n
+            self.rpdos.forget()
         for fn in list(self._listeners):
             fn("reset epoch")
 
-    def _tx(self, i: int, cw: int, raw: int) -> None:
-        """RPDO1 of joint ``i`` now (call with ``_lock`` held)."""
-        data = struct.pack(self._fmt[i], cw & 0xFFFF, raw)
-        self._sent[i].append((self.tx_seq[i] + 1, data))
-        self.bus.send(can.Message(arbitration_id=self._cob[i], data=data, is_extended_id=False))
-        self.tx_seq[i] += 1
-        self.raw[i] = raw
-        self.cycle_sent[i] = self.sync_watch.count
-
     def _on_cycle(self, ev: Any) -> None:
-        """A SYNC seen (receiver thread): each enabled drive's RPDO1 once in the cycle it opens,
-        the value in force again when nothing new went out in it."""
+        """A SYNC seen (receiver thread): each enabled drive's RPDO1 once in the cycle it opens."""
         self.check_epoch()
-        for i in range(self.n):
-            with self._lock:
-                cw, ok = self._gate(i)
-                if not ok:
-                    self.raw[i] = 0             # the master owns the RPDO; 0 when it hands back
-                    continue
-                if self.cycle_sent[i] >= ev.count:
-                    continue
-                self.repeats += 1
-                self._tx(i, cw, self.raw[i])
+        self.rpdos.on_cycle(ev)
 
     def start_receiver(self) -> None:
         """Start the receiver thread (``receive``)."""
@@ -279,19 +267,10 @@ class ChildLink:
                 continue
             cid = msg.arbitration_id
             if cid == SYNC_COB_ID:
-                self.sync_watch.observe(msg.timestamp, tuple(self.echo_seq) if self.echo else None)
-            elif cid in self._rx:
-                i = self._rx[cid]
+                self.sync_watch.observe(msg.timestamp, self.rpdos.echoes() if self.echo else None)
+            elif (i := self.rpdos.index(cid)) is not None:
                 ts = int(round(msg.timestamp * 1e9)) if msg.timestamp else time.time_ns()
-                sent = self._sent[i]
-                # the bus echoes our frames in send order; the master's frames of this COB-ID
-                # (its controlword, its safe-state zero) are not ours
-                if sent and sent[0][1] == bytes(msg.data):
-                    seq = sent.popleft()[0]
-                    self.echo_seq[i] += 1
-                    log_ = self._echo_log[i]
-                    log_[seq] = ts
-                    log_.pop(seq - 4096, None)
+                self.rpdos.on_echo(i, bytes(msg.data), ts)
 
     def close(self) -> None:
         self.stopped.set()

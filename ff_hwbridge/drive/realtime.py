@@ -250,13 +250,15 @@ class RealtimeConfig:
     """What :func:`setup_process` does: ``priority`` 1..99 SCHED_FIFO for every thread (0: none),
     ``switch_interval`` s at most (lowered to it, never raised; 0: unchanged), ``lock_memory``,
     ``cpus`` (empty: unchanged),
-    ``freeze_gc`` (freeze the heap and hold the automatic full collections)."""
+    ``freeze_gc`` (freeze the heap and hold the automatic full collections),
+    ``time_gc`` (time every collection from now on: :data:`pauses`, for the diagnostics)."""
 
     priority: int = 0
     switch_interval: float = SWITCH_INTERVAL
     lock_memory: bool = False
     cpus: tuple[int, ...] = ()
     freeze_gc: bool = False
+    time_gc: bool = False
 
 
 @dataclass(frozen=True)
@@ -304,6 +306,9 @@ def setup_process(config: RealtimeConfig, who: str) -> dict[str, object]:
         out["affinity"] = set_affinity(config.cpus, who)
     if config.lock_memory:
         out["memory_locked"] = lock_memory(who)
+    if config.time_gc:
+        pauses.install()
+        out["gc_timed"] = True
     if config.freeze_gc:
         out["frozen"] = freeze_heap()
         hold_full_collections()

@@ -40,29 +40,29 @@ class StateMachine(MasterBase):
                                                                    State.QUICK_STOP_ACTIVE):
                 target = State.SWITCH_ON_DISABLED
             try:
-                cw, _ = cia402.next_controlword(state, target, d.controlword)
+                cw, _ = cia402.next_controlword(state, target, d.rpdo.controlword)
             except cia402.TransitionError:
                 cw = cia402.HOLD_CONTROLWORD.get(state, 0)
-            setpoint = d.setpoint if (state is State.OPERATION_ENABLED
+            setpoint = d.rpdo.setpoint if (state is State.OPERATION_ENABLED
                                       and target is State.OPERATION_ENABLED
                                       and not self.guard.latched) else 0
             # RPDOs are not acknowledged: sync, every SYNC cycle repeats them (``_on_cycle``);
             # on_receipt, while the drive is not where we want it, repeat the controlword (a
             # lost quick stop must not leave the drive driving current), and refresh the RPDO
             # now and then anyway (a lost setpoint heals)
-            since = now - d.last_tx
-            if self._player_owns(d) and cw == d.controlword:
+            since = now - d.rpdo.last_tx
+            if self._player_owns(d) and cw == d.rpdo.controlword:
                 return                    # the player's RPDOs (one per cycle) carry it
             repeat = not self.config.synchronous and ((state is not target and since >= RESEND_PERIOD)
                                                       or since >= REFRESH_PERIOD)
-            if cw != d.controlword or setpoint != d.setpoint or repeat:
+            if cw != d.rpdo.controlword or setpoint != d.rpdo.setpoint or repeat:
                 self._send_rpdo(d, cw, setpoint)
 
     def gate(self) -> list[tuple[int, bool]]:
         """Per joint: (controlword, True when a current may be sent: operational, in and meant
         for Operation enabled, no safe state latched)."""
         latched = self.guard.latched
-        return [(d.controlword, bool(not latched and d.operational
+        return [(d.rpdo.controlword, bool(not latched and d.operational
                                      and d.feedback.state is State.OPERATION_ENABLED
                                      and d.target is State.OPERATION_ENABLED))
                 for d in self._drives]
@@ -96,7 +96,7 @@ class StateMachine(MasterBase):
         if self.guard.latched:
             raise EposError(f"safe state latched ({self.guard.reason}); call fault_reset() first")
         for d in self._drives:
-            d.setpoint = 0
+            d.rpdo.setpoint = 0
         self._set_target(State.OPERATION_ENABLED)
 
     def disable(self) -> None:

@@ -36,7 +36,7 @@ class FeedbackReceiver(MasterBase):
 
     def _on_sync(self, can_id: int, data: bytearray, timestamp: float) -> None:
         """A SYNC on the bus (receiver thread): its bus instant and the echoes before it."""
-        echoes = tuple(d.echo_seq for d in self._drives) if self.echo else None
+        echoes = tuple(d.rpdo.echo_seq for d in self._drives) if self.echo else None
         ev = self.sync_watch.observe(timestamp, echoes)
         for d in self._drives:
             at = d.pairing.on_sync(ev.bus_ns) if d.pairing is not None else None

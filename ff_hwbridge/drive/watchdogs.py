@@ -47,9 +47,9 @@ class Watchdogs(MasterBase):
                     # on_receipt: keep the RPDO stream fed even when no TPDO arrives to step
                     # the state machine (sync: every SYNC cycle does, ``_on_cycle``)
                     if (not self.config.synchronous and d.operational and d.feedback.state is not None
-                            and not self._player_owns(d) and now - d.last_tx >= REFRESH_PERIOD):
+                            and not self._player_owns(d) and now - d.rpdo.last_tx >= REFRESH_PERIOD):
                         with self._send_lock:
-                            self._send_rpdo(d, d.controlword, d.setpoint)
+                            self._send_rpdo(d, d.rpdo.controlword, d.rpdo.setpoint)
                     if d.history_wanted and d.operational:
                         d.history_wanted = False
                         self.read_error_history(d.cfg.name)

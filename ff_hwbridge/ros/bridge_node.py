@@ -97,11 +97,11 @@ from std_srvs.srv import Trigger
 from ff_hwbridge.drive.config import (OPTION_RANGES, BridgeConfig, BusConfig, ConfigError, config_from_mapping,
                                       load_config, with_bus)
 from ff_hwbridge.drive.epos import EposError, EposMaster
-from ff_hwbridge.drive.player import SWITCH_INTERVAL, AppliedSetpoint, SetpointPlayer, SetpointRejected
-from ff_hwbridge.drive.gc_pauses import IdleCollector, freeze_heap, hold_full_collections
-from ff_hwbridge.drive.gc_pauses import pauses as gc_pauses
+from ff_hwbridge.drive.player import AppliedSetpoint, SetpointPlayer, SetpointRejected
 from ff_hwbridge.drive.player_process import ProcessPlayer
-from ff_hwbridge.drive.scheduler import fifo_process
+from ff_hwbridge.drive.realtime import (SWITCH_INTERVAL, IdleCollector, RealtimeConfig, freeze_heap,
+                                        hold_full_collections, setup_process)
+from ff_hwbridge.drive.realtime import pauses as gc_pauses
 from ff_hwbridge.ownership import ClaimRefused, Ownership, qualified_name
 from ff_hwbridge.protocol.cia402 import State
 from ff_hwbridge.protocol.units import DriveUnits
@@ -439,6 +439,8 @@ class BridgeNode(LifecycleNode):
         self.add_on_set_parameters_callback(self._on_set_parameters)
         #: who may command the drives (set up at configure from default_owner, claim_lease)
         self.ownership: Optional[Ownership] = None
+        # (client, token, ROS time) of the latest claim granted: ~/status's claimed_since
+        self._claim_granted: Optional[tuple[str, str, Any]] = None
         self._owner_enabling = False     # an activate the owner asked for (~/owner_command ENABLE)
         self.config_error = ""           # why the latest configure failed
         self._sub_setpoints: Any = None
@@ -513,6 +515,7 @@ class BridgeNode(LifecycleNode):
             self.config = cfg = self._load_config()
             self.ownership = Ownership(float(self._get("claim_lease")), float(self._get("claim_max_lease")),
                                        qualified_name(str(self._get("default_owner")), self.get_namespace()))
+            self._claim_granted = None
             # the long full collection before anything on the bus is timed (the watchdogs start
             # at configure); activate's, just before enabling, then scans only what came since
             freeze_heap()
@@ -535,7 +538,8 @@ class BridgeNode(LifecycleNode):
             # process of its own: nothing here is timing-critical then, and a child started
             # from a SCHED_FIFO thread would import numpy and canopen under SCHED_FIFO
             # (measured: the hub's SYNC 100-110 ms late while it did)
-            n = fifo_process(cfg.rt_priority - 1, "ff_hwbridge")
+            got = setup_process(RealtimeConfig(priority=cfg.rt_priority - 1, switch_interval=0.0), "ff_hwbridge")
+            n = got.get("fifo_threads", 0)
             if n:
                 self.get_logger().info(f"SCHED_FIFO {cfg.rt_priority - 1} for the node's {n} threads, "
                                        f"{cfg.rt_priority} for the setpoint player and the bus receiver")
@@ -872,6 +876,8 @@ class BridgeNode(LifecycleNode):
                     raise ClaimRefused(f"a motion of {own.owner or 'another client'} is running; claim "
                                        "after it ends")
                 c = own.claim(str(request.client), float(request.lease), str(request.token))
+                if self._claim_granted is None or self._claim_granted[1] != c.token:
+                    self._claim_granted = (c.client, c.token, self.get_clock().now().to_msg())
                 response.token, response.lease = c.token, c.lease
                 response.message = f"claimed by {c.client} (lease {c.lease:g} s)"
                 self.get_logger().info(f"drive {response.message}")
@@ -1076,10 +1082,15 @@ class BridgeNode(LifecycleNode):
         own = self.ownership
         if own is not None:
             msg.owner, msg.claimed, msg.lease_left = own.owner, own.claimed, own.lease_left()
+            granted = self._claim_granted
+            if msg.claimed and granted is not None and granted[0] == msg.owner:
+                msg.claimed_since = granted[2]        # else zero: unclaimed
             msg.refused = sum(own.refused.values()) + own.claims_refused
             msg.last_refusal = own.last_refusal
         msg.commands_accepted = int(self.commands_accepted)
         msg.missed_setpoints = int(_count(st.get("missed_setpoints", 0)))
+        # the master's statusword bit-11 count of the latest motion, per joint
+        msg.current_limited_cycles = [int(_count(st.get(f"{n}.motion_limited_count", 0))) for n in names]
         msg.sync_period = float(self._cfg().sync_period) if self._cfg().synchronous else 0.0
         self._pub_status.publish(msg)
 
@@ -1122,10 +1133,11 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
     ap.add_argument("--config", default="", help="bridge YAML (overrides the config_file parameter)")
     ap.add_argument("--channel", default="", help="bus channel override, e.g. ws://127.0.0.1:54701/")
     args = ap.parse_args(remove_ros_args(argv)[1:])
-    # the bus receiver and the setpoint player get the GIL back from the executor's threads
-    # within this (python's default 5 ms would be five SYNC cycles)
-    sys.setswitchinterval(SWITCH_INTERVAL)
-    gc_pauses.install()
+    # the process's real-time set-up, in one place: the bus receiver and the setpoint player get
+    # the GIL back from the executor's threads within SWITCH_INTERVAL (python's default 5 ms is
+    # half a 10 ms SYNC cycle), and every collection is timed for the diagnostics; SCHED_FIFO
+    # (rt_priority) is applied at configure, once the player's placement is known
+    setup_process(RealtimeConfig(switch_interval=SWITCH_INTERVAL, time_gc=True), "ff_hwbridge")
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     node = None
     try:

@@ -40,7 +40,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import Trigger
 
 from ff_hwbridge.drive.bus import CanConfigError
-from ff_hwbridge.drive.gc_pauses import freeze_heap
+from ff_hwbridge.drive.realtime import freeze_heap
 from ff_hwbridge.sim.arm import FrictionMismatch
 from ff_hwbridge.sim.can_hub import CanHub, start_hub
 from ff_hwbridge.sim.drive import RX_LATE_S, SimConfigError, SimEpos

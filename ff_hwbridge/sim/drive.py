@@ -104,7 +104,7 @@ from canopen.objectdictionary import ObjectDictionary, ODVariable
 from canopen.pdo.base import PdoBase, PdoMaps
 from canopen.sdo import SdoAbortedError
 
-from ff_hwbridge.drive.stall_dump import StallDump
+from ff_hwbridge.drive.realtime import StallDump
 from ff_hwbridge.protocol import cia402, epos_od
 from ff_hwbridge.protocol.cia402 import Command, State
 from ff_hwbridge.protocol.epos_od import (CURRENT_MODE, FACTORY_QUICK_STOP_OPTION, MAXON_VENDOR_ID,  # noqa: F401

@@ -179,3 +179,19 @@ def test_setup_process_sets_the_switch_interval_and_freezes_the_heap():
         sys.setswitchinterval(before)
         gc.set_threshold(*thresholds)
         gc.unfreeze()
+
+
+def test_setup_process_times_the_collections_when_asked():
+    from ff_hwbridge.drive.realtime import pauses
+
+    was = pauses._installed
+    try:
+        pauses.uninstall()
+        before = sum(pauses.count)
+        got = setup_process(RealtimeConfig(switch_interval=0.0, time_gc=True), "test")
+        assert got["gc_timed"] is True and "switch_interval" not in got
+        gc.collect()
+        assert sum(pauses.count) > before and pauses.as_dict()["gc.collections"] != "0/0/0"
+    finally:
+        if not was:
+            pauses.uninstall()

@@ -210,3 +210,53 @@ def test_a_running_profile_keeps_the_commands_out_logged_once(bridge, rig, capfd
         assert not node.master.latched, node.master.fault_reason
     finally:
         cmd.close()
+
+
+@pytest.mark.integration
+def test_status_shows_when_the_claim_was_granted_and_the_cycles_the_drive_clipped(bridge, rig):
+    """~/status: ``current_limited_cycles`` counts, per joint, the feedback cycles with statusword
+    bit 11 in the latest motion (the drive's own limit lowered below the command: it clips), and
+    ``claimed_since`` is the claim's grant time (zero unclaimed); ``ff-ctl status`` shows both."""
+    from ff_executor.ros.ctl import format_drive_status
+    from ff_msgs.msg import DriveGroupStatus
+    from ff_msgs_py.claims import DriveClaim
+
+    node, client, nm_per_amp = bridge
+    status: list = []
+    client.create_subscription(DriveGroupStatus, "/ff_hwbridge/status", status.append, 10)
+    assert _wait(lambda: bool(status))
+    assert not status[-1].claimed and (status[-1].claimed_since.sec, status[-1].claimed_since.nanosec) == (0, 0)
+    assert list(status[-1].current_limited_cycles) == [0]
+
+    # the drive's own output current limit 0.5 A (0x3001:02, mA), the command 1 A: it clips
+    sdo = node.master.network[1].sdo
+    with node.master._sdo_lock:
+        sdo[0x3001][2].raw = 500
+    cmd = _Commander(client)
+    try:
+        assert _wait(cmd.subscribed)
+        cmd.effort = 1.0 * nm_per_amp
+        assert _wait(lambda: status[-1].current_limited_cycles[0] >= 3), node.last_command_refusal
+        shown = format_drive_status("/ff_hwbridge", status[-1])
+        assert "joint1: Operation enabled; current limited in" in shown, shown
+        cmd.effort = 0.0
+        assert _wait(lambda: rig.state()[2] == 0.0), rig.state()
+    finally:
+        cmd.close()
+        with node.master._sdo_lock:
+            sdo[0x3001][2].raw = int(LIMIT * 1000)
+
+    def since(m) -> float:
+        return m.claimed_since.sec + m.claimed_since.nanosec * 1e-9
+
+    before = time.time()
+    claim = DriveClaim(client, "/ff_hwbridge")
+    after = time.time()
+    try:
+        assert _wait(lambda: status[-1].claimed and since(status[-1]) > 0)
+        granted = since(status[-1])
+        assert before - 0.01 <= granted <= after + 0.01, (before, granted, after)
+        assert "held since" in format_drive_status("/ff_hwbridge", status[-1])
+    finally:
+        claim.release()
+    assert _wait(lambda: not status[-1].claimed and since(status[-1]) == 0.0)
