@@ -154,3 +154,44 @@ def test_a_registered_file_that_does_not_exist_stops_the_node_at_start(ros_env, 
         assert "Traceback" not in out
     finally:
         proc.stop()
+
+
+def test_the_plan_long_action_serves_a_registered_arm_too(planner_node, client):
+    from action_msgs.msg import GoalStatus
+    from rclpy.action import ActionClient
+    from rclpy.executors import SingleThreadedExecutor
+
+    from ff_msgs.action import PlanMotion
+
+    node = client[0]
+    act = ActionClient(node, PlanMotion, "/ff_planner/plan_long")
+    ex = SingleThreadedExecutor(context=node.context)
+    ex.add_node(node)
+
+    def spin_until(cond, timeout):
+        end = time.monotonic() + timeout
+        while not cond() and time.monotonic() < end:
+            ex.spin_once(timeout_sec=0.05)
+        return cond()
+
+    try:
+        assert act.wait_for_server(timeout_sec=30)
+        for fields, status in ((dict(model="urdf:arm1dof", q0=[0.0], qf=[0.3], move_time=1.0,
+                                     time_budget=20.0), GoalStatus.STATUS_SUCCEEDED),
+                               (dict(model="urdf:arm9", q0=[0.0], qf=[0.3], move_time=1.0),
+                                GoalStatus.STATUS_ABORTED)):
+            fut = act.send_goal_async(PlanMotion.Goal(**fields))
+            assert spin_until(fut.done, 30) and fut.result().accepted
+            res_fut = fut.result().get_result_async()
+            assert spin_until(res_fut.done, 240), "no result"
+            wrapped = res_fut.result()
+            assert wrapped.status == status, wrapped.result.message
+            if status == GoalStatus.STATUS_SUCCEEDED:
+                r = wrapped.result
+                assert r.success and r.certificate.certified and list(r.profile.joint_names) == ["joint1"]
+                assert abs(r.q_final[0] - 0.3) < 1e-6
+            else:
+                assert "no arm named 'arm9'" in wrapped.result.message
+    finally:
+        ex.remove_node(node)
+        act.destroy()
