@@ -13,9 +13,13 @@ arm left to stop after tf). Decision variables: the N·n step currents, |I| ≤ 
 2. First-order minimax surrogate: a bounded least-squares solve (scipy ``least_squares``, trf) of
    the residuals [W_GOAL·(θ_rest − qf); ∂θ_rest,i/∂p_j·δ_j], δ_j the half-width of p_j's box,
    i.e. the rest-error change each parameter alone causes at its box edge to first order. The
-   derivatives are complex-step derivatives through the event-aware simulator (one simulation
-   per uncertain parameter gives all joints); their dependence on the currents by forward
-   differences. Zero residuals are the paper's zero-derivative plan (needs N·n ≥ n + n·k).
+   derivatives are forward sensitivities from Pinocchio's analytical RNEA derivatives along the
+   simulated trajectory (``ff_planner.arm.sensitivity``: one simulation and its replay give
+   ∂θ_rest/∂p and ∂θ_rest/∂x for all joints); the residuals' Jacobian in the currents is that
+   ∂θ_rest/∂x and, for the first-order terms, forward differences in each p_c of it (k + 1
+   replays per Jacobian instead of (N·n + 1)·k complex-step simulations). derivatives=
+   "complex-step" keeps the earlier scheme for comparison. Zero residuals are the paper's
+   zero-derivative plan (needs N·n ≥ n + n·k).
 3. Polish the goal on the certificate's substep, certify over the box (``certificate``).
 
 The plan is labelled ``zero-derivative`` when every first-order term is below ``tol`` (rad), else
@@ -34,6 +38,7 @@ from scipy.optimize import least_squares
 
 from ff_planner.arm import sim
 from ff_planner.arm.model import UrdfArm
+from ff_planner.arm.sensitivity import RestSensitivity, rest_sensitivity
 from ff_planner.armplan.certificate import CERT_H, BoxSpec, certify_arm
 from ff_planner.core.errors import PlanningError
 from ff_planner.model import arm1dof
@@ -44,7 +49,8 @@ from ff_planner.optimize.planner import plan
 
 PLAN_H = 4e-3            # s, RK4 substep while searching (rest positions within ~1e-7 rad of 1 ms)
 W_GOAL = 10.0            # weight of the nominal goal error against the first-order terms
-DIFF_STEP = 1e-6         # relative forward-difference step in the currents
+DIFF_STEP = 1e-6         # relative forward-difference step in the currents (complex-step mode)
+FRICTION_STEP = 1e-6     # relative forward-difference step of the analytical Jacobian in p
 SEARCH_SHARE = 0.65      # share of the time budget for the search; the rest for the certificate
 
 
@@ -94,8 +100,11 @@ class _Problem:
     """Residuals of one move (see the module docstring)."""
 
     def __init__(self, arm: UrdfArm, q0: np.ndarray, qf: np.ndarray, tf: float, coast: float,
-                 n_steps: int, i_rest: Optional[np.ndarray], deadline: float):
+                 n_steps: int, i_rest: Optional[np.ndarray], deadline: float,
+                 derivatives: str = "pinocchio"):
         self.arm = arm
+        self.derivatives = derivatives
+        self._cache: dict = {}
         self.q0 = q0
         self.qf = qf
         self.tf = tf
@@ -121,28 +130,90 @@ class _Problem:
         return sim.run(self.arm, prof, self.q0, fr=fr, i_rest=self.i_rest, h=h, settle=True)
 
     def rest(self, x: np.ndarray, h: float = PLAN_H) -> np.ndarray:
+        if self.derivatives == "pinocchio":
+            rs = self.sensitivity(x, h)
+            return np.full(self.arm.n, 1e3) if rs is None else rs.rest
         r = self._run(x, self.fr0, h)
         if r[-1] != sim.OK:
             return np.full(self.arm.n, 1e3)
         return r[1][:self.arm.n].real
 
+    def sensitivity(self, x: np.ndarray, h: float = PLAN_H,
+                    scale: Optional[np.ndarray] = None) -> Optional[RestSensitivity]:
+        """Rest θ and its forward sensitivities (``ff_planner.arm.sensitivity``) at currents x
+        (friction scaled by ``scale``); None if the arm chatters or does not stop. The last few
+        results are kept (least_squares asks for the residual and the Jacobian at one x)."""
+        key = (np.asarray(x, float).tobytes(), h, None if scale is None else scale.tobytes())
+        if key in self._cache:
+            return self._cache[key]
+        self.evals += 1
+        try:
+            r: Optional[RestSensitivity] = rest_sensitivity(self.arm, self.profile(x), self.q0, h=h,
+                                                            friction_scale=scale, i_rest=self.i_rest)
+        except PlanningError:
+            r = None
+        if len(self._cache) > 2 * self.spec.k + 4:
+            self._cache.clear()
+        self._cache[key] = r
+        return r
+
     def rest_and_sens(self, x: np.ndarray, h: float = PLAN_H) -> tuple[np.ndarray, np.ndarray]:
-        """Nominal rest θ (n,) and ∂θ_rest/∂p (n, k) by complex step (k simulations)."""
+        """Nominal rest θ (n,) and ∂θ_rest/∂p (n, k): Pinocchio forward sensitivities (one
+        simulation and its replay), or with derivatives="complex-step" k complex simulations."""
         n = self.arm.n
+        if self.derivatives == "pinocchio":
+            r = self.sensitivity(x, h)
+            if r is None:
+                return np.full(n, 1e3), np.full((n, self.spec.k), 1e3)
+            ix = self.spec.index
+            return r.rest, r.d_friction[:, ix[:, 0], ix[:, 1]]
         S = np.zeros((n, self.spec.k))
         rest = None
         for c, (j, k) in enumerate(self.spec.index):
             fr = self.fr0.copy()
             hs = 1e-30 * abs(fr[k, j].real)
             fr[k, j] += 1j * hs
-            r = self._run(x, fr, h)
-            if r[-1] != sim.OK:
+            r2 = self._run(x, fr, h)
+            if r2[-1] != sim.OK:
                 return np.full(n, 1e3), np.full((n, self.spec.k), 1e3)
-            S[:, c] = r[1][:n].imag / hs
-            rest = r[1][:n].real
+            S[:, c] = r2[1][:n].imag / hs
+            rest = r2[1][:n].real
         if rest is None:
             rest = self.rest(x, h)
         return rest, S
+
+    def rest_jac(self, x: np.ndarray, h: float = PLAN_H) -> np.ndarray:
+        """∂θ_rest/∂x (n, N·n) from the forward sensitivities."""
+        r = self.sensitivity(x, h)
+        if r is None:
+            return np.zeros((self.arm.n, x.size))
+        return r.jacobian_currents()
+
+    def goal_jac(self, x: np.ndarray) -> np.ndarray:
+        if time.perf_counter() > self.deadline:
+            raise _OutOfTime
+        return self.rest_jac(x)
+
+    def full_jac(self, x: np.ndarray) -> np.ndarray:
+        """Jacobian of ``full_residual``: W·∂θ_rest/∂x and δ_c·∂²θ_rest/∂p_c∂x, the latter by a
+        forward difference in p_c (relative FRICTION_STEP) of the analytical ∂θ_rest/∂x."""
+        if time.perf_counter() > self.deadline:
+            raise _OutOfTime
+        n, k = self.arm.n, self.spec.k
+        J0 = self.rest_jac(x)
+        out = np.zeros((n + n * k, x.size))
+        out[:n] = W_GOAL * J0
+        for c, (j, kk) in enumerate(self.spec.index):
+            if time.perf_counter() > self.deadline:
+                raise _OutOfTime
+            scale = np.ones((n, 3))
+            scale[j, kk] += FRICTION_STEP
+            r = self.sensitivity(x, PLAN_H, scale)
+            if r is None:
+                continue
+            dp = FRICTION_STEP * float(self.arm.friction[j, kk])   # signed: p·(1 + ε) − p
+            out[n + c::k] = self.delta[c] * (r.jacobian_currents() - J0) / dp
+        return out
 
     def goal_residual(self, x: np.ndarray) -> np.ndarray:
         if time.perf_counter() > self.deadline:
@@ -275,8 +346,13 @@ def _coupled_start(arm: UrdfArm, q0: np.ndarray, qf: np.ndarray, N: int, tf: flo
 def plan_box_robust_arm(arm: UrdfArm, q0: Sequence[float], qf: Sequence[float], tf: float = 1.0,
                         *, coast: float = 0.05, steps: Optional[int] = None, seed: int = 0,
                         time_budget: float = 30.0, tol: float = 1e-6,
-                        i_rest: Optional[Sequence[float]] = None, certify: bool = True) -> ArmPlan:
-    """robust-box plan for the move q0 → qf (motor angles θ, rad) in tf s (see the module)."""
+                        i_rest: Optional[Sequence[float]] = None, certify: bool = True,
+                        derivatives: str = "pinocchio") -> ArmPlan:
+    """robust-box plan for the move q0 → qf (motor angles θ, rad) in tf s (see the module).
+    ``derivatives``: "pinocchio" (forward sensitivities, the default) or "complex-step" (the
+    earlier scheme, forward differences in the currents; kept for comparison)."""
+    if derivatives not in ("pinocchio", "complex-step"):
+        raise PlanningError(f"derivatives must be 'pinocchio' or 'complex-step', got {derivatives!r}")
     t0 = time.perf_counter()
     n = arm.n
     q0a = np.asarray(q0, float).reshape(-1)
@@ -294,7 +370,10 @@ def plan_box_robust_arm(arm: UrdfArm, q0: Sequence[float], qf: Sequence[float], 
     ir = None if i_rest is None else np.asarray(i_rest, float)
     bounds = (-np.tile(arm.i_max, N), np.tile(arm.i_max, N))
     deadline = t0 + float(time_budget) * (SEARCH_SHARE if certify else 1.0)
-    prob = _Problem(arm, q0a, qfa, float(tf), float(coast), N, ir, deadline)
+    prob = _Problem(arm, q0a, qfa, float(tf), float(coast), N, ir, deadline, derivatives)
+    analytic = derivatives == "pinocchio"
+    jac_goal = prob.goal_jac if analytic else "2-point"
+    jac_full = prob.full_jac if analytic else "2-point"
     starts = 0
     while True:
         if n == 1:
@@ -305,9 +384,10 @@ def plan_box_robust_arm(arm: UrdfArm, q0: Sequence[float], qf: Sequence[float], 
             x = _coupled_start(arm, q0a, qfa, N, float(tf), float(coast), int(seed) + starts)
         starts += 1
         try:
-            x = least_squares(prob.goal_residual, x, bounds=bounds, method="trf", xtol=1e-12,
-                              ftol=1e-12, gtol=1e-12, diff_step=DIFF_STEP, max_nfev=60 * N * n).x
-            least_squares(prob.full_residual, x, bounds=bounds, method="trf", xtol=1e-10,
+            x = least_squares(prob.goal_residual, x, jac=jac_goal, bounds=bounds, method="trf",
+                              xtol=1e-12, ftol=1e-12, gtol=1e-12, diff_step=DIFF_STEP,
+                              max_nfev=60 * N * n).x
+            least_squares(prob.full_residual, x, jac=jac_full, bounds=bounds, method="trf", xtol=1e-10,
                           ftol=1e-12, gtol=1e-12, diff_step=DIFF_STEP, x_scale=np.tile(arm.i_max, N))
         except _OutOfTime:
             pass
@@ -323,7 +403,9 @@ def plan_box_robust_arm(arm: UrdfArm, q0: Sequence[float], qf: Sequence[float], 
     x = prob.best[1]
     # polish the nominal goal on the certificate's substep (small changes of the currents)
     prob.deadline = math.inf
-    x = least_squares(lambda v: prob.rest(v, CERT_H) - qfa, x, bounds=bounds, method="trf",
+    x = least_squares(lambda v: prob.rest(v, CERT_H) - qfa, x,
+                      jac=(lambda v: prob.rest_jac(v, CERT_H)) if analytic else "2-point",
+                      bounds=bounds, method="trf",
                       xtol=1e-14, ftol=1e-14, gtol=1e-14, diff_step=DIFF_STEP, max_nfev=20 * N * n).x
     rest, S = prob.rest_and_sens(x, CERT_H)
     fo = np.abs(rest - qfa) + np.abs(S) @ prob.delta

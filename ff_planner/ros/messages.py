@@ -51,6 +51,9 @@ def fill_response(result: PlanResult, response: Any) -> Any:
     rest = (result.extra or {}).get("predicted_rest") or []
     if result.profile is not None:
         response.profile.predicted_rest = [float(x) for x in rest]
+        names = (result.extra or {}).get("joint_names") or []
+        if len(names) == result.profile.n_joints:     # an arm from a URDF: its joints' names
+            response.profile.joint_names = [str(x) for x in names]
     return response
 
 

@@ -15,11 +15,15 @@ Console script: ``ff-planner-node`` (= ``ff_planner.ros.planner_node:main``).
 from __future__ import annotations
 
 import json
+import multiprocessing
+import signal
 import sys
 import threading
 import time
+from pathlib import Path
 from typing import Any, Optional
 
+import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
@@ -31,16 +35,21 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 
 from ff_msgs.action import PlanMotion
 from ff_msgs.srv import PlanTrajectory
-from ff_msgs_py.configs import node_parameters
+from ff_msgs_py.configs import config_dir, node_parameters
 from ff_msgs_py.convert import error_response
 from ff_msgs_py.threads import in_thread
+from ff_planner.armplan.requests import (PARAM_PREFIX, ArmRequest, RegisteredArm, is_urdf_model,
+                                         plan_registered, registry_from_parameters)
 from ff_planner.library.warm import PlanFn
+from ff_planner.model.profile import PlanResult
 from ff_planner.optimize.planner import plan
 from ff_planner.ros.messages import feedback_from_progress, fields_from_msg, fill_response
-from ff_planner.service.planner_service import (CANCELED, LIMIT_NAMES, PlannerService, ServiceConfigError,
-                                                config_from_mapping)
+from ff_planner.service.planner_service import (CANCELED, LIMIT_NAMES, PlannerService, RequestFields,
+                                                ServiceConfigError, config_from_mapping)
 
 FEEDBACK_PERIOD = 0.2   # s between PlanMotion feedback messages
+ARM_WORKER_SLACK = 60.0  # s past a urdf:NAME request's budget: the worker's start-up (imports,
+#                          compiled kernels from their cache, the arm's URDF and fit) and certificate
 
 NODE_ONLY = ("diagnostics_period", "executor_threads")
 #: the shipped parameter file whose values are the node's defaults (the one source: a node started
@@ -90,6 +99,13 @@ PARAMETERS: dict[str, tuple[str, Optional[tuple[float, float]]]] = {
 }
 
 
+#: the shipped arms (config/planner.yaml's arms.NAME.urdf / arms.NAME.cell)
+SHIPPED_ARMS = ("arm1dof", "scara2", "arm3h", "vertical2")
+PARAMETERS.update({f"{PARAM_PREFIX}{arm}.{half}": (
+    f"{half} file of the arm served as model id urdf:{arm} (docs/arms.md); relative paths also "
+    "from the suite's config folder", None) for arm in SHIPPED_ARMS for half in ("urdf", "cell")})
+
+
 def descriptor(name: str, value: Any = None) -> ParameterDescriptor:
     """ParameterDescriptor of planner parameter ``name`` (``<model>.preset`` and
     ``<model>.params.<key>`` included); read-only: the node reads its parameters at start."""
@@ -101,6 +117,9 @@ def descriptor(name: str, value: Any = None) -> ParameterDescriptor:
         text = (f"{'rad/s' if parts[1] == 'velocity_max' else 'rad'} per joint: the cell's "
                 f"{parts[1]} for {parts[0]} requests that give none (held along the whole motion "
                 f"at every point of the friction box)")
+    elif not text and len(parts) == 3 and parts[0] == "arms" and parts[2] in ("urdf", "cell"):
+        text = (f"{parts[2]} file of the arm served as model id urdf:{parts[1]} (docs/arms.md); "
+                "relative paths also from the suite's config folder")
     elif not text and len(parts) == 3 and parts[1] == "params":
         text = f"SI units: override of model {parts[0]}'s parameter {parts[2]} (ff_planner/model/params.py)"
     d = ParameterDescriptor(name=name, description=(text + " (read at start)").lstrip(), read_only=True,
@@ -112,9 +131,31 @@ def descriptor(name: str, value: Any = None) -> ParameterDescriptor:
     return d
 
 
+def _flatten(values: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested maps of a parameter file as ROS names them: {"arms": {"a": {"urdf": f}}} ->
+    {"arms.a.urdf": f}."""
+    out: dict[str, Any] = {}
+    for key, value in values.items():
+        if isinstance(value, dict):
+            out.update(_flatten(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
 def shipped_defaults() -> dict[str, Any]:
-    """The ``ros__parameters`` of the shipped config/planner.yaml: the node's defaults."""
-    return node_parameters(*SHIPPED)
+    """The ``ros__parameters`` of the shipped config/planner.yaml: the node's defaults (nested
+    maps flattened to dotted names, as ROS reads them)."""
+    return _flatten(node_parameters(*SHIPPED))
+
+
+def resolve_config_path(text: str) -> Path:
+    """A configured file: absolute, or relative to the working folder, else to the suite's
+    config folder."""
+    p = Path(text).expanduser()
+    if p.is_absolute() or p.is_file():
+        return p
+    return config_dir() / p
 
 
 def parameters_markdown() -> str:
@@ -123,6 +164,8 @@ def parameters_markdown() -> str:
     between its markers)."""
     rows = ["| name | default | range | description |", "|---|---|---|---|"]
     for name, default in {**shipped_defaults(), **NODE_DEFAULTS}.items():
+        if name.startswith(PARAM_PREFIX):      # the registered arms: docs/arms.md
+            continue
         rng = PARAMETERS.get(name, ("", None))[1]
         text = descriptor(name, default).description.replace(" (read at start)", "")
         rows.append(f"| `{name}` | `{json.dumps(default)}` | {f'{rng[0]:g} .. {rng[1]:g}' if rng else ''} | "
@@ -156,13 +199,21 @@ class PlannerNode(Node):
                   if name not in ROS_BUILTIN and not name.startswith("qos_overrides")}
         self.diagnostics_period = float(values.pop("diagnostics_period", 1.0))
         self.executor_threads = int(values.pop("executor_threads", 0))
+        arm_values = {k: values.pop(k) for k in list(values) if k.startswith(PARAM_PREFIX)}
+        try:
+            self.arms: dict[str, RegisteredArm] = registry_from_parameters(arm_values, resolve_config_path)
+        except ValueError as exc:
+            raise ServiceConfigError(str(exc)) from None
+        self._arm_pool: Optional[Any] = None           # one worker process for urdf:NAME plans
+        self._arm_lock = threading.Lock()
         config = config_from_mapping(values)
         if self.executor_threads <= 0:
             self.executor_threads = config.max_pending + 4
         self.service = PlannerService(config, plan_fn=plan_fn, log=lambda m: self.get_logger().warning(m))
         self.get_logger().info(
             f"starting {config.workers} planner workers (library: {config.library_path or 'off'}, "
-            f"planner: {self.service.planner_name})")
+            f"planner: {self.service.planner_name}; arms from a URDF: "
+            f"{', '.join('urdf:' + n for n in sorted(self.arms)) or 'none'})")
         self.service.start()
         # a deep request queue: a burst of requests waits in DDS instead of being dropped (the
         # default depth of 10 loses requests); admission control then answers or refuses each one
@@ -187,13 +238,51 @@ class PlannerNode(Node):
 
     def _plan_blocking(self, req: PlanTrajectory.Request, res: PlanTrajectory.Response) -> PlanTrajectory.Response:
         try:
-            result = self.service.handle_fields(fields_from_msg(req))
+            fields = fields_from_msg(req)
+            result = self._plan_urdf(fields) if is_urdf_model(fields.model) else self.service.handle_fields(fields)
             self._encode(result, res)
             self._log_result("plan", req, result)
         except Exception as exc:  # noqa: BLE001 - never die on a request
             self.get_logger().error(f"request failed: {exc!r}")
             error_response(res, "INTERNAL_ERROR", f"planner node error: {exc}")
         return res
+
+    def _plan_urdf(self, fields: RequestFields) -> PlanResult:
+        """A ``urdf:NAME`` request: planned for the registered arm in the node's arm worker
+        process (``ff_planner.armplan.requests``); killed and answered TIME_BUDGET_EXHAUSTED
+        when it runs past its budget plus ARM_WORKER_SLACK s (its start-up included)."""
+        c = self.service.config
+        unsupported = tuple(name for name, given in (
+            ("uncertain", fields.uncertain), ("override_names", fields.override_names),
+            ("box_names", fields.box_names), ("coast_max", fields.coast_max),
+            ("switch_grid", fields.switch_grid), ("position_min", fields.position_min),
+            ("position_max", fields.position_max), ("velocity_max", fields.velocity_max),
+            ("tolerance", fields.tolerance), ("move_time_max", fields.move_time_max)) if given)
+        req = ArmRequest(model=fields.model, q0=[float(x) for x in fields.q0],
+                         qf=[float(x) for x in fields.qf], move_time=float(fields.move_time),
+                         objective=str(fields.objective), steps=int(fields.steps),
+                         seed=int(fields.seed), time_budget=float(fields.time_budget),
+                         unsupported=unsupported)
+        kwargs = dict(default_time_budget=c.default_time_budget, max_time_budget=c.max_time_budget,
+                      max_steps=c.max_steps, max_move_time=c.max_move_time, coast=c.coast)
+        budget = min(float(fields.time_budget) or c.default_time_budget, c.max_time_budget)
+        with self._arm_lock:          # one arm plan at a time (one worker process)
+            if self._arm_pool is None:
+                # the worker ignores SIGINT: the node stops it (terminate) when it shuts down
+                self._arm_pool = multiprocessing.get_context("spawn").Pool(
+                    1, initializer=signal.signal, initargs=(signal.SIGINT, signal.SIG_IGN))
+            job = self._arm_pool.apply_async(plan_registered, (req, self.arms), kwargs)
+            try:
+                return job.get(timeout=budget + ARM_WORKER_SLACK)
+            except multiprocessing.TimeoutError:
+                self._arm_pool.terminate()
+                self._arm_pool = None
+                return PlanResult(success=False, message=f"{fields.model}: no answer within "
+                                  f"{budget + ARM_WORKER_SLACK:g} s (its worker was stopped)",
+                                  profile=None, model=fields.model, params=None,
+                                  q0=np.asarray(req.q0, float), qf=np.asarray(req.qf, float),
+                                  uncertain=[], objective="robust-box",
+                                  error_code="TIME_BUDGET_EXHAUSTED")
 
     def _encode(self, result: Any, res: Any) -> None:
         try:
@@ -255,8 +344,11 @@ class PlannerNode(Node):
 
         box: list[Any] = []
         fields = fields_from_msg(goal)
-        worker = threading.Thread(target=lambda: box.append(self.service.handle_fields(fields, progress, cancel)),
-                                  name="ff_plan_goal_work", daemon=True)
+        if is_urdf_model(fields.model):
+            work = lambda: box.append(self._plan_urdf(fields))  # noqa: E731
+        else:
+            work = lambda: box.append(self.service.handle_fields(fields, progress, cancel))  # noqa: E731
+        worker = threading.Thread(target=work, name="ff_plan_goal_work", daemon=True)
         self.get_logger().info(f"plan_long goal {gid}: {goal.model or '-'} {list(goal.q0)} -> {list(goal.qf)} "
                                f"tf={goal.move_time:g} {goal.objective or self.service.config.default_objective}")
         worker.start()
@@ -301,6 +393,9 @@ class PlannerNode(Node):
         self._diag.publish(msg)
 
     def destroy_node(self) -> None:
+        if self._arm_pool is not None:
+            self._arm_pool.terminate()
+            self._arm_pool = None
         self.service.close()
         super().destroy_node()
 

@@ -1,0 +1,197 @@
+"""The ff_planner node (another process, over DDS on loopback) serving arms from a URDF by model
+id ``urdf:NAME``: a shipped arm (registered by config/planner.yaml) and one the test registers with
+arms.NAME.urdf / arms.NAME.cell are planned robust-box with their certificate; malformed and
+unknown names and requests an arm cannot serve are answered with one clear error and the node
+goes on serving; a registered file that does not exist stops the node at start with a clear line."""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.integration
+
+ARMS = Path(__file__).resolve().parents[3] / "config" / "arms"
+
+
+def _params(folder: Path, extra: str = "") -> Path:
+    p = folder / "planner.yaml"
+    p.write_text(f"""ff_planner:
+  ros__parameters:
+    library_path: ""
+    use_library: false
+    drive_config: ""
+    workers: 1
+    warmup: false
+    default_time_budget: 20.0
+    diagnostics_period: 0.0
+{extra}""")
+    return p
+
+
+@pytest.fixture(scope="module")
+def planner_node(ros_env, tmp_path_factory):
+    from ff_msgs_py.launch import start_module, wait_for_line
+
+    folder = tmp_path_factory.mktemp("planner_urdf")
+    params = _params(folder, f"""    arms:
+      mine: {{urdf: "{ARMS / 'arm1dof.urdf'}", cell: "{ARMS / 'arm1dof.cell.yaml'}"}}
+""")
+    proc = start_module("ff_planner_node", "ff_planner.ros.planner_node",
+                        ["--ros-args", "--params-file", str(params)], ros_env)
+    try:
+        assert wait_for_line(proc, "ff_planner ready", 240), proc.output()
+        yield proc
+    finally:
+        code = proc.stop()
+        assert not proc.alive()
+        assert "Traceback" not in proc.output(), proc.output()[-3000:]
+        assert code is not None
+
+
+@pytest.fixture(scope="module")
+def client(planner_node, ros_env):
+    import rclpy
+    from rclpy.node import Node
+
+    from ff_msgs.srv import PlanTrajectory
+
+    ctx = rclpy.Context()
+    rclpy.init(context=ctx)
+    node = Node("ff_planner_urdf_test_client", context=ctx)
+    cli = node.create_client(PlanTrajectory, "/ff_planner/plan")
+    assert cli.wait_for_service(timeout_sec=20), "planner service not discovered"
+    try:
+        yield node, cli
+    finally:
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)
+
+
+def _call(client, timeout=240.0, **fields):
+    from rclpy.executors import SingleThreadedExecutor
+
+    from ff_msgs.srv import PlanTrajectory
+
+    node, cli = client
+    fut = cli.call_async(PlanTrajectory.Request(**fields))
+    ex = SingleThreadedExecutor(context=node.context)
+    ex.add_node(node)
+    end = time.monotonic() + timeout
+    try:
+        while not fut.done() and time.monotonic() < end:
+            ex.spin_once(timeout_sec=0.05)
+    finally:
+        ex.remove_node(node)
+    assert fut.done(), f"no answer to {fields}"
+    return fut.result()
+
+
+def test_the_node_logs_its_registered_arms(planner_node):
+    out = planner_node.output()
+    for name in ("urdf:arm1dof", "urdf:arm3h", "urdf:scara2", "urdf:vertical2", "urdf:mine"):
+        assert name in out, out[-2000:]
+
+
+@pytest.mark.parametrize("model", ["urdf:arm1dof", "urdf:mine"])
+def test_a_registered_arm_is_planned_with_its_certificate(client, model):
+    from ff_msgs.srv import PlanTrajectory
+
+    res = _call(client, model=model, q0=[0.0], qf=[0.5], move_time=1.0, time_budget=20.0)
+    assert res.success and res.error_code == PlanTrajectory.Response.OK, res.message
+    assert "plan for " + model in res.message and "certified worst rest error" in res.message
+    assert res.certificate.certified and len(res.certificate.worst_per_joint) == 1
+    assert 0.0 < res.certificate.worst_rest_error < 0.5
+    assert set(res.certificate.box_names) == {"pv@joint1", "pc@joint1", "pt@joint1"}
+    assert list(res.profile.joint_names) == ["joint1"] and res.profile.model == model
+    assert abs(res.profile.predicted_rest[0] - 0.5) < 1e-6 and abs(res.q_final[0] - 0.5) < 1e-6
+    assert res.profile.n_steps >= 1 and len(res.profile.currents) == res.profile.n_steps
+    assert max(abs(c) for c in res.profile.currents) <= 10.0 + 1e-9    # the cell's i_max
+
+
+BAD = [
+    (dict(model="urdf:"), "INVALID_REQUEST", "malformed"),
+    (dict(model="urdf:no such"), "INVALID_REQUEST", "malformed"),
+    (dict(model="urdf:arm9"), "UNKNOWN_MODEL", "no arm named 'arm9'"),
+    (dict(model="urdf:arm3h"), "INVALID_REQUEST", "need 3 values"),
+    (dict(model="urdf:arm1dof", objective="time-optimal"), "INVALID_REQUEST", "robust-box only"),
+    (dict(model="urdf:arm1dof", tolerance=0.01), "INVALID_REQUEST", "tolerance: not taken"),
+    (dict(model="urdf:arm1dof", move_time=0.0), "INVALID_REQUEST", "move_time"),
+]
+
+
+def test_bad_model_ids_and_requests_get_one_clear_error(client, planner_node):
+    from ff_msgs.srv import PlanTrajectory
+
+    for fields, code, text in BAD:
+        req = dict(dict(q0=[0.0], qf=[0.5], move_time=1.0), **fields)
+        res = _call(client, timeout=120.0, **req)
+        assert not res.success, fields
+        assert res.error_code == getattr(PlanTrajectory.Response, code), (fields, res.message)
+        assert text in res.message, (fields, res.message)
+    assert planner_node.alive()
+    # and it still plans the suite's own models
+    ok = _call(client, model="arm1dof", q0=[0.0], qf=[1.0], move_time=1.0, objective="time-optimal")
+    assert ok.success, ok.message
+
+
+def test_a_registered_file_that_does_not_exist_stops_the_node_at_start(ros_env, tmp_path):
+    from ff_msgs_py.launch import start_module
+
+    params = _params(tmp_path, f"""    arms:
+      ghost: {{urdf: "{tmp_path / 'ghost.urdf'}", cell: "{ARMS / 'arm3h.cell.yaml'}"}}
+""")
+    proc = start_module("ff_planner_bad", "ff_planner.ros.planner_node",
+                        ["--ros-args", "--params-file", str(params)], ros_env, log_dir=str(tmp_path))
+    end = time.monotonic() + 120
+    while proc.alive() and time.monotonic() < end:
+        time.sleep(0.1)
+    try:
+        assert not proc.alive(), "the node should refuse its configuration"
+        out = proc.output()
+        assert "bad configuration" in out and "arms.ghost.urdf" in out and "no such file" in out, out
+        assert "Traceback" not in out
+    finally:
+        proc.stop()
+
+
+def test_the_plan_long_action_serves_a_registered_arm_too(planner_node, client):
+    from action_msgs.msg import GoalStatus
+    from rclpy.action import ActionClient
+    from rclpy.executors import SingleThreadedExecutor
+
+    from ff_msgs.action import PlanMotion
+
+    node = client[0]
+    act = ActionClient(node, PlanMotion, "/ff_planner/plan_long")
+    ex = SingleThreadedExecutor(context=node.context)
+    ex.add_node(node)
+
+    def spin_until(cond, timeout):
+        end = time.monotonic() + timeout
+        while not cond() and time.monotonic() < end:
+            ex.spin_once(timeout_sec=0.05)
+        return cond()
+
+    try:
+        assert act.wait_for_server(timeout_sec=30)
+        for fields, status in ((dict(model="urdf:arm1dof", q0=[0.0], qf=[0.3], move_time=1.0,
+                                     time_budget=20.0), GoalStatus.STATUS_SUCCEEDED),
+                               (dict(model="urdf:arm9", q0=[0.0], qf=[0.3], move_time=1.0),
+                                GoalStatus.STATUS_ABORTED)):
+            fut = act.send_goal_async(PlanMotion.Goal(**fields))
+            assert spin_until(fut.done, 30) and fut.result().accepted
+            res_fut = fut.result().get_result_async()
+            assert spin_until(res_fut.done, 240), "no result"
+            wrapped = res_fut.result()
+            assert wrapped.status == status, wrapped.result.message
+            if status == GoalStatus.STATUS_SUCCEEDED:
+                r = wrapped.result
+                assert r.success and r.certificate.certified and list(r.profile.joint_names) == ["joint1"]
+                assert abs(r.q_final[0] - 0.3) < 1e-6
+            else:
+                assert "no arm named 'arm9'" in wrapped.result.message
+    finally:
+        ex.remove_node(node)
+        act.destroy()
