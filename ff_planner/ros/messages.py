@@ -35,13 +35,7 @@ def certificate_msg(cert: Optional[RobustnessCertificate]) -> CertificateMsg:
     excursion included (``ff_msgs_py.convert.certificate_to_msg``); a drive-exact plan's
     certificate (``DriveCertificate``, its ``drive`` dict) fills drive_exact, the setpoint unit
     (A), the switch period (s) and the configuration they came from."""
-    msg = certificate_to_msg(cert)
-    drive = getattr(cert, "drive", None) or {}
-    msg.drive_exact = bool(drive)
-    msg.drive_setpoint_unit = float(drive.get("current_quantum_A", 0.0) or 0.0)
-    msg.drive_switch_period = float(drive.get("switch_period_s", 0.0) or 0.0)
-    msg.drive_source = str(drive.get("source", "") or "")
-    return msg
+    return certificate_to_msg(cert)
 
 
 def fill_response(result: PlanResult, response: Any) -> Any:
