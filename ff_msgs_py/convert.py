@@ -21,8 +21,8 @@ from ff_msgs.srv import PlanTrajectory
 from ff_planner.core.errors import ERROR_NAMES
 from ff_planner.model.limits import Excursion, MotionLimits
 from ff_planner.model.params import ParameterError, default_params, n_joints
-from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult, RobustnessCertificate
-from ff_planner.optimize.drive_grid import DriveCertificate
+from ff_planner.model.profile import (CurrentProfile, DriveCertificate, PlanRequest, PlanResult,
+                                      RobustnessCertificate)
 
 
 # --- joint names ------------------------------------------------------------------------------

@@ -67,8 +67,9 @@ def _link_tree(src: Path, dst: Path, skip, deep: tuple[str, ...] = ()) -> None:
             (dst / entry.name).symlink_to(entry)
 
 
-#: the CMake build folder of the test wheel, kept between runs (build/ is ignored by git)
-BUILD_DIR = REPO / "build" / "test-wheel"
+#: the CMake build folder of the interfaces, kept between runs (build/ is ignored by git); ``./run
+#: setup`` builds the editable install in it, so a fresh checkout's wheel build reuses that work
+BUILD_DIR = REPO / "build" / "cmake"
 
 
 def interface_key() -> str:
@@ -82,6 +83,18 @@ def interface_key() -> str:
     return h.hexdigest()[:16]
 
 
+def _cache_here() -> bool:
+    """Whether BUILD_DIR's CMake cache was made for this folder (one that ``./run setup`` made in
+    this checkout; CMake refuses a cache made elsewhere)."""
+    cache = BUILD_DIR / "CMakeCache.txt"
+    if not cache.is_file():
+        return False
+    for line in cache.read_text(errors="replace").splitlines():
+        if line.startswith("CMAKE_CACHEFILE_DIR:"):
+            return Path(line.split("=", 1)[1]).resolve() == BUILD_DIR.resolve()
+    return False
+
+
 @pytest.fixture(scope="module")
 def wheel(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("wheel")
@@ -89,8 +102,8 @@ def wheel(tmp_path_factory) -> Path:
     with open(BUILD_DIR.parent / "test-wheel.lock", "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)           # one build at a time in this checkout
         key, stamp = interface_key(), BUILD_DIR / "ff-interface-key"
-        if BUILD_DIR.exists() and (not stamp.is_file() or stamp.read_text() != key):
-            shutil.rmtree(BUILD_DIR)               # other interface inputs: build from scratch
+        if BUILD_DIR.exists() and (stamp.read_text() != key if stamp.is_file() else not _cache_here()):
+            shutil.rmtree(BUILD_DIR)               # other interface inputs or folder: from scratch
         t0 = time.monotonic()
         proc = subprocess.run([sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation",
                                "-C", f"build-dir={BUILD_DIR}", "-w", str(out), str(REPO)],

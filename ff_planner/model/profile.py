@@ -276,6 +276,19 @@ class RobustnessCertificate:
 
 
 @dataclass
+class DriveCertificate(RobustnessCertificate):
+    """A certificate computed on the profile exactly as the drive applies it: ``drive`` says so
+    (quantum A, switch period s, source, ``certified_profile``)."""
+
+    drive: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        d = super().to_dict()
+        d["drive"] = dict(self.drive)
+        return d
+
+
+@dataclass
 class PlanResult:
     """A planned motion and how it was found. ``robust`` is judged on true derivatives."""
 

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import importlib.util
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from dataclasses import replace as dc_replace
 from pathlib import Path
 from typing import Any, Mapping, Optional, Sequence, Union
@@ -33,7 +33,8 @@ import yaml
 from ff_planner.core.errors import PlanningError
 from ff_planner.model.arm1dof import FRICTION, TR_REST, track
 from ff_planner.model.params import Arm1DofParams
-from ff_planner.model.profile import CurrentProfile, RobustnessCertificate
+from ff_planner.model.profile import CurrentProfile
+from ff_planner.model.profile import DriveCertificate as DriveCertificate  # its home is the model
 from ff_planner.optimize.sample_box import box_corners, box_fractions, box_grid, box_uniform
 
 #: the bridge's defaults for keys a bridge config may leave out (ff_hwbridge.drive.config,
@@ -83,19 +84,6 @@ class DriveGrid:
     def to_dict(self) -> dict:
         return {"current_quantum_A": self.quantum, "switch_period_s": self.period,
                 "source": self.source}
-
-
-@dataclass
-class DriveCertificate(RobustnessCertificate):
-    """A certificate computed on the profile exactly as the drive applies it: ``drive`` says so
-    (quantum A, switch period s, source, ``certified_profile``)."""
-
-    drive: dict = field(default_factory=dict)
-
-    def to_dict(self) -> dict:
-        d = super().to_dict()
-        d["drive"] = dict(self.drive)
-        return d
 
 
 # --- the grid from the bridge's configuration -------------------------------------------------
