@@ -41,8 +41,10 @@ produced by the CAN hub's own timer (the hub runs in its own process; the drives
 setpoint at a SYNC, the planner's switch grid is the SYNC period; ``--setpoint-timing on_receipt``
 applies setpoints when they arrive instead, with the bridge producing SYNC), 50 ms drive heartbeats with a
 3 s timeout on both sides and 3 s for the executor's joint-state watchdog (above the scheduling
-gaps of a normal-priority process on a loaded shared machine, measured up to 1.4 s); a bridge
-that fails its enable sequence is restarted once.
+gaps of a normal-priority process on a loaded shared machine, measured up to 1.4 s). A bridge
+that does not come up stops the start with its own reason (``configure failed: ...`` or
+``activate failed: drives did not reach Operation enabled (states ...; fault ...)``); it is not
+started again (its drives, armed against its heartbeat, would be in Fault 0x8130).
 
 ``--namespace NS`` starts every node under ``/NS`` (``/NS/ff_executor``, ``/NS/ff_hwbridge``, ...)
 with its own CAN hub, so two stacks share one ROS domain: their parameters come from the same
@@ -321,6 +323,22 @@ def robot_bridge_config(path: str | Path, model: str, hub_url: str) -> dict:
                                  f"arm's is {want} (the model's {'kt' if key == 'torque_constant' else 'n'}"
                                  f"{sfx}); plan and simulate that arm, or fix the file")
     return data
+
+
+def bridge_failure(output: str) -> str:
+    """Why a bridge did not come up, from its output: its last ``configure failed: ...`` or
+    ``activate failed: ...`` log line (for the enable sequence: the drives' states and fault),
+    else its last error line, else a note that it logged none."""
+    lines = [ln.strip() for ln in output.splitlines() if ln.strip()]
+    for marks in (("configure failed: ", "activate failed: "), ("[ERROR]", "Error:", "failed")):
+        found = [ln for ln in lines if any(m in ln for m in marks)]
+        if found:
+            text = found[-1]
+            for tag in marks[:2] if marks[0] == "configure failed: " else ():
+                if tag in text:
+                    return text[text.index(tag):]
+            return text
+    return "it logged no error (its output is below)"
 
 
 class Stack:
@@ -618,18 +636,13 @@ class Stack:
             bp: dict[str, object] = {"config_file": str(bcfg)}
             bp.update(o.bridge_overrides)
             bargs = self._node_args("ff_hwbridge", [], bp, self.run_dir / "bridge_params.yaml")
-            for attempt in (1, 2):   # a busy machine can stall the first enable sequence
-                p = self._start("ff_hwbridge", "ff_hwbridge.ros.bridge_node", ["--autostart", *bargs], timing=True)
-                try:
-                    self._wait(p, lambda: self.lifecycle_state("ff_hwbridge") == "active",
-                               "lifecycle state active")
-                    break
-                except BringupError as exc:
-                    if attempt == 2 or p.alive():
-                        raise
-                    self.log(f"  ff_hwbridge failed to come up, retrying once: {str(exc)[-300:]}")
-                    self.procs.remove(p)
-                    p.stop()
+            # one try: a bridge that exits has left its drives armed against its heartbeat (a
+            # second one would find them in Fault 0x8130); its own error line says why
+            p = self._start("ff_hwbridge", "ff_hwbridge.ros.bridge_node", ["--autostart", *bargs], timing=True)
+            try:
+                self._wait(p, lambda: self.lifecycle_state("ff_hwbridge") == "active", "lifecycle state active")
+            except BringupError as exc:
+                raise BringupError(f"ff_hwbridge did not come up: {bridge_failure(p.output())}\n{exc}") from None
 
             if o.planner:
                 files, pp = self.planner_files()

@@ -122,6 +122,10 @@ CurrentLaw = Callable[[int, float, float], float]
 #: ns: how far back the plant can rewind (its history); a change older than this starts late, at
 #: the plant's time, and is counted in ``late_changes``
 REWIND_NS = 2_000_000_000
+#: ns between the snapshots a rewind keeps while it replays (without them, every read of the
+#: replayed span integrated from the rewind's start: a drive process that fell behind then paid
+#: O(its lag) per CAN frame, and fell further behind)
+REPLAY_SNAP_NS = 20_000_000
 
 
 @dataclass(frozen=True)
@@ -172,6 +176,16 @@ class SimArm:
         self._snaps: deque[_Snapshot] = deque()              # plant states, oldest first
         self._changes: deque[tuple[int, int, float]] = deque()   # (t ns, joint, A) since the oldest
         self._snapshot()
+        self.warm_up_s = self._warm_up()
+
+    def _warm_up(self) -> float:
+        """One sub-step of the model from the initial state, result discarded: a model compiled
+        on first call (numba, e.g. the SCARA's: 25 s on a loaded 2-core machine with a cold cache)
+        compiles or loads here, in the caller's thread, not on the plant's first tick under its
+        lock, where every CAN frame that samples the arm would wait for it. Returns seconds."""
+        t = time.perf_counter()
+        self._advance(self.params, self._q.copy(), self._qd.copy(), np.zeros(self.n_joints), self.step)
+        return time.perf_counter() - t
 
     # -- own clock -----------------------------------------------------------------------------
     def start_clock(self, period: float = 0.002, lag: float = 0.01) -> None:
@@ -261,14 +275,31 @@ class SimArm:
         self._changes.clear()
         self._snapshot()
 
+    def _current_at(self, t_ns: int, joint: int) -> Optional[float]:
+        """A, the current motor ``joint`` carried at ``t_ns`` by the history (its latest change at or
+        before it, else the oldest snapshot's); None where the history does not reach back."""
+        if not self._snaps or t_ns < self._snaps[0].t_ns:
+            return None
+        for tc, j, c in reversed(self._changes):
+            if j == joint and tc <= t_ns:
+                return c
+        return float(self._snaps[0].i[joint])
+
+    def _advance_keeping(self, t_ns: int) -> None:
+        """``_advance_to`` with a snapshot every ``REPLAY_SNAP_NS`` of plant time on the way (a
+        replay keeps the history dense: a later read of the past integrates at most that long)."""
+        while t_ns - self._t_ns > REPLAY_SNAP_NS:
+            self._advance_to(self._t_ns + REPLAY_SNAP_NS)
+            self._snapshot()
+        self._advance_to(t_ns)
+
     def _rewind(self, t_ns: int, joint: int, current: float) -> bool:
         """Put a change at ``t_ns`` < the plant's time in its place: back to the latest state at or
         before it, then forward again through every change since, the new one included. False if
         the history does not reach back that far."""
         if self._t_ns - t_ns > REWIND_NS:
             return False
-        times = [sn.t_ns for sn in self._snaps]
-        k = bisect.bisect_right(times, t_ns) - 1
+        k = bisect.bisect_right(self._snaps, t_ns, key=lambda sn: sn.t_ns) - 1
         if k < 0:
             return False
         t_end, snap = self._t_ns, self._snaps[k]
@@ -282,10 +313,11 @@ class SimArm:
         self._q, self._qd, self._i = snap.q.copy(), snap.qd.copy(), snap.i.copy()
         self._t_ns = snap.t_ns
         for t, j, c in replay:
-            self._advance_to(t)
+            self._advance_keeping(t)
             self._i[j] = c
             self._changes.append((t, j, c))
-        self._advance_to(t_end)
+            self._snapshot()
+        self._advance_keeping(t_end)
         self._snapshot()
         return True
 
@@ -310,6 +342,8 @@ class SimArm:
             raise ParameterError(f"joint index must be 0..{self.n_joints - 1}, got {joint}")
         with self._lock:
             if t_ns is not None and self._t_ns - t_ns > LATE_NS:
+                if not self._laws and self._current_at(t_ns, joint) == float(current):
+                    return          # the joint carries it already: the trajectory stays as it is
                 if self._rewind(t_ns, joint, current):
                     self.rewound_changes += 1
                     self.rewound_max_ns = max(self.rewound_max_ns, self._t_ns - t_ns)
