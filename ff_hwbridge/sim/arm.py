@@ -172,6 +172,10 @@ class SimArm:
         self.rewound_changes = 0   # current changes the plant had passed, put in their place
         self.rewound_max_ns = 0    # ... the largest rewind (ns)
         self.stale_reads = 0       # states asked for before the history: the oldest one given
+        # the last state read from the history (every drive samples the same SYNC instant): valid
+        # while the history is not rewritten (a rewind, or forgetting it)
+        self._history_epoch = 0
+        self._last_past: Optional[tuple[int, int, ArmState]] = None    # (epoch, t ns, state)
         self._laws: dict[int, CurrentLaw] = {}                # joint -> a drive's current law
         self._snaps: deque[_Snapshot] = deque()              # plant states, oldest first
         self._changes: deque[tuple[int, int, float]] = deque()   # (t ns, joint, A) since the oldest
@@ -271,6 +275,7 @@ class SimArm:
 
     def _forget_history(self) -> None:
         """The trajectory so far can no longer be replayed (new state, parameters or law)."""
+        self._history_epoch += 1
         self._snaps.clear()
         self._changes.clear()
         self._snapshot()
@@ -303,6 +308,7 @@ class SimArm:
         if k < 0:
             return False
         t_end, snap = self._t_ns, self._snaps[k]
+        self._history_epoch += 1
         replay = [c for c in self._changes if c[0] > snap.t_ns]
         pos = bisect.bisect_right([c[0] for c in replay], t_ns)
         replay.insert(pos, (t_ns, joint, float(current)))
@@ -394,6 +400,15 @@ class SimArm:
         """The state at ``t_ns`` < the plant's time: from the latest snapshot at or before it,
         forward through the changes after that snapshot up to ``t_ns`` (a change at ``t_ns``
         itself included: it sets the current, not the position); the plant is left as it is."""
+        last = self._last_past
+        if last is not None and last[0] == self._history_epoch and last[1] == t_ns:
+            return last[2]
+        state = self._integrate_past(t_ns)
+        if state.t_ns == t_ns:          # not a stale read (older than the history)
+            self._last_past = (self._history_epoch, int(t_ns), state)
+        return state
+
+    def _integrate_past(self, t_ns: int) -> ArmState:
         k = bisect.bisect_right(self._snaps, t_ns, key=lambda sn: sn.t_ns) - 1
         if k < 0:
             self.stale_reads += 1

@@ -448,3 +448,25 @@ def test_a_rewind_keeps_the_history_dense_so_reads_of_the_replayed_span_stay_che
     on_time.set_current(1, 1.0, t0 + 100 * MS)
     for t in (t0 + 450 * MS, t0 + 1000 * MS):
         assert np.allclose(arm.state(t).q, on_time.state(t).q, atol=1e-9)
+
+
+def test_every_drive_reading_one_past_instant_costs_one_integration_until_the_history_changes():
+    calls = []
+    p = preset("table3")
+    clk = FakeClock()
+    t0 = clk.t
+
+    def advance(params, q, qd, currents, dt):
+        calls.append(dt)
+        return scara2.advance(params, q, qd, currents, dt, h=1e-4)
+
+    arm = SimArm(p, [0.0, 0.0], clock=clk, advance=advance)
+    arm.set_current(0, 1.0, t0)
+    arm.state(t0 + 50 * MS)
+    n = len(calls)
+    a = arm.state(t0 + 20 * MS)          # a SYNC's instant the plant has passed, for drive 1 ...
+    used = len(calls) - n
+    assert used > 0 and arm.state(t0 + 20 * MS) == a and len(calls) == n + used   # ... drive 2: no work
+    arm.set_current(1, 0.5, t0 + 10 * MS)                # a late change rewrites the history
+    b = arm.state(t0 + 20 * MS)
+    assert b != a and len(calls) > n + used
