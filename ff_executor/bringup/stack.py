@@ -66,6 +66,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import signal
 import socket
 import sys
@@ -325,20 +326,31 @@ def robot_bridge_config(path: str | Path, model: str, hub_url: str) -> dict:
     return data
 
 
-def bridge_failure(output: str) -> str:
+#: ms: a simulated driver that handled CAN frames this late is named in a bridge's failure (an SDO
+#: answer or a state change that late misses the bridge's own timeouts)
+LATE_DRIVES_MS = 500.0
+
+
+def bridge_failure(output: str, sim_output: str = "") -> str:
     """Why a bridge did not come up, from its output: its last ``configure failed: ...`` or
     ``activate failed: ...`` log line (for the enable sequence: the drives' states and fault),
-    else its last error line, else a note that it logged none."""
+    else its last error line, else a note that it logged none; with the simulated driver's last
+    report of CAN frames it handled late (``sim_output``) where they were ``LATE_DRIVES_MS`` or
+    more late: drives that answer that late cannot be enabled in time."""
     lines = [ln.strip() for ln in output.splitlines() if ln.strip()]
-    for marks in (("configure failed: ", "activate failed: "), ("[ERROR]", "Error:", "failed")):
-        found = [ln for ln in lines if any(m in ln for m in marks)]
-        if found:
-            text = found[-1]
-            for tag in marks[:2] if marks[0] == "configure failed: " else ():
-                if tag in text:
-                    return text[text.index(tag):]
-            return text
-    return "it logged no error (its output is below)"
+    tags = ("configure failed: ", "activate failed: ")
+    tagged = [ln for ln in lines if any(t in ln for t in tags)]
+    if tagged:
+        why = tagged[-1][min(tagged[-1].index(t) for t in tags if t in tagged[-1]):]
+    else:
+        errors = [ln for ln in lines if "[ERROR]" in ln or "Error:" in ln or "failed" in ln]
+        why = errors[-1] if errors else "it logged no error (its output is below)"
+    late = [ln.strip() for ln in sim_output.splitlines() if "handled more than" in ln]
+    lag = re.search(r"up to ([0-9.]+) ms", late[-1]) if late else None
+    if lag is not None and float(lag.group(1)) >= LATE_DRIVES_MS:
+        line, mark = late[-1], "ff_sim_driver]: "
+        why += "; the simulated driver: " + (line.split(mark, 1)[1] if mark in line else line)
+    return why
 
 
 class Stack:
@@ -642,7 +654,8 @@ class Stack:
             try:
                 self._wait(p, lambda: self.lifecycle_state("ff_hwbridge") == "active", "lifecycle state active")
             except BringupError as exc:
-                raise BringupError(f"ff_hwbridge did not come up: {bridge_failure(p.output())}\n{exc}") from None
+                sim = next((q.output() for q in self.procs if q.name == "ff_sim_driver"), "")
+                raise BringupError(f"ff_hwbridge did not come up: {bridge_failure(p.output(), sim)}\n{exc}") from None
 
             if o.planner:
                 files, pp = self.planner_files()

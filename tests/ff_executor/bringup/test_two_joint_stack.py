@@ -128,3 +128,10 @@ def test_a_bridge_that_does_not_come_up_is_reported_with_its_own_reason():
                                    "(states ['Fault', 'Operation enabled']; node 1: fault 0x8130)")
     assert bridge_failure("[ERROR] [ff_hwbridge]: CAN bus: no hub\n") == "[ERROR] [ff_hwbridge]: CAN bus: no hub"
     assert "no error" in bridge_failure("[INFO] starting\n")
+    sim = ("[WARN] [1.2] [ff_sim_driver]: 339 CAN frame(s) so far handled more than 100 ms after their bus "
+           "time (up to 2998.7 ms; ...): this driver process was stalled\n")
+    assert bridge_failure(out, sim).endswith("; the simulated driver: 339 CAN frame(s) so far handled more "
+                                             "than 100 ms after their bus time (up to 2998.7 ms; ...): this "
+                                             "driver process was stalled")
+    assert bridge_failure(out, sim.replace("2998.7", "104.8")) == bridge_failure(out)   # not worth naming
+
