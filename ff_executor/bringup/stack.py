@@ -41,8 +41,10 @@ produced by the CAN hub's own timer (the hub runs in its own process; the drives
 setpoint at a SYNC, the planner's switch grid is the SYNC period; ``--setpoint-timing on_receipt``
 applies setpoints when they arrive instead, with the bridge producing SYNC), 50 ms drive heartbeats with a
 3 s timeout on both sides and 3 s for the executor's joint-state watchdog (above the scheduling
-gaps of a normal-priority process on a loaded shared machine, measured up to 1.4 s); a bridge
-that fails its enable sequence is restarted once.
+gaps of a normal-priority process on a loaded shared machine, measured up to 1.4 s). A bridge
+that does not come up stops the start with its own reason (``configure failed: ...`` or
+``activate failed: drives did not reach Operation enabled (states ...; fault ...)``); it is not
+started again (its drives, armed against its heartbeat, would be in Fault 0x8130).
 
 ``--namespace NS`` starts every node under ``/NS`` (``/NS/ff_executor``, ``/NS/ff_hwbridge``, ...)
 with its own CAN hub, so two stacks share one ROS domain: their parameters come from the same
@@ -64,6 +66,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import signal
 import socket
 import sys
@@ -321,6 +324,33 @@ def robot_bridge_config(path: str | Path, model: str, hub_url: str) -> dict:
                                  f"arm's is {want} (the model's {'kt' if key == 'torque_constant' else 'n'}"
                                  f"{sfx}); plan and simulate that arm, or fix the file")
     return data
+
+
+#: ms: a simulated driver that handled CAN frames this late is named in a bridge's failure (an SDO
+#: answer or a state change that late misses the bridge's own timeouts)
+LATE_DRIVES_MS = 500.0
+
+
+def bridge_failure(output: str, sim_output: str = "") -> str:
+    """Why a bridge did not come up, from its output: its last ``configure failed: ...`` or
+    ``activate failed: ...`` log line (for the enable sequence: the drives' states and fault),
+    else its last error line, else a note that it logged none; with the simulated driver's last
+    report of CAN frames it handled late (``sim_output``) where they were ``LATE_DRIVES_MS`` or
+    more late: drives that answer that late cannot be enabled in time."""
+    lines = [ln.strip() for ln in output.splitlines() if ln.strip()]
+    tags = ("configure failed: ", "activate failed: ")
+    tagged = [ln for ln in lines if any(t in ln for t in tags)]
+    if tagged:
+        why = tagged[-1][min(tagged[-1].index(t) for t in tags if t in tagged[-1]):]
+    else:
+        errors = [ln for ln in lines if "[ERROR]" in ln or "Error:" in ln or "failed" in ln]
+        why = errors[-1] if errors else "it logged no error (its output is below)"
+    late = [ln.strip() for ln in sim_output.splitlines() if "handled more than" in ln]
+    lag = re.search(r"up to ([0-9.]+) ms", late[-1]) if late else None
+    if lag is not None and float(lag.group(1)) >= LATE_DRIVES_MS:
+        line, mark = late[-1], "ff_sim_driver]: "
+        why += "; the simulated driver: " + (line.split(mark, 1)[1] if mark in line else line)
+    return why
 
 
 class Stack:
@@ -618,18 +648,14 @@ class Stack:
             bp: dict[str, object] = {"config_file": str(bcfg)}
             bp.update(o.bridge_overrides)
             bargs = self._node_args("ff_hwbridge", [], bp, self.run_dir / "bridge_params.yaml")
-            for attempt in (1, 2):   # a busy machine can stall the first enable sequence
-                p = self._start("ff_hwbridge", "ff_hwbridge.ros.bridge_node", ["--autostart", *bargs], timing=True)
-                try:
-                    self._wait(p, lambda: self.lifecycle_state("ff_hwbridge") == "active",
-                               "lifecycle state active")
-                    break
-                except BringupError as exc:
-                    if attempt == 2 or p.alive():
-                        raise
-                    self.log(f"  ff_hwbridge failed to come up, retrying once: {str(exc)[-300:]}")
-                    self.procs.remove(p)
-                    p.stop()
+            # one try: a bridge that exits has left its drives armed against its heartbeat (a
+            # second one would find them in Fault 0x8130); its own error line says why
+            p = self._start("ff_hwbridge", "ff_hwbridge.ros.bridge_node", ["--autostart", *bargs], timing=True)
+            try:
+                self._wait(p, lambda: self.lifecycle_state("ff_hwbridge") == "active", "lifecycle state active")
+            except BringupError as exc:
+                sim = next((q.output() for q in self.procs if q.name == "ff_sim_driver"), "")
+                raise BringupError(f"ff_hwbridge did not come up: {bridge_failure(p.output(), sim)}\n{exc}") from None
 
             if o.planner:
                 files, pp = self.planner_files()

@@ -175,7 +175,8 @@ class SimDriverNode(Node):
                                reconnect_timeout=float(self._p("reconnect_timeout")))
         where = self.hub.url if self.hub is not None else bus.get("channel")
         self.get_logger().info(f"{READY_LINE}: {model} drives {list(node_ids)} ({cfg.family}) "
-                               f"on {where}, true params {params.to_dict()}")
+                               f"on {where}, true params {params.to_dict()} (plant model ready in "
+                               f"{self.rig.arm.warm_up_s:.2f} s)")
 
     def _p(self, name: str) -> Any:
         return self.get_parameter(name).value

@@ -122,6 +122,10 @@ CurrentLaw = Callable[[int, float, float], float]
 #: ns: how far back the plant can rewind (its history); a change older than this starts late, at
 #: the plant's time, and is counted in ``late_changes``
 REWIND_NS = 2_000_000_000
+#: ns between the snapshots a rewind keeps while it replays (without them, every read of the
+#: replayed span integrated from the rewind's start: a drive process that fell behind then paid
+#: O(its lag) per CAN frame, and fell further behind)
+REPLAY_SNAP_NS = 20_000_000
 
 
 @dataclass(frozen=True)
@@ -168,10 +172,24 @@ class SimArm:
         self.rewound_changes = 0   # current changes the plant had passed, put in their place
         self.rewound_max_ns = 0    # ... the largest rewind (ns)
         self.stale_reads = 0       # states asked for before the history: the oldest one given
+        # the last state read from the history (every drive samples the same SYNC instant): valid
+        # while the history is not rewritten (a rewind, or forgetting it)
+        self._history_epoch = 0
+        self._last_past: Optional[tuple[int, int, ArmState]] = None    # (epoch, t ns, state)
         self._laws: dict[int, CurrentLaw] = {}                # joint -> a drive's current law
         self._snaps: deque[_Snapshot] = deque()              # plant states, oldest first
         self._changes: deque[tuple[int, int, float]] = deque()   # (t ns, joint, A) since the oldest
         self._snapshot()
+        self.warm_up_s = self._warm_up()
+
+    def _warm_up(self) -> float:
+        """One sub-step of the model from the initial state, result discarded: a model compiled
+        on first call (numba, e.g. the SCARA's: 25 s on a loaded 2-core machine with a cold cache)
+        compiles or loads here, in the caller's thread, not on the plant's first tick under its
+        lock, where every CAN frame that samples the arm would wait for it. Returns seconds."""
+        t = time.perf_counter()
+        self._advance(self.params, self._q.copy(), self._qd.copy(), np.zeros(self.n_joints), self.step)
+        return time.perf_counter() - t
 
     # -- own clock -----------------------------------------------------------------------------
     def start_clock(self, period: float = 0.002, lag: float = 0.01) -> None:
@@ -257,9 +275,28 @@ class SimArm:
 
     def _forget_history(self) -> None:
         """The trajectory so far can no longer be replayed (new state, parameters or law)."""
+        self._history_epoch += 1
         self._snaps.clear()
         self._changes.clear()
         self._snapshot()
+
+    def _current_at(self, t_ns: int, joint: int) -> Optional[float]:
+        """A, the current motor ``joint`` carried at ``t_ns`` by the history (its latest change at or
+        before it, else the oldest snapshot's); None where the history does not reach back."""
+        if not self._snaps or t_ns < self._snaps[0].t_ns:
+            return None
+        for tc, j, c in reversed(self._changes):
+            if j == joint and tc <= t_ns:
+                return c
+        return float(self._snaps[0].i[joint])
+
+    def _advance_keeping(self, t_ns: int) -> None:
+        """``_advance_to`` with a snapshot every ``REPLAY_SNAP_NS`` of plant time on the way (a
+        replay keeps the history dense: a later read of the past integrates at most that long)."""
+        while t_ns - self._t_ns > REPLAY_SNAP_NS:
+            self._advance_to(self._t_ns + REPLAY_SNAP_NS)
+            self._snapshot()
+        self._advance_to(t_ns)
 
     def _rewind(self, t_ns: int, joint: int, current: float) -> bool:
         """Put a change at ``t_ns`` < the plant's time in its place: back to the latest state at or
@@ -267,11 +304,11 @@ class SimArm:
         the history does not reach back that far."""
         if self._t_ns - t_ns > REWIND_NS:
             return False
-        times = [sn.t_ns for sn in self._snaps]
-        k = bisect.bisect_right(times, t_ns) - 1
+        k = bisect.bisect_right(self._snaps, t_ns, key=lambda sn: sn.t_ns) - 1
         if k < 0:
             return False
         t_end, snap = self._t_ns, self._snaps[k]
+        self._history_epoch += 1
         replay = [c for c in self._changes if c[0] > snap.t_ns]
         pos = bisect.bisect_right([c[0] for c in replay], t_ns)
         replay.insert(pos, (t_ns, joint, float(current)))
@@ -282,10 +319,11 @@ class SimArm:
         self._q, self._qd, self._i = snap.q.copy(), snap.qd.copy(), snap.i.copy()
         self._t_ns = snap.t_ns
         for t, j, c in replay:
-            self._advance_to(t)
+            self._advance_keeping(t)
             self._i[j] = c
             self._changes.append((t, j, c))
-        self._advance_to(t_end)
+            self._snapshot()
+        self._advance_keeping(t_end)
         self._snapshot()
         return True
 
@@ -310,6 +348,8 @@ class SimArm:
             raise ParameterError(f"joint index must be 0..{self.n_joints - 1}, got {joint}")
         with self._lock:
             if t_ns is not None and self._t_ns - t_ns > LATE_NS:
+                if not self._laws and self._current_at(t_ns, joint) == float(current):
+                    return          # the joint carries it already: the trajectory stays as it is
                 if self._rewind(t_ns, joint, current):
                     self.rewound_changes += 1
                     self.rewound_max_ns = max(self.rewound_max_ns, self._t_ns - t_ns)
@@ -360,6 +400,15 @@ class SimArm:
         """The state at ``t_ns`` < the plant's time: from the latest snapshot at or before it,
         forward through the changes after that snapshot up to ``t_ns`` (a change at ``t_ns``
         itself included: it sets the current, not the position); the plant is left as it is."""
+        last = self._last_past
+        if last is not None and last[0] == self._history_epoch and last[1] == t_ns:
+            return last[2]
+        state = self._integrate_past(t_ns)
+        if state.t_ns == t_ns:          # not a stale read (older than the history)
+            self._last_past = (self._history_epoch, int(t_ns), state)
+        return state
+
+    def _integrate_past(self, t_ns: int) -> ArmState:
         k = bisect.bisect_right(self._snaps, t_ns, key=lambda sn: sn.t_ns) - 1
         if k < 0:
             self.stale_reads += 1

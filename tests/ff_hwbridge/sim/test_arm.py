@@ -388,3 +388,85 @@ def test_the_scara_plant_steps_in_compiled_code_one_call_per_interval():
         arms.append(arm.state())
     assert calls["n"] < 2 * 100 + 50, calls             # ~one call per tick (and per change)
     assert np.allclose(arms[0].q, arms[1].q, atol=1e-9) and np.allclose(arms[0].qd, arms[1].qd, atol=1e-8)
+
+
+def test_the_plant_runs_its_model_once_when_built_so_its_first_tick_compiles_nothing():
+    calls = []
+
+    def advance(params, q, qd, currents, dt):
+        calls.append((list(q), list(currents), dt))
+        return np.asarray(q, dtype=float) + 1.0, np.asarray(qd, dtype=float) + 1.0
+
+    clk = FakeClock()
+    arm = SimArm(preset("table3"), [-0.5, 0.25], step=2e-4, advance=advance, clock=clk)
+    # one sub-step from the initial state at zero current, in the constructor's thread ...
+    assert calls == [([-0.5, 0.25], [0.0, 0.0], 2e-4)] and arm.warm_up_s >= 0.0
+    # ... and its result thrown away: the arm is where it was put, at rest
+    s = arm.state(clk.t)
+    assert s.q == (-0.5, 0.25) and s.qd == (0.0, 0.0)
+
+
+def test_a_late_repeat_of_the_current_in_force_changes_nothing_and_costs_no_replay():
+    p = preset("table3")
+    clk = FakeClock()
+    t0 = clk.t
+    arm = SimArm(p, [0.0, 0.0], clock=clk)
+    arm.set_current(0, 1.5, t0)
+    arm.set_current(1, 1.5, t0)
+    arm.set_current(0, 0.0, t0 + 200 * MS)
+    ref = arm.state(t0 + 500 * MS)
+    # a drive repeating its setpoint every cycle, handled 300 ms late: the same value as the
+    # plant carries at those instants (joint 0: 1.5 A before its switch, 0 A after) is no change
+    arm.set_current(0, 1.5, t0 + 100 * MS)
+    arm.set_current(0, 0.0, t0 + 300 * MS)
+    arm.set_current(1, 1.5, t0 + 250 * MS)
+    assert arm.rewound_changes == 0 and arm.late_changes == 0
+    assert arm.state(t0 + 500 * MS) == ref
+    # a late value that differs is put in its place, as before
+    arm.set_current(1, 0.0, t0 + 250 * MS)
+    assert arm.rewound_changes == 1
+    assert arm.state(t0 + 500 * MS).q != ref.q
+
+
+def test_a_rewind_keeps_the_history_dense_so_reads_of_the_replayed_span_stay_cheap():
+    from ff_hwbridge.sim.arm import REPLAY_SNAP_NS
+
+    p = preset("table3")
+    clk = FakeClock()
+    t0 = clk.t
+    arm = SimArm(p, [0.0, 0.0], clock=clk)
+    arm.set_current(0, 1.0, t0)
+    arm.state(t0 + 1000 * MS)                  # the plant 1 s on, one snapshot at each end
+    arm.set_current(1, 1.0, t0 + 100 * MS)     # 0.9 s late: rewound and replayed
+    assert arm.rewound_changes == 1
+    times = [sn.t_ns for sn in arm._snaps if sn.t_ns >= t0 + 100 * MS]
+    assert times[0] == t0 + 100 * MS and times[-1] == t0 + 1000 * MS
+    assert max(np.diff(times)) <= REPLAY_SNAP_NS
+    # the replayed trajectory is the one an on-time change gives
+    on_time = SimArm(p, [0.0, 0.0], clock=clk)
+    on_time.set_current(0, 1.0, t0)
+    on_time.set_current(1, 1.0, t0 + 100 * MS)
+    for t in (t0 + 450 * MS, t0 + 1000 * MS):
+        assert np.allclose(arm.state(t).q, on_time.state(t).q, atol=1e-9)
+
+
+def test_every_drive_reading_one_past_instant_costs_one_integration_until_the_history_changes():
+    calls = []
+    p = preset("table3")
+    clk = FakeClock()
+    t0 = clk.t
+
+    def advance(params, q, qd, currents, dt):
+        calls.append(dt)
+        return scara2.advance(params, q, qd, currents, dt, h=1e-4)
+
+    arm = SimArm(p, [0.0, 0.0], clock=clk, advance=advance)
+    arm.set_current(0, 1.0, t0)
+    arm.state(t0 + 50 * MS)
+    n = len(calls)
+    a = arm.state(t0 + 20 * MS)          # a SYNC's instant the plant has passed, for drive 1 ...
+    used = len(calls) - n
+    assert used > 0 and arm.state(t0 + 20 * MS) == a and len(calls) == n + used   # ... drive 2: no work
+    arm.set_current(1, 0.5, t0 + 10 * MS)                # a late change rewrites the history
+    b = arm.state(t0 + 20 * MS)
+    assert b != a and len(calls) > n + used
