@@ -1,10 +1,11 @@
 """Blocking work inside rclpy callbacks without tying up an executor thread.
 
-A callback that blocks (a whole motion, a wait for a drive state, a plan) keeps one of rclpy's
-MultiThreadedExecutor threads busy; measured here, the executor then busy-loops at ~95 % CPU with
-the GIL held, which delays every other thread of the process (setpoint streaming, CAN heartbeats)
-by up to seconds. Declare the callback ``async`` and ``await in_thread(fn, ..., wake=...)``
-instead: the work runs on its own thread and the executor sleeps until it is done.
+A callback that blocks (a whole motion, a wait for a drive state, a plan) keeps the executor's
+thread busy: on the suite's nodes, which spin one SingleThreadedExecutor, nothing else of the node
+runs meanwhile; on a MultiThreadedExecutor (measured here) the executor busy-loops at ~95 % CPU
+with the GIL held, delaying every other thread of the process (setpoint streaming, CAN
+heartbeats) by up to seconds. Declare the callback ``async`` and ``await in_thread(fn, ...,
+wake=...)`` instead: the work runs on its own thread and the executor sleeps until it is done.
 
 Waking the executor. rclpy (7.x, Jazzy) resumes a coroutine that awaits a future only when its
 executor wakes up for some other reason: completing the future from another thread wakes nothing
