@@ -12,6 +12,14 @@ import pytest
 # 7 s measured): the suite keeps its bytecode in __pycache__ (ignored by git).
 sys.dont_write_bytecode = False
 
+# The tests' processes talk DDS over UDP on loopback only (Fast DDS's builtin transports; set
+# before any participant is created, inherited by every process the tests start). This process
+# runs CAN masters in-process whose threads get SCHED_FIFO; after such tests, data from another
+# process stopped reaching a node of this process for good with the default transports (shared
+# memory + UDP) while discovery went on (a subprocess's service requests never reached a bridge
+# node here); with UDP in both processes it arrived.
+os.environ.setdefault("FASTDDS_BUILTIN_TRANSPORTS", "UDPv4")
+
 
 #: pytest-xdist workers for the library suite run alone (``-m "not integration"``): its cases are
 #: short and independent, and half their time is spent waiting (timers, threads, SYNC). A run that
