@@ -20,7 +20,7 @@ import numpy as np
 
 from ff_planner.arm.errors import ArmConfigError
 from ff_planner.arm.model import UrdfArm, load_arm
-from ff_planner.armplan.robust_box import plan_box_robust_arm
+from ff_planner.armplan.robust_box import plan_box_robust_arm, plan_result
 from ff_planner.core.errors import ParameterError, PlanningError, error_code_of
 from ff_planner.model.profile import PlanResult
 
@@ -159,21 +159,4 @@ def plan_registered(req: ArmRequest, registry: Mapping[str, RegisteredArm], *,
     except (ArmConfigError, ParameterError, PlanningError, ValueError) as exc:
         code = "INVALID_REQUEST" if isinstance(exc, ArmConfigError) else error_code_of(exc)
         return _failed(req.model, str(exc), code, req.q0, req.qf, t0)
-    cert = res.certificate
-    ok = res.success
-    msg = (f"{res.label} plan for {req.model}: certified worst rest error "
-           f"{cert.worst_rest_error:.3g} rad over the friction box" if cert else "no certificate")
-    if res.limit_violations:
-        msg += "; limits violated: " + "; ".join(res.limit_violations)
-    return PlanResult(
-        success=ok, message=msg, profile=res.profile, model=req.model, params=None, q0=res.q0,
-        qf=res.qf, uncertain=list(res.box_names), objective="robust-box",
-        q_final=res.rest_nominal, qd_final=np.zeros(arm.n),
-        sensitivities={f"q{i + 1}/{nm}": float(res.sensitivities[i, c])
-                       for i in range(arm.n) for c, nm in enumerate(res.box_names)},
-        robust=res.label == "zero-derivative", error_code="OK" if ok else "NO_ROBUST_PLAN",
-        best_effort=res.label != "zero-derivative", starts_tried=res.starts_tried,
-        iterations=res.evaluations, solve_time=time.perf_counter() - t0, certificate=cert,
-        extra={"joint_names": list(arm.joints), "label": res.label,
-               "predicted_rest": [float(x) for x in res.rest_nominal], "source": "urdf",
-               "first_order_per_joint": [float(x) for x in res.first_order]})
+    return plan_result(arm, res, req.model, time.perf_counter() - t0)
