@@ -75,11 +75,12 @@ def plan_fastest_arm(arm: UrdfArm, q0: Sequence[float], qf: Sequence[float], tol
                      tf_max: float = DEFAULT_MOVE_TIME_MAX, coast: float = 0.05,
                      steps: Optional[int] = None, seed: int = 0, time_budget: float = 30.0,
                      settings: Optional[SearchSettings] = None, progress: Progress = None,
-                     model: Optional[str] = None) -> ArmFastest:
+                     model: Optional[str] = None, tf_min: Optional[float] = None) -> ArmFastest:
     """The plan of the fastest tf ≤ ``tf_max`` (s) certified within ``tolerance`` (rad) for the
     move q0 → qf (motor angles of the moving joints, rad); see the module. The whole search keeps
-    to ``time_budget`` (s). PlanningError, before any planning, for a bad request; also when no
-    tf gave a plan at all (the first planner error)."""
+    to ``time_budget`` (s); ``tf_min`` (s) raises the shortest tf tried above the reach bound's
+    (a window known to hold the answer costs fewer plans). PlanningError, before any planning,
+    for a bad request; also when no tf gave a plan at all (the first planner error)."""
     t0 = time.perf_counter()
     settings = settings or SearchSettings()
     n = arm.n
@@ -104,6 +105,11 @@ def plan_fastest_arm(arm: UrdfArm, q0: Sequence[float], qf: Sequence[float], tol
         arm.limits.validate(n, q0a.tolist(), qfa.tolist())
     name = model or f"urdf:{arm.name}"
     tf_lo = shortest_tf(arm, q0a, qfa, tf_hi, float(coast), step)
+    if tf_min is not None:
+        if not (math.isfinite(tf_min) and coast < tf_min <= tf_hi):
+            raise PlanningError(f"the shortest move time must be in ({coast:g}, {tf_hi:g}] s, got "
+                                f"{tf_min!r}", "INVALID_REQUEST")
+        tf_lo = max(tf_lo, math.ceil(float(tf_min) / step - 1e-9) * step)
     plans: dict[int, ArmPlan] = {}      # id of a trial's PlanResult -> its ArmPlan
 
     def one(tf: float, s: int, budget: float) -> PlanResult:

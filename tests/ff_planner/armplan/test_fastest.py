@@ -17,8 +17,9 @@ from ff_planner.model.profile import PlanRequest
 from ff_planner.optimize.fastest import SearchSettings, plan_fastest
 
 ARMS = Path(__file__).resolve().parents[3] / "config" / "arms"
-# few trials: no second seed, the knee where the first seed is within 2x the tolerance
-QUICK = SearchSettings(retries=0, hopeless_factor=2.0)
+# few trials (each n-joint plan of this arm costs 2-8 s): no second seed, the knee where the
+# first seed meets the tolerance
+QUICK = SearchSettings(retries=0, hopeless_factor=1.0)
 
 
 @pytest.fixture(scope="module")
@@ -31,9 +32,15 @@ def test_the_n_joint_search_finds_the_1dof_searchs_move_time(arm1):
     one = plan_fastest(PlanRequest(objective="robust-derivative", q0=(0.0,), qf=(1.0,), steps=6,
                                    coast=0.05, tolerance=tol, move_time_max=tf_max,
                                    time_budget=60.0), settings=QUICK)
-    arm = plan_fastest_arm(arm1, [0.0], [1.0], tol, tf_max=tf_max, coast=0.05, steps=6,
-                           time_budget=60.0, settings=QUICK)
+    # the n-joint search over [1.40, 1.65] s only (its plans are ~100x the 1-DOF planner's cost)
+    arm = plan_fastest_arm(arm1, [0.0], [1.0], tol, tf_max=1.65, tf_min=1.40, coast=0.05, steps=6,
+                           time_budget=120.0, settings=QUICK)
     r = arm.result
+    # the same planner and certificate: equal certified worst at every tf both searches tried
+    w1 = {round(t["tf"], 6): t["worst_rest_error"] for t in one.extra["tolerance_search"]["trials"]}
+    both = [(w1[round(t["tf"], 6)], t["worst_rest_error"])
+            for t in r.extra["tolerance_search"]["trials"] if round(t["tf"], 6) in w1]
+    assert both and all(a == pytest.approx(b, rel=1e-6) for a, b in both), both
     assert one.success and r.success and r.error_code == "OK"
     assert r.extra["tolerance_search"]["complete"] and r.extra["tolerance_search"]["met"]
     tf1, tfa = float(one.profile.tf), float(r.profile.tf)
@@ -62,6 +69,7 @@ def test_bad_requests_are_refused_before_planning(arm1):
                          (dict(tolerance=float("nan")), "tolerance must be"),
                          (dict(tolerance=0.1, tf_max=0.05), "longest move time"),
                          (dict(tolerance=0.1, time_budget=0.0), "time_budget"),
+                         (dict(tolerance=0.1, tf_min=4.0), "shortest move time"),
                          (dict(tolerance=0.1, qf=[1.0, 2.0]), "q0 and qf need 1")):
         args = dict(dict(qf=[1.0]), **kwargs)
         with pytest.raises(PlanningError, match=text):
