@@ -84,7 +84,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     if args.out:
         Path(args.out).write_text(text + "\n")
         c = res.certificate
-        print(f"{res.label} plan in {res.solve_time:.1f} s; certified worst rest error "
+        label = res.label if search is None or ok else "BEST-EFFORT (tolerance not met) " + res.label
+        spent = res.solve_time if search is None else float(search["time_s"])
+        print(f"{label} plan in {spent:.1f} s; certified worst rest error "
               f"{c.worst_rest_error if c else float('nan'):.3g} rad -> {args.out}", file=sys.stderr)
     else:
         print(text)

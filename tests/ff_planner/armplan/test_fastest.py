@@ -90,6 +90,7 @@ def test_ff_plan_urdf_tolerance(tmp_path, capsys):
                                   "-o", str(out)])
     err = capsys.readouterr().err
     assert code == 1 and "no move time up to 1 s is certified within 0.1 mrad" in err
+    assert "BEST-EFFORT (tolerance not met)" in err
     d = json.loads(out.read_text())
     assert d["tolerance_search"]["met"] is False and d["tolerance_search"]["trials"]
     assert d["certificate"]["worst_rest_error"] > 1e-4 and d["tf"] <= 1.0
