@@ -94,3 +94,25 @@ def test_ff_plan_urdf_tolerance(tmp_path, capsys):
     d = json.loads(out.read_text())
     assert d["tolerance_search"]["met"] is False and d["tolerance_search"]["trials"]
     assert d["certificate"]["worst_rest_error"] > 1e-4 and d["tf"] <= 1.0
+
+
+def test_a_registered_arm_request_with_a_tolerance():
+    from ff_planner.armplan.requests import ArmRequest, plan_registered, registry_from_parameters
+
+    reg = registry_from_parameters({"arms.arm1dof.urdf": str(ARMS / "arm1dof.urdf"),
+                                    "arms.arm1dof.cell": str(ARMS / "arm1dof.cell.yaml")}, Path)
+    limits = dict(default_time_budget=10.0, max_time_budget=60.0, max_steps=40,
+                  max_move_time=60.0, coast=0.05)
+    r = plan_registered(ArmRequest("urdf:arm1dof", [0.0], [1.0], 0.0, steps=6, tolerance=1e-4,
+                                   move_time_max=1.0), reg, **limits)
+    assert not r.success and r.error_code == "NO_ROBUST_PLAN" and r.best_effort
+    assert r.message.startswith("no move time up to 1 s is certified within 0.1 mrad")
+    assert r.extra["tolerance_search"]["trials"] and r.model == "urdf:arm1dof"
+    for req, text in ((ArmRequest("urdf:arm1dof", [0.0], [1.0], 1.0, move_time_max=2.0),
+                       "give a tolerance too"),
+                      (ArmRequest("urdf:arm1dof", [0.0], [1.0], 0.0, tolerance=0.1,
+                                  move_time_max=61.0), "move_time_max must be"),
+                      (ArmRequest("urdf:arm1dof", [0.0], [1.0], 0.0, tolerance=-1.0),
+                       "tolerance must be")):
+        bad = plan_registered(req, reg, **limits)
+        assert not bad.success and bad.error_code == "INVALID_REQUEST" and text in bad.message
