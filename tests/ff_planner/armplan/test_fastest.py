@@ -34,7 +34,7 @@ def test_the_n_joint_search_finds_the_1dof_searchs_move_time(arm1):
                                    time_budget=60.0), settings=QUICK)
     # the n-joint search over [1.40, 1.65] s only (its plans are ~100x the 1-DOF planner's cost)
     arm = plan_fastest_arm(arm1, [0.0], [1.0], tol, tf_max=1.65, tf_min=1.40, coast=0.05, steps=6,
-                           time_budget=120.0, settings=QUICK)
+                           time_budget=400.0, settings=QUICK)   # a cap: 20 s wall at load 3
     r = arm.result
     # the same planner and certificate: equal certified worst at every tf both searches tried
     w1 = {round(t["tf"], 6): t["worst_rest_error"] for t in one.extra["tolerance_search"]["trials"]}
