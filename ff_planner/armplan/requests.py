@@ -4,12 +4,14 @@ A registry maps NAME to its URDF and cell files (the planner's ``arms.NAME.urdf`
 ``arms.NAME.cell`` parameters); :func:`plan_registered` checks a request against the arm and
 returns a :class:`~ff_planner.model.profile.PlanResult` (robust-box, ``plan_box_robust_arm``)
 whose ``extra`` carries the arm's joint names, the plan's label (zero-derivative / least-worst)
-and the predicted rest position. Nothing here raises on a bad request: a malformed or unknown
-model id, a bad arm file or a request the arm cannot serve comes back as a failed PlanResult
-with one clear message and its error code. Units: rad, A, s.
+and the predicted rest position; a request with a tolerance (rad) gets the fastest move time
+certified within it (``ff_planner.armplan.fastest``). Nothing here raises on a bad request: a
+malformed or unknown model id, a bad arm file or a request the arm cannot serve comes back as a
+failed PlanResult with one clear message and its error code. Units: rad, A, s.
 """
 from __future__ import annotations
 
+import math
 import re
 import time
 from dataclasses import dataclass
@@ -20,9 +22,11 @@ import numpy as np
 
 from ff_planner.arm.errors import ArmConfigError
 from ff_planner.arm.model import UrdfArm, load_arm
-from ff_planner.armplan.robust_box import plan_box_robust_arm
+from ff_planner.armplan.fastest import plan_fastest_arm
+from ff_planner.armplan.robust_box import plan_box_robust_arm, plan_result
 from ff_planner.core.errors import ParameterError, PlanningError, error_code_of
 from ff_planner.model.profile import PlanResult
+from ff_planner.optimize.fastest import DEFAULT_MOVE_TIME_MAX
 
 PREFIX = "urdf:"
 PARAM_PREFIX = "arms."
@@ -124,6 +128,8 @@ class ArmRequest:
     seed: int = 0
     time_budget: float = 0.0
     unsupported: tuple[str, ...] = ()      # names of request fields set that arms do not take
+    tolerance: float = 0.0                 # rad, > 0: the fastest tf certified within it
+    move_time_max: float = 0.0             # s, with a tolerance: the longest tf (0 = default)
 
 
 def plan_registered(req: ArmRequest, registry: Mapping[str, RegisteredArm], *,
@@ -138,7 +144,17 @@ def plan_registered(req: ArmRequest, registry: Mapping[str, RegisteredArm], *,
                                 "arm's cell file sets the friction box and limits)")
         if req.objective not in OBJECTIVES:
             raise PlanningError(f"objective {req.objective!r}: arms from a URDF plan robust-box only")
-        tf = float(req.move_time)
+        tol = float(req.tolerance)
+        if not (math.isfinite(tol) and tol >= 0.0):
+            raise PlanningError(f"tolerance must be >= 0 rad (0 = none), got {tol:g}")
+        if tol > 0.0:
+            tf_max = float(req.move_time_max) or min(DEFAULT_MOVE_TIME_MAX, max_move_time)
+            if not (coast < tf_max <= max_move_time):
+                raise PlanningError(f"move_time_max must be in ({coast:g}, {max_move_time:g}] s, "
+                                    f"got {tf_max:g}")
+        elif float(req.move_time_max):
+            raise PlanningError("move_time_max bounds a tolerance search: give a tolerance too")
+        tf = float(req.move_time) if tol == 0.0 else tf_max
         if not (0.0 < tf <= max_move_time):
             raise PlanningError(f"move_time must be in (0, {max_move_time:g}] s, got {tf:g}")
         if not (coast < tf):
@@ -154,26 +170,15 @@ def plan_registered(req: ArmRequest, registry: Mapping[str, RegisteredArm], *,
             raise PlanningError(f"{req.model} moves {arm.n} joints ({', '.join(arm.joints)}): q0 and "
                                 f"qf need {arm.n} values each (rad), got {len(req.q0)} and "
                                 f"{len(req.qf)}")
+        if tol > 0.0:
+            found = plan_fastest_arm(arm, list(req.q0), list(req.qf), tol, tf_max=tf_max,
+                                     coast=coast, steps=steps or None, seed=int(req.seed),
+                                     time_budget=budget, model=req.model)
+            found.result.solve_time = time.perf_counter() - t0
+            return found.result
         res = plan_box_robust_arm(arm, list(req.q0), list(req.qf), tf, coast=coast,
                                   steps=steps or None, seed=int(req.seed), time_budget=budget)
     except (ArmConfigError, ParameterError, PlanningError, ValueError) as exc:
         code = "INVALID_REQUEST" if isinstance(exc, ArmConfigError) else error_code_of(exc)
         return _failed(req.model, str(exc), code, req.q0, req.qf, t0)
-    cert = res.certificate
-    ok = res.success
-    msg = (f"{res.label} plan for {req.model}: certified worst rest error "
-           f"{cert.worst_rest_error:.3g} rad over the friction box" if cert else "no certificate")
-    if res.limit_violations:
-        msg += "; limits violated: " + "; ".join(res.limit_violations)
-    return PlanResult(
-        success=ok, message=msg, profile=res.profile, model=req.model, params=None, q0=res.q0,
-        qf=res.qf, uncertain=list(res.box_names), objective="robust-box",
-        q_final=res.rest_nominal, qd_final=np.zeros(arm.n),
-        sensitivities={f"q{i + 1}/{nm}": float(res.sensitivities[i, c])
-                       for i in range(arm.n) for c, nm in enumerate(res.box_names)},
-        robust=res.label == "zero-derivative", error_code="OK" if ok else "NO_ROBUST_PLAN",
-        best_effort=res.label != "zero-derivative", starts_tried=res.starts_tried,
-        iterations=res.evaluations, solve_time=time.perf_counter() - t0, certificate=cert,
-        extra={"joint_names": list(arm.joints), "label": res.label,
-               "predicted_rest": [float(x) for x in res.rest_nominal], "source": "urdf",
-               "first_order_per_joint": [float(x) for x in res.first_order]})
+    return plan_result(arm, res, req.model, time.perf_counter() - t0)

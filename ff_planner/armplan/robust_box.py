@@ -44,7 +44,7 @@ from ff_planner.core.errors import PlanningError
 from ff_planner.model import arm1dof
 from ff_planner.model.friction import net_torque_array
 from ff_planner.model.params import Arm1DofParams
-from ff_planner.model.profile import CurrentProfile, PlanRequest, RobustnessCertificate
+from ff_planner.model.profile import CurrentProfile, PlanRequest, PlanResult, RobustnessCertificate
 from ff_planner.optimize.planner import plan
 
 PLAN_H = 4e-3            # s, RK4 substep while searching (rest positions within ~1e-7 rad of 1 ms)
@@ -417,3 +417,29 @@ def plan_box_robust_arm(arm: UrdfArm, q0: Sequence[float], qf: Sequence[float], 
                    box_names=spec.names, certificate=cert, rest_nominal=rest,
                    solve_time=time.perf_counter() - t0, starts_tried=starts,
                    evaluations=prob.evals, limit_violations=viol)
+
+
+def plan_result(arm: UrdfArm, res: ArmPlan, model: str, solve_time: Optional[float] = None
+                ) -> PlanResult:
+    """``res`` as the suite's PlanResult (robust-box): a success when certified within the
+    limits (error code OK, else NO_ROBUST_PLAN); ``extra`` the joint names, the label and the
+    predicted rest (rad)."""
+    cert = res.certificate
+    ok = res.success
+    msg = (f"{res.label} plan for {model}: certified worst rest error "
+           f"{cert.worst_rest_error:.3g} rad over the friction box" if cert else "no certificate")
+    if res.limit_violations:
+        msg += "; limits violated: " + "; ".join(res.limit_violations)
+    return PlanResult(
+        success=ok, message=msg, profile=res.profile, model=model, params=None, q0=res.q0,
+        qf=res.qf, uncertain=list(res.box_names), objective="robust-box",
+        q_final=res.rest_nominal, qd_final=np.zeros(arm.n),
+        sensitivities={f"q{i + 1}/{nm}": float(res.sensitivities[i, c])
+                       for i in range(arm.n) for c, nm in enumerate(res.box_names)},
+        robust=res.label == "zero-derivative", error_code="OK" if ok else "NO_ROBUST_PLAN",
+        best_effort=res.label != "zero-derivative", starts_tried=res.starts_tried,
+        iterations=res.evaluations,
+        solve_time=res.solve_time if solve_time is None else solve_time, certificate=cert,
+        extra={"joint_names": list(arm.joints), "label": res.label,
+               "predicted_rest": [float(x) for x in res.rest_nominal], "source": "urdf",
+               "first_order_per_joint": [float(x) for x in res.first_order]})

@@ -26,6 +26,10 @@ certified worst, whether it met the tolerance, time). A plan that fails the tole
 answered as a success. Each plan gets at most ``trial_share`` of the time budget (and what is
 left of it); the whole search keeps to the request's ``time_budget`` (s), and when the budget
 ends it the message says so.
+
+The search itself is :func:`search_move_time`, which takes any planner of one tf and seed
+(``plan_fastest`` for the 1-DOF and SCARA planners, ``ff_planner.armplan.fastest`` for arms from a
+URDF); ``plan_fastest`` adds the request's checks and the reach bound that gives the shortest tf.
 """
 from __future__ import annotations
 
@@ -150,22 +154,43 @@ def plan_fastest(request: Union[PlanRequest, CheckedRequest], progress: Progress
     base = dc_replace(req, tf=tf_max, tolerance=None, move_time_max=None)
     checked = check(base, drive)     # invalid or unreachable at tf_max: refused as the facade does
     tf_lo = min(shortest_reachable_tf(base, checked.params, tf_max, step), tf_max)
-    budget = float(req.time_budget)
+    return search_move_time(
+        lambda tf, seed, share: plan_fn(dc_replace(base, tf=tf, seed=seed, time_budget=share),
+                                        progress),
+        tf_lo, tf_max, step, float(req.time_budget), tolerance, settings, progress,
+        seed=int(base.seed), t0=t0)
+
+
+TrialFn = Callable[[float, int, float], PlanResult]   # one(tf s, seed, time budget s) -> plan
+
+
+def search_move_time(one: TrialFn, tf_lo: float, tf_max: float, step: float, budget: float,
+                     tolerance: float, settings: SearchSettings = SearchSettings(),
+                     progress: Progress = None, *, seed: int = 0,
+                     t0: Optional[float] = None) -> PlanResult:
+    """The tolerance-first search over tf in [tf_lo, tf_max] (s, on the ``step`` grid) of any
+    planner (the module's steps 1-4 and its answer): ``one(tf, seed, time_budget)`` plans one
+    move time with one multistart seed in at most ``time_budget`` s and returns its PlanResult
+    (its ``certificate.worst_rest_error``, rad, is what meets ``tolerance``, rad) or raises
+    PlanningError. The whole search keeps to ``budget`` s counted from ``t0`` (default: now);
+    seeds tried at a tf are ``seed``, ``seed`` + 1, ... Returns the shortest passing plan, else
+    the least-worst one labelled (not a success); raises the first PlanningError when no tf
+    gave a plan."""
+    t0 = time.perf_counter() if t0 is None else t0
     deadline = t0 + budget
     st = _State()
 
     def left() -> float:
         return deadline - time.perf_counter()
 
-    def one(tf: float, seed: int) -> tuple[bool, Optional[float]]:
+    def trial(tf: float, seed: int) -> tuple[bool, Optional[float]]:
         """Plan tf with ``seed``: (meets, certified worst or None); recorded as a trial."""
         t1 = time.perf_counter()
         share = min(left(), max(settings.min_trial_budget, settings.trial_share * budget))
-        sub = dc_replace(base, tf=tf, seed=seed, time_budget=max(share, 1e-3))
         if progress is not None:
             progress({"stage": f"tolerance search: tf {tf:.3f} s"})
         try:
-            r = plan_fn(sub, progress)
+            r = one(tf, seed, max(share, 1e-3))
         except PlanningError as exc:
             if st.first_error is None:
                 st.first_error = exc
@@ -213,7 +238,7 @@ def plan_fastest(request: Union[PlanRequest, CheckedRequest], progress: Progress
             j = seeds_done.get(k, 0)
             if j > 0 and not near(first.get(k)):
                 break       # far from the tolerance: another seed will not do
-            meets, w = one(tf, int(base.seed) + j)
+            meets, w = trial(tf, seed + j)
             seeds_done[k] = j + 1
             if j == 0:
                 first[k] = w
@@ -269,10 +294,10 @@ def plan_fastest(request: Union[PlanRequest, CheckedRequest], progress: Progress
             break
         attempt(((top + fk) // 2) * step, 1 + settings.retries)
     elapsed = time.perf_counter() - t0
-    return _answer(req, st, tolerance, tf_max, tf_lo, pass_tf, fail_tf, complete, elapsed)
+    return _answer(budget, st, tolerance, tf_max, tf_lo, pass_tf, fail_tf, complete, elapsed)
 
 
-def _answer(req: PlanRequest, st: _State, tolerance: float, tf_max: float, tf_lo: float,
+def _answer(budget: float, st: _State, tolerance: float, tf_max: float, tf_lo: float,
             pass_tf: Optional[float], fail_tf: Optional[float], complete: bool,
             elapsed: float) -> PlanResult:
     """The search's PlanResult: the shortest passing plan, else the least-worst one labelled."""
@@ -298,7 +323,7 @@ def _answer(req: PlanRequest, st: _State, tolerance: float, tf_max: float, tf_lo
         if st.best_fail is None:
             if st.first_error is not None:
                 raise st.first_error
-            raise PlanningError(f"no plan within the time budget of {req.time_budget:.3g} s at "
+            raise PlanningError(f"no plan within the time budget of {budget:.3g} s at "
                                 f"any tf tried; raise the time budget",
                                 code="TIME_BUDGET_EXHAUSTED")
         r = st.best_fail
