@@ -312,3 +312,33 @@ def refine_on_quantum(params: Arm1DofParams, profile: CurrentProfile, q0: float,
     out = dc_replace(profile, currents=(best_k * quantum).astype(float).reshape(-1, 1))
     return out, {"worst_before_rad": before, "worst_after_rad": best, "evaluations": evals,
                  "quanta_moved": int(np.sum(np.abs(best_k - base)))}
+
+
+# --- the landing of a drive-exact profile, judged ---------------------------------------------
+LANDING_MARGIN = 2.0      # times the first-order effect of the current changes (curvature, kinks)
+
+
+def landing_allowance(params: Any, profile: CurrentProfile, q0: Sequence[float],
+                      changes: np.ndarray, quantum: float, tol: float,
+                      rest_error_before: Union[Sequence[float], np.ndarray]) -> np.ndarray:
+    """How far (rad, per joint) the nominal rest of a drive-exact ``profile`` may lie from the
+    goal: the planned profile's own rest error (``rest_error_before``, at least ``tol``) plus
+    ``LANDING_MARGIN`` × Σ_k |∂rest_j/∂I_k|·|ΔI_k| — the first-order effect of the current
+    changes the drive's quantum forced (``changes``, A, the profile's shape; ∂rest/∂I by central
+    differences of ±quantum/2 on ``profile``). Moving switch times is not a current change:
+    a landing moved by the SYNC grid is not allowed for here."""
+    from ff_planner.model.simulate import rest_position   # the model layer's exact simulation
+
+    cur = np.asarray(profile.currents, dtype=float)
+    dq = np.abs(np.asarray(changes, dtype=float).reshape(cur.shape))
+    h = 0.5 * float(quantum)
+    spread = np.zeros(cur.shape[1])
+    for idx in zip(*np.nonzero(dq > 0.0)):
+        up, down = cur.copy(), cur.copy()
+        up[idx] += h
+        down[idx] -= h
+        r_up = rest_position(params, dc_replace(profile, currents=up), q0)
+        r_dn = rest_position(params, dc_replace(profile, currents=down), q0)
+        spread += np.abs(r_up - r_dn) / (2.0 * h) * dq[idx]
+    base = np.maximum(np.abs(np.asarray(rest_error_before, dtype=float)), float(tol))
+    return base + float(tol) + LANDING_MARGIN * spread

@@ -40,7 +40,14 @@ import numpy as np
 
 from ff_planner.core.errors import ParameterError, PlanningError, WarmStartUnavailable, error_code_of
 from ff_planner.model.params import Arm1DofParams, Params, Scara2Params
-from ff_planner.model.profile import DEFAULT_STARTS, MAX_TF, GridPlanRequest, PlanRequest, PlanResult
+from ff_planner.model.profile import (
+    DEFAULT_STARTS,
+    MAX_TF,
+    CurrentProfile,
+    GridPlanRequest,
+    PlanRequest,
+    PlanResult,
+)
 from ff_planner.model.simulate import rest_position
 from ff_planner.optimize.baselines import plan_baseline, reach_1dof
 from ff_planner.optimize.box_robust import plan_box_robust_1dof
@@ -49,6 +56,7 @@ from ff_planner.optimize.certificate2d import certify_scara2
 from ff_planner.optimize.drive_grid import (
     DriveCertificate,
     DriveGrid,
+    landing_allowance,
     on_period,
     on_quantum,
     refine_on_quantum,
@@ -58,6 +66,7 @@ from ff_planner.optimize.quantize import quantize_result
 from ff_planner.optimize.robust1d import plan_robust_1dof
 from ff_planner.optimize.robust2d import plan_robust_scara2
 from ff_planner.optimize.robust2d_box import plan_box_robust_scara2
+from ff_planner.optimize.robust2d_drive import resolve_on_times
 
 Progress = Optional[Callable[[dict], None]]
 
@@ -474,8 +483,14 @@ def _drive_exact(result: PlanResult, req: PlanRequest, checked: CheckedRequest) 
         result.message = f"{result.message}; not drive-exact: {exc}"
         return
     info["max_switch_shift_s"] = float(np.max(np.abs(snapped.step_times - prof.step_times)))
+    planned_currents = np.asarray(prof.currents, dtype=float).copy()
+    rest_error_before = np.asarray(rest_before, dtype=float) - np.asarray(result.qf, dtype=float)
     result.profile = snapped
     unc = list(req.uncertain)
+    if (isinstance(params, Scara2Params) and result.success and unc
+            and info["max_switch_shift_s"] > 0.0):
+        _resolve_scara2(result, params, prof, snapped, req, info)
+        planned_currents = np.asarray(result.profile.currents, dtype=float).copy()
     try:
         info["rounding"] = quantize_result(result, params, drive.quantum, unc)
         if (isinstance(params, Arm1DofParams) and unc and result.profile is not None):
@@ -496,6 +511,65 @@ def _drive_exact(result: PlanResult, req: PlanRequest, checked: CheckedRequest) 
     info["on_quantum"] = bool(out is not None and on_quantum(out, drive.quantum))
     result.certificate = None
     result.extra["drive_exact"] = info
+    if out is not None and "error" not in info:
+        _judge_landing(result, params, out, q0, out.currents - planned_currents, drive.quantum,
+                       float(req.tol), rest_error_before, info)
+
+
+def _resolve_scara2(result: PlanResult, params: Scara2Params, planned: CurrentProfile,
+                    snapped: CurrentProfile, req: PlanRequest, info: dict) -> None:
+    """A held-link-2 SCARA plan whose switches moved to the SYNC grid: joint 1 solved again on
+    the snapped times (``robust2d_drive.resolve_on_times``) so that the profile sent lands where
+    it was planned to; ``result`` keeps the snapped profile (judged by ``_judge_landing``) when
+    the re-solve does not verify. ``info["resolve"]`` says which."""
+    t0 = time.perf_counter()
+    out = resolve_on_times(params, planned, snapped.step_times, result.q0, result.qf,
+                           list(req.uncertain), float(req.tol))
+    how: dict = {"ok": out is not None, "time_s": 0.0}
+    if out is not None:
+        new, fig = out
+        result.profile = new
+        result.q_final, result.qd_final = fig["q_final"], fig["qd_final"]
+        result.sensitivities = dict(fig["sensitivities"])
+        result.extra["hold_fraction"] = fig["hold_fraction"]
+        how.update({k: fig[k] for k in ("evaluations", "hold_fraction", "max_abs_derivative",
+                                        "q_tf_error_rad")})
+    how["time_s"] = time.perf_counter() - t0
+    info["resolve"] = how
+
+
+def _judge_landing(result: PlanResult, params: Params, profile: CurrentProfile, q0: list[float],
+                   changes: np.ndarray, quantum: float, tol: float,
+                   rest_error_before: np.ndarray, info: dict) -> None:
+    """The drive-exact profile's nominal rest error against what the drive's quantum forces
+    (``drive_grid.landing_allowance``): a profile that lands farther from the goal (e.g. its
+    switches moved to the SYNC grid and could not be solved again) is not a success and not
+    robust (NO_ROBUST_PLAN, best effort, the figures in the message)."""
+    try:
+        rest = rest_position(params, profile, q0)
+        allowed = landing_allowance(params, profile, q0, changes, quantum, tol, rest_error_before)
+    except (PlanningError, ValueError, ArithmeticError) as exc:
+        info["landing_error"] = str(exc)
+        return
+    err = np.abs(np.asarray(rest, dtype=float) - np.asarray(result.qf, dtype=float))
+    info["rest_error_rad"] = [float(x) for x in err]
+    info["rest_error_allowed_rad"] = [float(x) for x in allowed]
+    bad = [j for j in range(len(err)) if not err[j] <= allowed[j]]
+    info["landing_ok"] = not bad
+    if not bad:
+        return
+    result.success = False
+    result.robust = False
+    result.best_effort = True
+    if result.error_code == "OK":
+        result.error_code = "NO_ROBUST_PLAN"
+    where = ", ".join(f"joint {j + 1} rests at {float(rest[j]):.6g} rad, {err[j] * 1e3:.3g} mrad "
+                      f"from the goal (the drive's {quantum * 1e3:g} mA unit accounts for "
+                      f"{allowed[j] * 1e3:.3g} mrad)" for j in bad)
+    result.message = (f"NOT robust as sent to the drive: the drive-exact profile (switch times "
+                      f"moved by up to {info.get('max_switch_shift_s', 0.0) * 1e3:.3g} ms to the "
+                      f"SYNC grid, currents rounded) lands off the goal: {where}; the planned "
+                      f"profile was: {result.message}")
 
 
 def _mark_drive_certificate(result: PlanResult, checked: CheckedRequest) -> None:
