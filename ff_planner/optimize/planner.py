@@ -534,6 +534,10 @@ def _resolve_scara2(result: PlanResult, params: Scara2Params, planned: CurrentPr
         result.extra["hold_fraction"] = fig["hold_fraction"]
         how.update({k: fig[k] for k in ("evaluations", "hold_fraction", "max_abs_derivative",
                                         "q_tf_error_rad")})
+        result.message = (f"{result.message}; joint 1 solved again on the drive's SYNC grid "
+                          f"(switches moved by up to {info['max_switch_shift_s'] * 1e3:.3g} ms): "
+                          f"max |dq/dp| = {fig['max_abs_derivative']:.2g}, link 2 holds down to "
+                          f"{100 * (1 - fig['hold_fraction']):.0f} % of nominal joint-2 friction")
     how["time_s"] = time.perf_counter() - t0
     info["resolve"] = how
 

@@ -28,8 +28,9 @@ def _nominal_rest_error(res) -> np.ndarray:
     return np.abs(rest - np.asarray(res.qf, dtype=float))
 
 
-def test_scara_drive_exact_plan_lands_at_the_goal():
-    res = plan(PlanRequest(**TASK), drive=DRIVE)
+@pytest.mark.parametrize("objective", ["robust-derivative", "robust-box"])
+def test_scara_drive_exact_plan_lands_at_the_goal(objective):
+    res = plan(PlanRequest(**dict(TASK, objective=objective)), drive=DRIVE)
     assert res.success and res.robust, res.message
     prof = res.profile
     assert on_period(prof, DRIVE.period) and on_quantum(prof, DRIVE.quantum)
@@ -41,6 +42,7 @@ def test_scara_drive_exact_plan_lands_at_the_goal():
     assert float(err.max()) <= ROUNDING_REST, err
     assert res.extra["rest_position"] == pytest.approx(
         rest_position(res.params, prof, list(res.q0)).tolist(), abs=1e-12)
+    assert "solved again on the drive's SYNC grid" in res.message
     assert isinstance(res.certificate, DriveCertificate)
     assert res.certificate.worst_rest_error >= float(err.max()) - 1e-9   # the box holds nominal
 
