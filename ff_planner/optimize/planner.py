@@ -561,6 +561,11 @@ def _judge_landing(result: PlanResult, params: Params, profile: CurrentProfile, 
     bad = [j for j in range(len(err)) if not err[j] <= allowed[j]]
     info["landing_ok"] = not bad
     if not bad:
+        deriv = (info.get("rounding") or {}).get("max_abs_derivative")
+        result.message = (f"{result.message}; as sent to the drive: nominal rest error "
+                          f"{float(err.max()) * 1e3:.3g} mrad" + (
+                              f", max |dq(tf)/dp| = {float(deriv):.2g}" if deriv is not None
+                              else ""))
         return
     result.success = False
     result.robust = False

@@ -43,6 +43,7 @@ def test_scara_drive_exact_plan_lands_at_the_goal(objective):
     assert res.extra["rest_position"] == pytest.approx(
         rest_position(res.params, prof, list(res.q0)).tolist(), abs=1e-12)
     assert "solved again on the drive's SYNC grid" in res.message
+    assert f"as sent to the drive: nominal rest error {float(err.max()) * 1e3:.3g} mrad" in res.message
     assert isinstance(res.certificate, DriveCertificate)
     assert res.certificate.worst_rest_error >= float(err.max()) - 1e-9   # the box holds nominal
 
