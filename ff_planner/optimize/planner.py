@@ -62,6 +62,7 @@ from ff_planner.optimize.drive_grid import (
     refine_on_quantum,
     snap_times,
 )
+from ff_planner.optimize.limits2d import joint1_limits
 from ff_planner.optimize.quantize import quantize_result
 from ff_planner.optimize.robust1d import plan_robust_1dof
 from ff_planner.optimize.robust2d import plan_robust_scara2
@@ -524,7 +525,8 @@ def _resolve_scara2(result: PlanResult, params: Scara2Params, planned: CurrentPr
     the re-solve does not verify. ``info["resolve"]`` says which."""
     t0 = time.perf_counter()
     out = resolve_on_times(params, planned, snapped.step_times, result.q0, result.qf,
-                           list(req.uncertain), float(req.tol))
+                           list(req.uncertain), float(req.tol),
+                           limits=joint1_limits(req, params))
     how: dict = {"ok": out is not None, "time_s": 0.0}
     if out is not None:
         new, fig = out

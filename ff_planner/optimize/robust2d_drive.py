@@ -19,6 +19,7 @@ from ff_planner.model import scara2
 from ff_planner.model.params import Scara2Params
 from ff_planner.model.profile import CurrentProfile
 from ff_planner.optimize.hold_joint import Joint1Problem, joint1_params, joint2_hold_currents
+from ff_planner.optimize.limits1d import Limits1D
 
 RESOLVE_NFEV = 80        # evaluations of the re-solve (from a nearby solution: a few Newton steps)
 RESOLVE_HOLD = 0.1       # hold fraction asked for (robust2d.HOLD_FALLBACK)
@@ -47,12 +48,14 @@ class _TimedJoint1Problem(Joint1Problem):
 
 
 def resolve_on_times(p: Scara2Params, profile: CurrentProfile, times: np.ndarray,
-                     q0: np.ndarray, qf: np.ndarray, uncertain: list[str], tol: float
-                     ) -> Optional[tuple[CurrentProfile, dict]]:
+                     q0: np.ndarray, qf: np.ndarray, uncertain: list[str], tol: float,
+                     limits: Optional[Limits1D] = None) -> Optional[tuple[CurrentProfile, dict]]:
     """Joint 1's currents of the held-link-2 ``profile`` solved again on switch times ``times``
     (s), motor 2's holding currents recomputed; returns (profile, figures) when the result
     verifies on the full 2-DOF model (|q(tf) − qf| ≤ tol, every position |∂q/∂p| ≤ tol, both
-    joints stuck at tf, link 2 held), else None. Only for tasks that keep link 2 (q2f = q20)."""
+    joints stuck at tf, link 2 held), else None. Only for tasks that keep link 2 (q2f = q20).
+    ``limits``: joint 1's position range and speed limit (``limits2d.joint1_limits``), held by
+    the re-solve as ``Joint1Problem``'s limit rows."""
     q0 = np.asarray(q0, float)
     qf = np.asarray(qf, float)
     if abs(float(qf[1]) - float(q0[1])) > 0.0 or profile.currents.shape[1] != 2:
@@ -61,7 +64,7 @@ def resolve_on_times(p: Scara2Params, profile: CurrentProfile, times: np.ndarray
     n = profile.n_steps
     hp = _TimedJoint1Problem(np.asarray(times, float), joint1_params(p), float(q0[0]),
                              float(qf[0]), float(profile.tf), float(profile.coast), n, names1,
-                             p2=p, q2=float(q0[1]), hold_min=RESOLVE_HOLD)
+                             p2=p, q2=float(q0[1]), hold_min=RESOLVE_HOLD, limits=limits)
     x0 = np.clip(np.asarray(profile.currents[:, 0], float), -hp.i_max, hp.i_max)
     x, fun, nfev = hp.solve(x0, max_nfev=RESOLVE_NFEV)
     if not np.all(np.isfinite(fun)) or float(np.max(np.abs(fun))) > 0.1 * tol:
