@@ -60,3 +60,21 @@ def test_scara_plan_that_cannot_be_solved_on_the_grid_is_not_called_robust(monke
     assert "NOT robust as sent to the drive" in res.message
     assert res.extra["drive_exact"]["landing_ok"] is False
     assert res.extra["drive_exact"]["rest_error_rad"][0] == pytest.approx(float(err[0]), abs=1e-9)
+
+
+def test_the_node_s_request_for_the_scara_drive_lands_at_the_goal():
+    """As the planner node builds it (empty uncertain = all six, node defaults, the drive from
+    its ``drive_config``), planned as its worker plans it."""
+    from ff_planner.service.planner_service import PlannerService, RequestFields, ServiceConfig
+
+    svc = PlannerService(ServiceConfig(library_path="", warmup=False,
+                                       drive_config=str(CONFIG / "bridge_sim_scara2.yaml")))
+    try:
+        checked = svc.make_request(RequestFields(model="scara2", q0=[-0.5, 0.0], qf=[0.5, 0.0],
+                                                 move_time=1.0, objective="robust-derivative"))
+    finally:
+        svc.close()
+    assert checked.drive is not None and checked.drive.period == pytest.approx(0.01)
+    res = plan(checked)
+    assert res.success and res.robust, res.message
+    assert float(_nominal_rest_error(res).max()) <= ROUNDING_REST
