@@ -40,6 +40,7 @@ import numpy as np
 
 from ff_planner.core.errors import ParameterError, PlanningError, WarmStartUnavailable, error_code_of
 from ff_planner.model.params import Arm1DofParams, Params, Scara2Params
+from ff_planner.model.scara2 import sensitivities_scara2 as scara2_sensitivities
 from ff_planner.model.profile import (
     DEFAULT_STARTS,
     MAX_TF,
@@ -503,6 +504,13 @@ def _drive_exact(result: PlanResult, req: PlanRequest, checked: CheckedRequest) 
                 again = quantize_result(result, params, drive.quantum, unc)
                 info["rounding"].update({k: again[k] for k in ("max_abs_derivative",
                                                                "q_tf_error_rad") if k in again})
+        if isinstance(params, Scara2Params) and unc and result.profile is not None:
+            sens = scara2_sensitivities(params, result.profile, np.asarray(q0, dtype=float),
+                                        tuple(unc), method="complex")
+            info["rounding"]["max_abs_derivative"] = max(
+                abs(float(v)) for k, v in sens.items() if k.startswith("q") and not k.startswith("qd"))
+            info["rounding"]["q_tf_error_rad"] = [
+                float(a) - float(b) for a, b in zip(result.q_final, result.qf)]
         rest_after = [float(x) for x in (result.extra.get("rest_position") or [])]
         info["rest_shift_rad"] = [a - float(b) for a, b in zip(rest_after, rest_before)]
     except (ValueError, ArithmeticError) as exc:

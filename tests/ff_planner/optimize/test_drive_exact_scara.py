@@ -44,6 +44,11 @@ def test_scara_drive_exact_plan_lands_at_the_goal(objective):
         rest_position(res.params, prof, list(res.q0)).tolist(), abs=1e-12)
     assert "solved again on the drive's SYNC grid" in res.message
     assert f"as sent to the drive: nominal rest error {float(err.max()) * 1e3:.3g} mrad" in res.message
+    sens = scara2.sensitivities_scara2(res.params, prof, np.asarray(res.q0), scara2.FRICTION_NAMES,
+                                       method="complex")
+    worst = max(abs(v) for k, v in sens.items() if k.startswith("q") and not k.startswith("qd"))
+    assert info["rounding"]["max_abs_derivative"] == pytest.approx(worst, rel=1e-9, abs=1e-15)
+    assert f"max |dq(tf)/dp| = {worst:.2g}" in res.message
     assert isinstance(res.certificate, DriveCertificate)
     assert res.certificate.worst_rest_error >= float(err.max()) - 1e-9   # the box holds nominal
 
