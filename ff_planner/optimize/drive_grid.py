@@ -342,3 +342,35 @@ def landing_allowance(params: Any, profile: CurrentProfile, q0: Sequence[float],
         spread += np.abs(r_up - r_dn) / (2.0 * h) * dq[idx]
     base = np.maximum(np.abs(np.asarray(rest_error_before, dtype=float)), float(tol))
     return base + float(tol) + LANDING_MARGIN * spread
+
+
+LAND_NFEV = 200           # evaluations of the landing fix, at most
+
+
+def land_on_times(params: Arm1DofParams, profile: CurrentProfile, q0: float, qf: float
+                  ) -> Optional[CurrentProfile]:
+    """The 1-DOF ``profile`` (switch times already on the drive's grid) with its currents moved
+    as little as possible (least squares, |I| ≤ i_max) so that the nominal arm rests at ``qf``
+    (rad) again: a plan whose switches moved to the SYNC grid (a time-optimal bang-bang switch,
+    a coast end) lands elsewhere by the impulse of the shift. None when it finds no such
+    currents (rest error above 1e-9 rad)."""
+    from scipy.optimize import least_squares   # bounded Levenberg-Marquardt-type solver
+
+    from ff_planner.model.simulate import rest_position
+
+    x0 = np.asarray(profile.currents[:, 0], dtype=float)
+    i_max = float(params.i_max)
+    scale = max(1.0, float(np.max(np.abs(x0))))
+
+    def residuals(x: np.ndarray) -> np.ndarray:
+        prof = dc_replace(profile, currents=x.reshape(-1, 1))
+        rest = float(rest_position(params, prof, [q0])[0])
+        if not math.isfinite(rest):
+            rest = 1e3
+        return np.r_[1e3 * (rest - qf), 1e-3 * (x - x0) / scale]
+
+    sol = least_squares(residuals, np.clip(x0, -i_max, i_max), bounds=(-i_max, i_max),
+                        method="trf", x_scale=scale, max_nfev=LAND_NFEV)
+    out = dc_replace(profile, currents=sol.x.reshape(-1, 1))
+    err = abs(float(rest_position(params, out, [q0])[0]) - qf)
+    return out if err <= 1e-9 * max(1.0, abs(qf)) or err <= 1e-7 else None

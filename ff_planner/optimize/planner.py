@@ -57,6 +57,7 @@ from ff_planner.optimize.certificate2d import certify_scara2
 from ff_planner.optimize.drive_grid import (
     DriveCertificate,
     DriveGrid,
+    land_on_times,
     landing_allowance,
     on_period,
     on_quantum,
@@ -493,6 +494,9 @@ def _drive_exact(result: PlanResult, req: PlanRequest, checked: CheckedRequest) 
             and info["max_switch_shift_s"] > 0.0):
         _resolve_scara2(result, params, prof, snapped, req, info)
         planned_currents = np.asarray(result.profile.currents, dtype=float).copy()
+    elif isinstance(params, Arm1DofParams) and info["max_switch_shift_s"] > 0.0:
+        _land_1dof(result, params, snapped, q0[0], rest_error_before, info)
+        planned_currents = np.asarray(result.profile.currents, dtype=float).copy()
     try:
         info["rounding"] = quantize_result(result, params, drive.quantum, unc)
         if (isinstance(params, Arm1DofParams) and unc and result.profile is not None):
@@ -523,6 +527,33 @@ def _drive_exact(result: PlanResult, req: PlanRequest, checked: CheckedRequest) 
     if out is not None and "error" not in info:
         _judge_landing(result, params, out, q0, out.currents - planned_currents, drive.quantum,
                        float(req.tol), rest_error_before, info)
+
+
+def _land_1dof(result: PlanResult, params: Arm1DofParams, snapped: CurrentProfile, q0: float,
+               rest_error_before: np.ndarray, info: dict) -> None:
+    """A 1-DOF plan whose switches moved to the SYNC grid and which then lands farther from
+    the goal than planned: its currents moved as little as possible to land again
+    (``drive_grid.land_on_times``; ``info["land"]`` says so). A plan that still lands where
+    planned is left as it is (the robust planners place their switches on the grid)."""
+    qf = float(result.qf[0])
+    try:
+        err = abs(float(rest_position(params, snapped, [q0])[0]) - qf)
+    except (ValueError, ArithmeticError):
+        return
+    if err <= 2.0 * float(np.max(np.abs(rest_error_before))) + 1e-6:
+        return
+    t0 = time.perf_counter()
+    out = land_on_times(params, snapped, q0, qf)
+    info["land"] = {"ok": out is not None, "rest_error_snapped_rad": err,
+                    "time_s": time.perf_counter() - t0}
+    if out is None:
+        return
+    info["land"]["max_change_A"] = float(np.max(np.abs(out.currents - snapped.currents)))
+    result.profile = out
+    result.message = (f"{result.message}; currents solved again to land on the goal with the "
+                      f"switches on the drive's SYNC grid (moved by up to "
+                      f"{info['max_switch_shift_s'] * 1e3:.3g} ms; landing {err * 1e3:.3g} mrad off "
+                      f"before)")
 
 
 def _resolve_scara2(result: PlanResult, params: Scara2Params, planned: CurrentProfile,
