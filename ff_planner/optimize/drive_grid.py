@@ -312,3 +312,65 @@ def refine_on_quantum(params: Arm1DofParams, profile: CurrentProfile, q0: float,
     out = dc_replace(profile, currents=(best_k * quantum).astype(float).reshape(-1, 1))
     return out, {"worst_before_rad": before, "worst_after_rad": best, "evaluations": evals,
                  "quanta_moved": int(np.sum(np.abs(best_k - base)))}
+
+
+# --- the landing of a drive-exact profile, judged ---------------------------------------------
+LANDING_MARGIN = 2.0      # times the first-order effect of the current changes (curvature, kinks)
+
+
+def landing_allowance(params: Any, profile: CurrentProfile, q0: Sequence[float],
+                      changes: np.ndarray, quantum: float, tol: float,
+                      rest_error_before: Union[Sequence[float], np.ndarray]) -> np.ndarray:
+    """How far (rad, per joint) the nominal rest of a drive-exact ``profile`` may lie from the
+    goal: the planned profile's own rest error (``rest_error_before``, at least ``tol``) plus
+    ``LANDING_MARGIN`` × Σ_k |∂rest_j/∂I_k|·|ΔI_k| — the first-order effect of the current
+    changes the drive's quantum forced (``changes``, A, the profile's shape; ∂rest/∂I by central
+    differences of ±quantum/2 on ``profile``). Moving switch times is not a current change:
+    a landing moved by the SYNC grid is not allowed for here."""
+    from ff_planner.model.simulate import rest_position   # the model layer's exact simulation
+
+    cur = np.asarray(profile.currents, dtype=float)
+    dq = np.abs(np.asarray(changes, dtype=float).reshape(cur.shape))
+    h = 0.5 * float(quantum)
+    spread = np.zeros(cur.shape[1])
+    for idx in zip(*np.nonzero(dq > 0.0)):
+        up, down = cur.copy(), cur.copy()
+        up[idx] += h
+        down[idx] -= h
+        r_up = rest_position(params, dc_replace(profile, currents=up), q0)
+        r_dn = rest_position(params, dc_replace(profile, currents=down), q0)
+        spread += np.abs(r_up - r_dn) / (2.0 * h) * dq[idx]
+    base = np.maximum(np.abs(np.asarray(rest_error_before, dtype=float)), float(tol))
+    return base + float(tol) + LANDING_MARGIN * spread
+
+
+LAND_NFEV = 200           # evaluations of the landing fix, at most
+
+
+def land_on_times(params: Arm1DofParams, profile: CurrentProfile, q0: float, qf: float
+                  ) -> Optional[CurrentProfile]:
+    """The 1-DOF ``profile`` (switch times already on the drive's grid) with its currents moved
+    as little as possible (least squares, |I| ≤ i_max) so that the nominal arm rests at ``qf``
+    (rad) again: a plan whose switches moved to the SYNC grid (a time-optimal bang-bang switch,
+    a coast end) lands elsewhere by the impulse of the shift. None when it finds no such
+    currents (rest error above 1e-9 rad)."""
+    from scipy.optimize import least_squares   # bounded Levenberg-Marquardt-type solver
+
+    from ff_planner.model.simulate import rest_position
+
+    x0 = np.asarray(profile.currents[:, 0], dtype=float)
+    i_max = float(params.i_max)
+    scale = max(1.0, float(np.max(np.abs(x0))))
+
+    def residuals(x: np.ndarray) -> np.ndarray:
+        prof = dc_replace(profile, currents=x.reshape(-1, 1))
+        rest = float(rest_position(params, prof, [q0])[0])
+        if not math.isfinite(rest):
+            rest = 1e3
+        return np.r_[1e3 * (rest - qf), 1e-3 * (x - x0) / scale]
+
+    sol = least_squares(residuals, np.clip(x0, -i_max, i_max), bounds=(-i_max, i_max),
+                        method="trf", x_scale=scale, max_nfev=LAND_NFEV)
+    out = dc_replace(profile, currents=sol.x.reshape(-1, 1))
+    err = abs(float(rest_position(params, out, [q0])[0]) - qf)
+    return out if err <= 1e-9 * max(1.0, abs(qf)) or err <= 1e-7 else None

@@ -40,7 +40,15 @@ import numpy as np
 
 from ff_planner.core.errors import ParameterError, PlanningError, WarmStartUnavailable, error_code_of
 from ff_planner.model.params import Arm1DofParams, Params, Scara2Params
-from ff_planner.model.profile import DEFAULT_STARTS, MAX_TF, GridPlanRequest, PlanRequest, PlanResult
+from ff_planner.model.scara2 import sensitivities_scara2 as scara2_sensitivities
+from ff_planner.model.profile import (
+    DEFAULT_STARTS,
+    MAX_TF,
+    CurrentProfile,
+    GridPlanRequest,
+    PlanRequest,
+    PlanResult,
+)
 from ff_planner.model.simulate import rest_position
 from ff_planner.optimize.baselines import plan_baseline, reach_1dof
 from ff_planner.optimize.box_robust import plan_box_robust_1dof
@@ -49,15 +57,19 @@ from ff_planner.optimize.certificate2d import certify_scara2
 from ff_planner.optimize.drive_grid import (
     DriveCertificate,
     DriveGrid,
+    land_on_times,
+    landing_allowance,
     on_period,
     on_quantum,
     refine_on_quantum,
     snap_times,
 )
+from ff_planner.optimize.limits2d import joint1_limits
 from ff_planner.optimize.quantize import quantize_result
 from ff_planner.optimize.robust1d import plan_robust_1dof
 from ff_planner.optimize.robust2d import plan_robust_scara2
 from ff_planner.optimize.robust2d_box import plan_box_robust_scara2
+from ff_planner.optimize.robust2d_drive import resolve_on_times
 
 Progress = Optional[Callable[[dict], None]]
 
@@ -474,8 +486,17 @@ def _drive_exact(result: PlanResult, req: PlanRequest, checked: CheckedRequest) 
         result.message = f"{result.message}; not drive-exact: {exc}"
         return
     info["max_switch_shift_s"] = float(np.max(np.abs(snapped.step_times - prof.step_times)))
+    planned_currents = np.asarray(prof.currents, dtype=float).copy()
+    rest_error_before = np.asarray(rest_before, dtype=float) - np.asarray(result.qf, dtype=float)
     result.profile = snapped
     unc = list(req.uncertain)
+    if (isinstance(params, Scara2Params) and result.success and unc
+            and info["max_switch_shift_s"] > 0.0):
+        _resolve_scara2(result, params, prof, snapped, req, info)
+        planned_currents = np.asarray(result.profile.currents, dtype=float).copy()
+    elif isinstance(params, Arm1DofParams) and info["max_switch_shift_s"] > 0.0:
+        _land_1dof(result, params, snapped, q0[0], rest_error_before, info)
+        planned_currents = np.asarray(result.profile.currents, dtype=float).copy()
     try:
         info["rounding"] = quantize_result(result, params, drive.quantum, unc)
         if (isinstance(params, Arm1DofParams) and unc and result.profile is not None):
@@ -487,6 +508,13 @@ def _drive_exact(result: PlanResult, req: PlanRequest, checked: CheckedRequest) 
                 again = quantize_result(result, params, drive.quantum, unc)
                 info["rounding"].update({k: again[k] for k in ("max_abs_derivative",
                                                                "q_tf_error_rad") if k in again})
+        if isinstance(params, Scara2Params) and unc and result.profile is not None:
+            sens = scara2_sensitivities(params, result.profile, np.asarray(q0, dtype=float),
+                                        tuple(unc), method="complex")
+            info["rounding"]["max_abs_derivative"] = max(
+                abs(float(v)) for k, v in sens.items() if k.startswith("q") and not k.startswith("qd"))
+            info["rounding"]["q_tf_error_rad"] = [
+                float(a) - float(b) for a, b in zip(result.q_final, result.qf)]
         rest_after = [float(x) for x in (result.extra.get("rest_position") or [])]
         info["rest_shift_rad"] = [a - float(b) for a, b in zip(rest_after, rest_before)]
     except (ValueError, ArithmeticError) as exc:
@@ -496,6 +524,102 @@ def _drive_exact(result: PlanResult, req: PlanRequest, checked: CheckedRequest) 
     info["on_quantum"] = bool(out is not None and on_quantum(out, drive.quantum))
     result.certificate = None
     result.extra["drive_exact"] = info
+    if out is not None and "error" not in info:
+        _judge_landing(result, params, out, q0, out.currents - planned_currents, drive.quantum,
+                       float(req.tol), rest_error_before, info)
+
+
+def _land_1dof(result: PlanResult, params: Arm1DofParams, snapped: CurrentProfile, q0: float,
+               rest_error_before: np.ndarray, info: dict) -> None:
+    """A 1-DOF plan whose switches moved to the SYNC grid and which then lands farther from
+    the goal than planned: its currents moved as little as possible to land again
+    (``drive_grid.land_on_times``; ``info["land"]`` says so). A plan that still lands where
+    planned is left as it is (the robust planners place their switches on the grid)."""
+    qf = float(result.qf[0])
+    try:
+        err = abs(float(rest_position(params, snapped, [q0])[0]) - qf)
+    except (ValueError, ArithmeticError):
+        return
+    if err <= 2.0 * float(np.max(np.abs(rest_error_before))) + 1e-6:
+        return
+    t0 = time.perf_counter()
+    out = land_on_times(params, snapped, q0, qf)
+    info["land"] = {"ok": out is not None, "rest_error_snapped_rad": err,
+                    "time_s": time.perf_counter() - t0}
+    if out is None:
+        return
+    info["land"]["max_change_A"] = float(np.max(np.abs(out.currents - snapped.currents)))
+    result.profile = out
+    result.message = (f"{result.message}; currents solved again to land on the goal with the "
+                      f"switches on the drive's SYNC grid (moved by up to "
+                      f"{info['max_switch_shift_s'] * 1e3:.3g} ms; landing {err * 1e3:.3g} mrad off "
+                      f"before)")
+
+
+def _resolve_scara2(result: PlanResult, params: Scara2Params, planned: CurrentProfile,
+                    snapped: CurrentProfile, req: PlanRequest, info: dict) -> None:
+    """A held-link-2 SCARA plan whose switches moved to the SYNC grid: joint 1 solved again on
+    the snapped times (``robust2d_drive.resolve_on_times``) so that the profile sent lands where
+    it was planned to; ``result`` keeps the snapped profile (judged by ``_judge_landing``) when
+    the re-solve does not verify. ``info["resolve"]`` says which."""
+    t0 = time.perf_counter()
+    out = resolve_on_times(params, planned, snapped.step_times, result.q0, result.qf,
+                           list(req.uncertain), float(req.tol),
+                           limits=joint1_limits(req, params))
+    how: dict = {"ok": out is not None, "time_s": 0.0}
+    if out is not None:
+        new, fig = out
+        result.profile = new
+        result.q_final, result.qd_final = fig["q_final"], fig["qd_final"]
+        result.sensitivities = dict(fig["sensitivities"])
+        result.extra["hold_fraction"] = fig["hold_fraction"]
+        how.update({k: fig[k] for k in ("evaluations", "hold_fraction", "max_abs_derivative",
+                                        "q_tf_error_rad")})
+        result.message = (f"{result.message}; joint 1 solved again on the drive's SYNC grid "
+                          f"(switches moved by up to {info['max_switch_shift_s'] * 1e3:.3g} ms): "
+                          f"max |dq/dp| = {fig['max_abs_derivative']:.2g}, link 2 holds down to "
+                          f"{100 * (1 - fig['hold_fraction']):.0f} % of nominal joint-2 friction")
+    how["time_s"] = time.perf_counter() - t0
+    info["resolve"] = how
+
+
+def _judge_landing(result: PlanResult, params: Params, profile: CurrentProfile, q0: list[float],
+                   changes: np.ndarray, quantum: float, tol: float,
+                   rest_error_before: np.ndarray, info: dict) -> None:
+    """The drive-exact profile's nominal rest error against what the drive's quantum forces
+    (``drive_grid.landing_allowance``): a profile that lands farther from the goal (e.g. its
+    switches moved to the SYNC grid and could not be solved again) is not a success and not
+    robust (NO_ROBUST_PLAN, best effort, the figures in the message)."""
+    try:
+        rest = rest_position(params, profile, q0)
+        allowed = landing_allowance(params, profile, q0, changes, quantum, tol, rest_error_before)
+    except (PlanningError, ValueError, ArithmeticError) as exc:
+        info["landing_error"] = str(exc)
+        return
+    err = np.abs(np.asarray(rest, dtype=float) - np.asarray(result.qf, dtype=float))
+    info["rest_error_rad"] = [float(x) for x in err]
+    info["rest_error_allowed_rad"] = [float(x) for x in allowed]
+    bad = [j for j in range(len(err)) if not err[j] <= allowed[j]]
+    info["landing_ok"] = not bad
+    if not bad:
+        deriv = (info.get("rounding") or {}).get("max_abs_derivative")
+        result.message = (f"{result.message}; as sent to the drive: nominal rest error "
+                          f"{float(err.max()) * 1e3:.3g} mrad" + (
+                              f", max |dq(tf)/dp| = {float(deriv):.2g}" if deriv is not None
+                              else ""))
+        return
+    result.success = False
+    result.robust = False
+    result.best_effort = True
+    if result.error_code == "OK":
+        result.error_code = "NO_ROBUST_PLAN"
+    where = ", ".join(f"joint {j + 1} rests at {float(rest[j]):.6g} rad, {err[j] * 1e3:.3g} mrad "
+                      f"from the goal (the drive's {quantum * 1e3:g} mA unit accounts for "
+                      f"{allowed[j] * 1e3:.3g} mrad)" for j in bad)
+    result.message = (f"NOT robust as sent to the drive: the drive-exact profile (switch times "
+                      f"moved by up to {info.get('max_switch_shift_s', 0.0) * 1e3:.3g} ms to the "
+                      f"SYNC grid, currents rounded) lands off the goal: {where}; the planned "
+                      f"profile was: {result.message}")
 
 
 def _mark_drive_certificate(result: PlanResult, checked: CheckedRequest) -> None:

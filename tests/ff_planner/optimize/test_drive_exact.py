@@ -229,3 +229,18 @@ def test_service_requests_carry_the_drive_to_the_worker():
     assert isinstance(r.certificate, DriveCertificate)
     k = r.profile.step_times / grid.period
     assert np.allclose(k, np.rint(k), atol=1e-9)
+
+
+def test_time_optimal_plan_lands_at_the_goal_as_sent():
+    """Its bang-bang switch moves to the 10 ms SYNC (4.4 ms here): at 10 A that alone would put
+    the rest 0.67 rad past the goal; the currents are solved again on the snapped switch."""
+    from ff_planner.model.simulate import rest_position
+
+    res = plan(PlanRequest(objective="time-optimal", uncertain=["pc"]),
+               drive=DriveGrid(quantum=0.003, period=0.01, source="test"))
+    info = res.extra["drive_exact"]
+    assert info["max_switch_shift_s"] > 1e-3 and info["land"]["ok"]
+    assert info["land"]["rest_error_snapped_rad"] > 0.1
+    rest = float(rest_position(res.params, res.profile, [0.0])[0])
+    assert abs(rest - 1.0) <= info["rest_error_allowed_rad"][0] and abs(rest - 1.0) < 0.01
+    assert res.success and info["landing_ok"] and "solved again to land" in res.message
