@@ -14,10 +14,11 @@ sys.dont_write_bytecode = False
 
 # The tests' processes talk DDS over UDP on loopback only (Fast DDS's builtin transports; set
 # before any participant is created, inherited by every process the tests start). This process
-# runs CAN masters in-process whose threads get SCHED_FIFO; after such tests, data from another
-# process stopped reaching a node of this process for good with the default transports (shared
-# memory + UDP) while discovery went on (a subprocess's service requests never reached a bridge
-# node here); with UDP in both processes it arrived.
+# runs CAN masters in-process whose threads get SCHED_FIFO; after such a test, data from another
+# process stopped reaching a node of this process with the default transports (shared memory +
+# UDP) while discovery went on; with UDP in both processes that pair of tests passed. (In full
+# suite runs a subprocess's service requests to a node of this process still went missing later
+# on, over UDP too, while topics and service answers from other processes arrived; cause unknown.)
 os.environ.setdefault("FASTDDS_BUILTIN_TRANSPORTS", "UDPv4")
 
 

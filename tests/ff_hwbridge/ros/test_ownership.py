@@ -58,9 +58,7 @@ def _call(node, srv_type, name, request):
 
 
 def test_only_the_owner_moves_the_arm_and_a_dead_owner_loses_the_drive(rig, ros_env, capfd):
-    import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
-    from rclpy.executors import SingleThreadedExecutor
     from lifecycle_msgs.msg import Transition
     from lifecycle_msgs.srv import ChangeState
     from rclpy.node import Node
@@ -99,8 +97,7 @@ def test_only_the_owner_moves_the_arm_and_a_dead_owner_loses_the_drive(rig, ros_
     with ros_context() as ctx:
         bridge = BridgeNode(context=ctx, parameter_overrides=params)
         a, b, c = (Node(n, context=ctx) for n in ("client_a", "client_b", "client_c"))
-        with spinning(ctx, bridge, a, b, c, threads=4):
-            owner_ctx = None
+        with spinning(ctx, bridge, a, b, c, threads=4) as owner_ex:
             try:
                 bridge.trigger_configure()
                 assert bridge.master is not None, "configure failed"
@@ -196,24 +193,20 @@ def test_only_the_owner_moves_the_arm_and_a_dead_owner_loses_the_drive(rig, ros_
                 cmd_a.close()
                 cmd_b.close()
 
-                # an owner that vanishes without releasing (its own rclpy context, shut down at
-                # once: from the bridge's side what a killed owner process does: no release, no
-                # renewal): its claim expires within the lease. (An owner in a process of its own
-                # was killed here; in full-suite runs its requests stopped reaching this process's
-                # bridge node after earlier modules, though discovery went on.)
-                owner_ctx = rclpy.Context()
-                rclpy.init(context=owner_ctx)
-                doomed = Node("doomed_owner", context=owner_ctx)
-                owner_ex = SingleThreadedExecutor(context=owner_ctx)
+                # an owner that vanishes without releasing: its renewals stop and no release comes
+                # (from the bridge's side what a killed owner process does); its claim expires
+                # within the lease. The owner is a node of this context: in full-suite runs,
+                # requests from another participant (another process, or another context of this
+                # process) stopped reaching this bridge node after earlier modules.
+                doomed = Node("doomed_owner", context=ctx)
                 owner_ex.add_node(doomed)
-                threading.Thread(target=owner_ex.spin, daemon=True).start()
-                DriveClaim(doomed, "/ff_hwbridge", lease=LEASE, timeout=30.0)
+                doomed_claim = DriveClaim(doomed, "/ff_hwbridge", lease=LEASE, timeout=30.0)
                 assert bridge.ownership.owner == "/doomed_owner"
                 estop.publish(Bool(data=True))                   # C's e-stop while it owns
                 assert _wait(lambda: bridge.master.latched)
                 time.sleep(1.0)                                  # renewals keep it alive
                 assert bridge.ownership.owner == "/doomed_owner"
-                rclpy.shutdown(context=owner_ctx)
+                doomed.destroy_timer(doomed_claim._timer)        # it dies: no renewal, no release
                 killed = time.monotonic()
                 assert waiter(LEASE + 2.0, 0.005)(lambda: not bridge.ownership.claimed)
                 gone_after = time.monotonic() - killed
@@ -231,6 +224,4 @@ def test_only_the_owner_moves_the_arm_and_a_dead_owner_loses_the_drive(rig, ros_
                 assert _wait(lambda: bridge.master.latched)
                 assert claim_c.release().success
             finally:
-                if owner_ctx is not None and owner_ctx.ok():
-                    rclpy.shutdown(context=owner_ctx)
                 bridge.teardown()
