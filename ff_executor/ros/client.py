@@ -28,6 +28,7 @@ from ff_msgs.msg import CurrentSetpoint
 from ff_msgs.srv import PlanTrajectory
 from ff_msgs_py.convert import ns_to_time, time_to_ns
 from ff_msgs_py.launch import apply_ros_environment
+from ff_msgs_py.spin import spin
 
 
 class StackCallError(RuntimeError):
@@ -149,7 +150,7 @@ class StackClient:
         self.node.create_subscription(CurrentSetpoint, f"{ns}/ff_hwbridge/applied", on_applied, rel)
         self.executor = MultiThreadedExecutor(num_threads=2, context=self.ctx)
         self.executor.add_node(self.node)
-        self._spin = threading.Thread(target=self.executor.spin, daemon=True)
+        self._spin = threading.Thread(target=spin, args=(self.executor,), daemon=True)
         self._spin.start()
 
     def close(self) -> None:
@@ -217,14 +218,18 @@ class StackClient:
                    if heard.get(k, -1.0) <= since]
         raise StackCallError(f"no sample on {', '.join(missing)} within {timeout:.0f} s")
 
-    def _first_stamp(self, timeout: float) -> float:
-        """Stamp (s, ROS clock) of step 0 of the goal being executed, once its setpoint is seen."""
+    def _first_stamp(self, timeout: float, result: Optional[Any] = None) -> Optional[float]:
+        """Stamp (s, ROS clock) of step 0 of the goal being executed, once its setpoint is seen;
+        None when ``result`` (the goal's result future) completes first (the goal ended without a
+        step, e.g. aborted at once: its result says why)."""
         end = time.monotonic() + timeout
         while time.monotonic() < end:
             with self._lock:
                 first = next((ns for (_, seq), (ns, _) in self._stamps.items() if seq == 0), None)
             if first is not None:
                 return first / NS
+            if result is not None and result.done():
+                return None
             time.sleep(0.005)
         raise StackCallError(f"the executor published no setpoint within {timeout:.0f} s")
 
@@ -234,6 +239,20 @@ class StackClient:
         if not self.plan_client.wait_for_service(timeout_sec=15.0):
             raise StackCallError("the planner service /ff_planner/plan is not available")
         return self._wait(self.plan_client.call_async(request), timeout, "plan")
+
+    def fault_reset(self, timeout: float = 10.0) -> str:
+        """Clear a latched safe state of the bridge (its ``~/fault_reset``, std_srvs/Trigger; open
+        while no client holds a claim); returns its message, StackCallError when refused."""
+        cli = self.node.create_client(Trigger, f"{self.ns}/ff_hwbridge/fault_reset")
+        try:
+            if not cli.wait_for_service(timeout_sec=timeout):
+                raise StackCallError(f"the bridge's {self.ns}/ff_hwbridge/fault_reset is not available")
+            res = self._wait(cli.call_async(Trigger.Request()), timeout, "fault reset")
+        finally:
+            self.node.destroy_client(cli)
+        if not res.success:
+            raise StackCallError(f"fault reset refused: {res.message}")
+        return str(res.message)
 
     def reset_arm(self, q0: Sequence[float] = (0.0,), timeout: float = 10.0,
                   rest_velocity: float = 1e-6) -> None:
@@ -286,9 +305,10 @@ class StackClient:
             raise StackCallError("the executor rejected the goal (see its log)")
         res_future = handle.get_result_async()
         if cancel_into_move is not None:
-            start = self._first_stamp(15.0)
-            time.sleep(max(0.0, start + cancel_into_move - self.now()))
-            self._wait(handle.cancel_goal_async(), 10.0, "cancel")
+            start = self._first_stamp(15.0, res_future)
+            if start is not None:       # None: the goal has already ended (its result says how)
+                time.sleep(max(0.0, start + cancel_into_move - self.now()))
+                self._wait(handle.cancel_goal_async(), 10.0, "cancel")
         res = self._wait(res_future, timeout, "execute")
         t_result = self.now()
         end = time.monotonic() + 2.0        # a ground-truth sample taken after the result, at rest

@@ -88,6 +88,7 @@ from ff_msgs.msg import CurrentSetpoint, DriveGroupStatus
 from ff_msgs_py.convert import msg_to_profile, predicted_rest_of, setpoint_msg, time_to_ns
 from ff_msgs_py.shutdown import shut_down
 from ff_msgs_py.threads import in_thread
+from ff_msgs_py.spin import spin
 
 READY_LINE = "ff_executor ready"
 
@@ -670,7 +671,7 @@ def main(argv: Optional[list[str]] = None) -> None:
         executor.add_node(node)
         node.get_logger().info(f"{READY_LINE}: action {node.get_fully_qualified_name()}/execute, "
                                f"joints {list(node.config.joint_names)}")
-        executor.spin()
+        spin(executor, node.get_logger())
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except (ValueError, ParameterException) as exc:   # bad parameters: one clear line, no traceback

@@ -19,6 +19,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from ff_msgs_py.launch import client_ros_settings
+from ff_msgs_py.spin import spin
 
 _COUNT = itertools.count()
 
@@ -45,7 +46,7 @@ class Session:
 
     def _spin_forever(self) -> None:
         try:
-            self.executor.spin()
+            spin(self.executor)
         except Exception:  # noqa: BLE001 - the context was shut down under the executor
             pass
 

@@ -109,6 +109,7 @@ from ff_msgs.msg import CurrentSetpoint, DriveGroupStatus
 from ff_msgs.srv import ClaimDrive, OwnerCommand
 from ff_msgs_py.shutdown import shut_down
 from ff_msgs_py.threads import in_thread
+from ff_msgs_py.spin import spin
 
 READY_LINE = "ff_hwbridge ready"
 NODE_NAME = "ff_hwbridge"
@@ -1161,7 +1162,7 @@ def main(argv: Optional[Sequence[str]] = None) -> None:
                 print("ff_hwbridge: activate failed (see the log above)", flush=True)
                 raise SystemExit(1)
         node.get_logger().info(f"{READY_LINE}: {'active' if node.active else 'unconfigured'}")
-        executor.spin()
+        spin(executor, node.get_logger())
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

@@ -38,6 +38,7 @@ from ff_msgs.srv import PlanTrajectory
 from ff_msgs_py.configs import config_dir, node_parameters
 from ff_msgs_py.convert import error_response
 from ff_msgs_py.threads import in_thread
+from ff_msgs_py.spin import spin
 from ff_planner.armplan.requests import (PARAM_PREFIX, ArmRequest, RegisteredArm, is_urdf_model,
                                          plan_registered, registry_from_parameters)
 from ff_planner.library.warm import PlanFn
@@ -414,7 +415,7 @@ def main(argv: Optional[list[str]] = None, plan_fn: PlanFn = plan) -> int:
         executor = MultiThreadedExecutor(num_threads=node.executor_threads)
         executor.add_node(node)
         node.get_logger().info("ff_planner ready: service ~/plan, action ~/plan_long")
-        executor.spin()
+        spin(executor, node.get_logger())
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:

@@ -4,7 +4,9 @@ it are marked ``integration``)."""
 from __future__ import annotations
 
 import contextlib
+import sys
 import threading
+import traceback
 from typing import Any, Iterator
 
 
@@ -24,18 +26,39 @@ def ros_context() -> Iterator[Any]:
 @contextlib.contextmanager
 def spinning(ctx: Any, *nodes: Any, threads: int = 3, destroy: bool = True) -> Iterator[Any]:
     """``nodes`` spun by a ``MultiThreadedExecutor`` of ``threads`` threads on ``ctx``, from a
-    daemon thread. At the end the executor shuts down, then (``destroy``) the nodes are
-    destroyed. Yields the executor."""
+    daemon thread (through ``ff_msgs_py.spin.spin``, as the suite's nodes are). At the end the
+    executor shuts down, then (``destroy``) the nodes are destroyed. Yields the executor.
+
+    An exception that ended the spinning thread fails the block with it: the nodes stopped being
+    served at that point, and whatever the test saw afterwards (a service that never answered)
+    follows from it."""
     from rclpy.executors import MultiThreadedExecutor
+
+    from ff_msgs_py.spin import spin
 
     ex = MultiThreadedExecutor(num_threads=threads, context=ctx)
     for node in nodes:
         ex.add_node(node)
-    threading.Thread(target=ex.spin, daemon=True).start()
+    died: list[BaseException] = []
+
+    def run() -> None:
+        try:
+            spin(ex)
+        except BaseException as exc:  # noqa: BLE001 - handed to the test below
+            if ctx.ok() and not getattr(ex, "_is_shutdown", False):
+                died.append(exc)
+
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
     try:
         yield ex
     finally:
         ex.shutdown()
+        th.join(5.0)
+        if died:        # shown with the test's own failure, if it has one
+            traceback.print_exception(died[0], file=sys.stderr)
         if destroy:
             for node in nodes:
                 node.destroy_node()
+    if died:
+        raise RuntimeError(f"the executor's thread died while the test ran: {died[0]!r}") from died[0]

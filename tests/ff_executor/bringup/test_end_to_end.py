@@ -92,6 +92,8 @@ def test_robust_lands_and_baseline_misses_with_coulomb_20_percent_off(stack_clie
 
 def test_cancel_mid_move_stops_the_arm_across_the_chain(stack_client):
     stack, client = stack_client
+    # this module's stack is shared: a safe state an earlier test left latched is cleared first
+    client.fault_reset()
     resp = client.plan(plan_request("robust-derivative"))
     client.reset_arm([0.0])
     mv = client.execute(resp.profile, cancel_into_move=0.3)

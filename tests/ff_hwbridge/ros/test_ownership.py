@@ -5,6 +5,10 @@ logged); A releases, B claims and moves it; an owner in a process of its own is 
 claim expires within the lease; the e-stop from a third node C works throughout."""
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
 import threading
 import time
 
@@ -16,7 +20,7 @@ from tests.support.ros_harness import ros_context, spinning
 pytestmark = pytest.mark.integration
 
 LIMIT = 2.0          # A
-LEASE = 1.5          # s, the vanishing owner's lease
+LEASE = 1.5          # s, the killed owner's lease
 _wait = waiter(5.0, 0.01)
 
 
@@ -97,7 +101,8 @@ def test_only_the_owner_moves_the_arm_and_a_dead_owner_loses_the_drive(rig, ros_
     with ros_context() as ctx:
         bridge = BridgeNode(context=ctx, parameter_overrides=params)
         a, b, c = (Node(n, context=ctx) for n in ("client_a", "client_b", "client_c"))
-        with spinning(ctx, bridge, a, b, c, threads=4) as owner_ex:
+        with spinning(ctx, bridge, a, b, c, threads=4):
+            owner_proc = None
             try:
                 bridge.trigger_configure()
                 assert bridge.master is not None, "configure failed"
@@ -193,28 +198,26 @@ def test_only_the_owner_moves_the_arm_and_a_dead_owner_loses_the_drive(rig, ros_
                 cmd_a.close()
                 cmd_b.close()
 
-                # an owner that vanishes without releasing: its renewals stop and no release comes
-                # (from the bridge's side what a killed owner process does); its claim expires
-                # within the lease. The owner is a node of this context: in full-suite runs,
-                # requests from another participant (another process, or another context of this
-                # process) stopped reaching this bridge node after earlier modules.
-                doomed = Node("doomed_owner", context=ctx)
-                owner_ex.add_node(doomed)
-                doomed_claim = DriveClaim(doomed, "/ff_hwbridge", lease=LEASE, timeout=30.0)
+                # an owner in its own process, killed: its claim expires within the lease
+                owner_proc = subprocess.Popen([sys.executable, "-m", "tests.ff_hwbridge.ros.owner_process",
+                                               str(LEASE)], env=ros_env, stdout=subprocess.PIPE, text=True)
+                line = owner_proc.stdout.readline()
+                assert line.startswith("claimed"), line
                 assert bridge.ownership.owner == "/doomed_owner"
                 estop.publish(Bool(data=True))                   # C's e-stop while it owns
                 assert _wait(lambda: bridge.master.latched)
                 time.sleep(1.0)                                  # renewals keep it alive
                 assert bridge.ownership.owner == "/doomed_owner"
-                doomed.destroy_timer(doomed_claim._timer)        # it dies: no renewal, no release
+                os.kill(owner_proc.pid, signal.SIGKILL)
                 killed = time.monotonic()
+                owner_proc.wait(10.0)
                 assert waiter(LEASE + 2.0, 0.005)(lambda: not bridge.ownership.claimed)
                 gone_after = time.monotonic() - killed
                 # the lease runs from the owner's last renewal (each lease / 3 when on time): gone
                 # at most one lease after its death (+ the bridge's 10 ms tick, on a loaded machine)
                 assert gone_after <= LEASE + 0.5, gone_after
                 assert _wait(lambda: logged("claim of /doomed_owner expired"))
-                print(f"claim expired {gone_after:.3f} s after the owner vanished (lease {LEASE} s)")
+                print(f"claim expired {gone_after:.3f} s after the owner was killed (lease {LEASE} s)")
                 # no claim held: the plain fault reset is open again, and C may claim
                 res = _call(c, Trigger, "/ff_hwbridge/fault_reset", Trigger.Request())
                 assert res.success and not bridge.master.latched, res.message
@@ -224,4 +227,7 @@ def test_only_the_owner_moves_the_arm_and_a_dead_owner_loses_the_drive(rig, ros_
                 assert _wait(lambda: bridge.master.latched)
                 assert claim_c.release().success
             finally:
+                if owner_proc is not None and owner_proc.poll() is None:
+                    owner_proc.kill()
+                    owner_proc.wait(5.0)
                 bridge.teardown()

@@ -153,13 +153,16 @@ def test_effort_commands_move_the_simulated_arm_clamped_and_stopping_them_stops_
         assert _wait(lambda: any(a.currents[0] > LIMIT - 0.01 for a in applied))
         assert max(a.currents[0] for a in applied) <= LIMIT + 1e-9
         assert node.commands_accepted > 10 and node.commands_refused == 0, node.last_command_refusal
-        # the commands stop: the setpoint watchdog latches the safe state, the drive gets 0 A
+        # the commands stop: the setpoint watchdog latches the safe state (zero current and a quick
+        # stop: the drive brakes the turning arm on its quick stop ramp, up to the current limit,
+        # then leaves the motor at 0 A)
         cmd.effort = None
         stopped = time.monotonic()
         assert _wait(lambda: node.master.latched), rig.state()
         assert "setpoint watchdog" in node.master.fault_reason
         assert time.monotonic() - stopped > SETPOINT_TIMEOUT * 0.9
-        assert _wait(lambda: rig.state()[2] == 0.0), rig.state()
+        assert _wait(lambda: rig.state()[1] == 0.0 and rig.state()[2] == 0.0), rig.state()
+        assert max(abs(a.currents[0]) for a in applied) <= LIMIT + 1e-9
         # latched: commands are refused with the reason until a fault reset
         cmd.effort = 1.0 * nm_per_amp
         assert _wait(lambda: node.commands_refused > 3)
