@@ -59,13 +59,20 @@ def test_robust_lands_and_baseline_misses_with_coulomb_20_percent_off(stack_clie
     s = run_motions(client, 1.0, 1.0, MOTIONS, log=lambda _m: None)
     stalls = machine_stalls(stack, before)
     rob, base = s["robust"], s["baseline"]
-    if stalls and (rob["missed_cycles"] or base["missed_cycles"] or not (rob["executed"] and base["executed"])):
-        # the machine stalled even the SCHED_FIFO SYNC timer past a period: a setpoint missed
-        # its cycle, through no fault of the stack. It must say so, and claim no landing.
+    # the drive's interpolation supervision stopped a move: a setpoint missed its SYNC cycle
+    timing_stops = [m["message"] for m in (rob, base) if not m["executed"] and "0x8250" in m["message"]]
+    if (stalls or timing_stops) and (rob["missed_cycles"] or base["missed_cycles"]
+                                     or not (rob["executed"] and base["executed"])):
+        # the machine held the stack's real-time threads (SCHED_FIFO where permitted) off the CPU
+        # past a SYNC period: the drive stopped the arm, as a real EPOS4 does. The stack must
+        # stop safely and say so; no landing can be claimed from such a run, and the test says
+        # that it could not check one (an xfail with the reason, never a pass).
         for m in (rob, base):
             assert m["executed"] or "missed" in m["message"] or "safe state" in m["message"], m
         assert any(m["missed_cycles"] for m in (rob, base)) or not (rob["executed"] and base["executed"])
-        return
+        pytest.xfail(f"the machine stalled the stack past a SYNC period (hub SYNC timer late "
+                     f"{stalls} slot(s); {'; '.join(timing_stops) or 'missed cycles reported'}): "
+                     "the safe stop was checked, the landing could not be")
     for m in (rob, base):
         assert m["executed"], m["message"]
         assert m["setpoints_sent"] >= m["steps"] // 2
@@ -109,13 +116,18 @@ def test_cancel_mid_move_stops_the_arm_across_the_chain(stack_client):
 SHIPPED_TOL = 0.002
 
 
-@pytest.mark.xfail(strict=False, reason=(
-    "intermittent under load: the shipped config's derived 130 ms watchdogs trip on a shared "
-    "2-core machine that also runs the simulated hub and drive: passed quiet (1 of 1) and in full "
-    "suite runs; at load 8-18 (two busy loops + other work) 1 of 5 passed (heartbeat of the "
-    "simulated drive silent 131 ms; 0x8250); with the simulated drive at SCHED_FIFO 60, 2 of 3 at "
-    "load 7-10 (SYNC from the hub's timer lost 339 ms). The start-up 0x8250 no longer occurs: "
-    "the drives are enabled last (bench_startups: 0 of 16 start-ups faulted, before 4 of 4)"))
+#: what a safe stop says when a watchdog of the shipped config's 10 ms timing tripped (a drive's
+#: interpolation supervision, a heartbeat or SYNC lost, a missed cycle): on a shared 2-core machine
+#: running the simulated hub and drive beside it, the derived 130 ms timeouts trip under load
+#: (at load 8-18, 4 of 5 runs: a simulated drive's heartbeat silent 131 ms, 0x8250). Such a run
+#: checks the safe stop only and says so (xfail with the reason); any other stop fails.
+_TIMING_WORDS = ("0x8250", "0x8130", "heartbeat", "SYNC", "missed")
+
+
+def _timing_stop(text: str) -> bool:
+    return any(w in text for w in _TIMING_WORDS)
+
+
 def test_the_shipped_robot_configuration_runs_a_robust_move_on_the_simulated_epos4(tmp_path):
     """config/bridge_epos4_1dof.yaml as a robot runs it (player in the bridge's process, SYNC
     every 10 ms from a timer outside it: the kernel's on SocketCAN, the hub's here; 10 ms
@@ -133,9 +145,14 @@ def test_the_shipped_robot_configuration_runs_a_robust_move_on_the_simulated_epo
         assert stack.hub_syncs and not stack.bridge_data().get("player_process")
         time.sleep(3.0)
         bridge_log = next(p for p in stack.procs if p.name == "ff_hwbridge").output()
-        assert "safe state" not in bridge_log, bridge_log[-2000:]
+        latched = [line for line in bridge_log.splitlines() if "safe state" in line]
+        if latched and _timing_stop(latched[0]):
+            pytest.xfail(f"the machine stalled the stack while it held: {latched[0][-300:]}")
+        assert not latched, bridge_log[-2000:]
         s = run_motions(client, 1.0, 1.0, MOTIONS[:1], log=lambda _m: None)
         rob = s["robust"]
+        if not rob["executed"] and _timing_stop(rob["message"]):
+            pytest.xfail(f"the machine stalled the stack during the move: {rob['message'][-300:]}")
         assert rob["executed"], rob["message"]
         assert rob["missed_cycles"] == 0, rob
         assert abs(rob["measured_minus_predicted"]) <= SHIPPED_TOL, rob
