@@ -61,20 +61,12 @@ from ff_hwbridge.protocol.units import DriveUnits
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ChildLink", "ProcessPlayer", "make_player"]
+__all__ = ["ChildLink", "ProcessPlayer"]
 
 STATUS_PERIOD = 0.02      # s, the child's status report (pending, heartbeat)
 STATS_PERIOD = 0.25       # s, ... with statistics refreshed this often
 DEAD_AFTER = 2.0          # s without a status report: the player process counts as dead
 START_TIMEOUT = 30.0      # s for the child to import, open the bus and report ready
-
-
-def make_player(master: EposMaster, config: Optional[PlayerConfig] = None) -> Any:
-    """The player ``master.config`` asks for: :class:`ProcessPlayer` with ``player_process``
-    and synchronous setpoints, else an in-process :class:`SetpointPlayer`."""
-    if master.config.player_process and master.config.synchronous:
-        return ProcessPlayer(master, config)
-    return SetpointPlayer(master, config)
 
 
 # --- the child ------------------------------------------------------------------------------------

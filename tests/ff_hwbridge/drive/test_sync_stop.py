@@ -16,7 +16,6 @@ from typing import Callable, Optional
 import pytest
 
 from ff_hwbridge.drive.epos import REFRESH_PERIOD
-from ff_hwbridge.drive.player import SetpointPlayer
 from tests.ff_hwbridge.drive.test_sync_player import PERIOD, SyncBench
 from tests.support.canopen_helpers import waiter
 
@@ -121,8 +120,6 @@ def test_with_an_external_player_the_master_sends_no_current_and_tells_the_gate_
     """``external_player``: the master's RPDOs carry 0 A only, no per-cycle repeat for an
     enabled drive of its own (the player's), and the gate (what the player may send) changes
     before the safe-state reaction."""
-    from ff_hwbridge.drive.player_process import ProcessPlayer, make_player
-
     b = SyncBench(heartbeat_timeout=3.0, feedback_timeout=3.0, sync_timeout=3.0, rpdo_timeout_ms=0)
     try:
         b.enable()
@@ -141,9 +138,6 @@ def test_with_an_external_player_the_master_sends_no_current_and_tells_the_gate_
         assert m.rpdo_marks()[0] == tx                                   # no refresh of its own
         m.trip("test reaction")
         assert seen and seen[0][0] == [(0x000F, False)] and seen[0][2]  # gate closed first
-        p = make_player(m)                                               # player_process: false
-        assert type(p) is SetpointPlayer and not isinstance(p, ProcessPlayer)
-        p.close()
     finally:
         b.master.external_player = False
         b.master.gate_listener = None
