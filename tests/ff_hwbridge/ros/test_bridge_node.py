@@ -34,9 +34,8 @@ def bridge(ros_env):
               # and so does the setpoint player: a setpoint taking effect cycles late is counted,
               # not a safe state, here (the cycle timing is tested across processes)
               Parameter("missed_cycle_tolerance", value=100),
-              # no SCHED_FIFO threads in the test's process: while they ran, Fast DDS's shared-memory
-              # transport of this process stopped delivering data from other processes for good (a
-              # later module's subprocess was discovered but its service requests never arrived)
+              # no SCHED_FIFO threads in the test's process, which every later module shares (the
+              # real-time set-up is tested on bridges in processes of their own)
               Parameter("scheduler_rt_priority", value=0),
               # the test's client is the default owner: its token-less setpoints move the arm
               # while it is their sole publisher and nobody holds a claim
