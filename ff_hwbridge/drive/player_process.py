@@ -35,6 +35,7 @@ enabled drive it sends RPDO1 with 0 current only and no refresh of its own
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import multiprocessing as mp
 import threading
@@ -386,6 +387,15 @@ class ProcessPlayer(PlayerBase):
         self.exit_reason: Optional[str] = None
         self._attach()
 
+    def _resolved_config(self) -> BridgeConfig:
+        """The master's config with each joint's units as the master resolved them at configure:
+        the drive's own motor data where it takes them from the drive (``scaling_source: drive``,
+        ``read_motor_data``), so the child converts A to the drive's raw setpoint (and clamps it
+        to the limit) on the same base as the master does."""
+        cfg = self.master.config
+        joints = tuple(dataclasses.replace(j, units=u) for j, u in zip(cfg.joints, self.master.units))
+        return dataclasses.replace(cfg, joints=joints)
+
     # --- control ------------------------------------------------------------------------------
     def start(self) -> Self:
         """Spawn the player process and wait until it has opened the bus (idempotent)."""
@@ -398,7 +408,7 @@ class ProcessPlayer(PlayerBase):
         self._conn = parent
         self._ready.clear()
         self._proc = self._ctx.Process(target=_child_main,
-                                       args=(self.master.config, self.config, child, self._gate, self._epoch),
+                                       args=(self._resolved_config(), self.config, child, self._gate, self._epoch),
                                        name="ff-setpoint-player", daemon=True)
         self._proc.start()
         child.close()
