@@ -12,63 +12,28 @@ from pathlib import Path
 
 import pytest
 
+from tests.ff_planner.ros.conftest import write_parameters
+
 pytestmark = pytest.mark.integration
 
 ARMS = Path(__file__).resolve().parents[3] / "config" / "arms"
 
 
-def _params(folder: Path, extra: str = "") -> Path:
-    p = folder / "planner.yaml"
-    p.write_text(f"""ff_planner:
-  ros__parameters:
-    library_path: ""
+BASE_PARAMETERS = """    library_path: ""
     use_library: false
     drive_config: ""
     workers: 1
     warmup: false
     default_time_budget: 20.0
     diagnostics_period: 0.0
-{extra}""")
-    return p
+"""
 
 
-@pytest.fixture(scope="module")
-def planner_node(ros_env, tmp_path_factory):
-    from ff_msgs_py.launch import start_module, wait_for_line
-
-    folder = tmp_path_factory.mktemp("planner_urdf")
-    params = _params(folder, f"""    arms:
+# the node in another process: tests/ff_planner/ros/conftest.py (planner_node, client)
+def planner_parameters(folder: Path) -> str:
+    return BASE_PARAMETERS + f"""    arms:
       mine: {{urdf: "{ARMS / 'arm1dof.urdf'}", cell: "{ARMS / 'arm1dof.cell.yaml'}"}}
-""")
-    proc = start_module("ff_planner_node", "ff_planner.ros.planner_node",
-                        ["--ros-args", "--params-file", str(params)], ros_env)
-    try:
-        assert wait_for_line(proc, "ff_planner ready", 240), proc.output()
-        yield proc
-    finally:
-        code = proc.stop()
-        assert not proc.alive()
-        assert "Traceback" not in proc.output(), proc.output()[-3000:]
-        assert code is not None
-
-
-@pytest.fixture(scope="module")
-def client(planner_node, ros_env):
-    import rclpy
-    from rclpy.node import Node
-
-    from ff_msgs.srv import PlanTrajectory
-
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
-    node = Node("ff_planner_urdf_test_client", context=ctx)
-    cli = node.create_client(PlanTrajectory, "/ff_planner/plan")
-    assert cli.wait_for_service(timeout_sec=20), "planner service not discovered"
-    try:
-        yield node, cli
-    finally:
-        node.destroy_node()
-        rclpy.shutdown(context=ctx)
+"""
 
 
 def _call(client, timeout=240.0, **fields):
@@ -211,7 +176,7 @@ def test_an_impossible_tolerance_is_refused_in_one_line_and_changes_nothing(clie
 def test_a_registered_file_that_does_not_exist_stops_the_node_at_start(ros_env, tmp_path):
     from ff_msgs_py.launch import start_module
 
-    params = _params(tmp_path, f"""    arms:
+    params = write_parameters(tmp_path, BASE_PARAMETERS + f"""    arms:
       ghost: {{urdf: "{tmp_path / 'ghost.urdf'}", cell: "{ARMS / 'arm3h.cell.yaml'}"}}
 """)
     proc = start_module("ff_planner_bad", "ff_planner.ros.planner_node",
