@@ -295,11 +295,13 @@ class PlannerNode(Node):
 
     def _log_result(self, what: str, req: Any, result: Any) -> None:
         extra = result.extra or {}
+        # the service's answers carry their latency; a urdf:NAME plan its planning time (s)
+        latency = float(extra.get("latency", getattr(result, "solve_time", 0.0) or 0.0))
         self.get_logger().info(
             f"{what} {req.model or '-'} {list(req.q0)} -> {list(req.qf)} "
             + (f"tf={req.move_time:g}" if not req.tolerance else
                f"tolerance={req.tolerance:g} rad, tf chosen {_tf_of(result)}") + ": "
-            f"{result.error_code} ({extra.get('source', '?')}, {1e3 * extra.get('latency', 0.0):.1f} ms)"
+            f"{result.error_code} ({extra.get('source', '?')}, {1e3 * latency:.1f} ms)"
             + ("" if result.success else f": {result.message}"))
 
     # --- the ~/plan_long action ---------------------------------------------------------------
