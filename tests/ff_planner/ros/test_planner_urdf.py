@@ -216,6 +216,8 @@ def test_the_plan_long_action_serves_a_registered_arm_too(planner_node, client):
         for fields, status in ((dict(model="urdf:arm1dof", q0=[0.0], qf=[0.3], move_time=1.0,
                                      time_budget=20.0), GoalStatus.STATUS_SUCCEEDED),
                                (dict(model="urdf:arm9", q0=[0.0], qf=[0.3], move_time=1.0),
+                                GoalStatus.STATUS_ABORTED),
+                               (dict(TOL_MOVE, tolerance=1e-4, move_time_max=0.6, time_budget=30.0),
                                 GoalStatus.STATUS_ABORTED)):
             fut = act.send_goal_async(PlanMotion.Goal(**fields))
             assert spin_until(fut.done, 30) and fut.result().accepted
@@ -227,8 +229,12 @@ def test_the_plan_long_action_serves_a_registered_arm_too(planner_node, client):
                 r = wrapped.result
                 assert r.success and r.certificate.certified and list(r.profile.joint_names) == ["joint1"]
                 assert abs(r.q_final[0] - 0.3) < 1e-6
-            else:
+            elif fields["model"] == "urdf:arm9":
                 assert "no arm named 'arm9'" in wrapped.result.message
+            else:       # the tolerance reaches the arm's search through the action too
+                assert wrapped.result.error_code == PlanMotion.Result.NO_ROBUST_PLAN
+                assert wrapped.result.message.startswith("no move time up to 0.6 s is certified "
+                                                         "within 0.1 mrad"), wrapped.result.message
     finally:
         ex.remove_node(node)
         act.destroy()
