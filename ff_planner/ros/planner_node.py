@@ -250,20 +250,23 @@ class PlannerNode(Node):
 
     def _plan_urdf(self, fields: RequestFields) -> PlanResult:
         """A ``urdf:NAME`` request: planned for the registered arm in the node's arm worker
-        process (``ff_planner.armplan.requests``); killed and answered TIME_BUDGET_EXHAUSTED
-        when it runs past its budget plus ARM_WORKER_SLACK s (its start-up included)."""
+        process (``ff_planner.armplan.requests``); with a ``tolerance`` (rad) the fastest move
+        time ≤ ``move_time_max`` (s) certified within it (``ff_planner.armplan.fastest``; none
+        meets it: the least-worst plan, not a success, NO_ROBUST_PLAN). Killed and answered
+        TIME_BUDGET_EXHAUSTED when it runs past its budget plus ARM_WORKER_SLACK s (its start-up
+        included)."""
         c = self.service.config
         unsupported = tuple(name for name, given in (
             ("uncertain", fields.uncertain), ("override_names", fields.override_names),
             ("box_names", fields.box_names), ("coast_max", fields.coast_max),
             ("switch_grid", fields.switch_grid), ("position_min", fields.position_min),
-            ("position_max", fields.position_max), ("velocity_max", fields.velocity_max),
-            ("tolerance", fields.tolerance), ("move_time_max", fields.move_time_max)) if given)
+            ("position_max", fields.position_max), ("velocity_max", fields.velocity_max)) if given)
         req = ArmRequest(model=fields.model, q0=[float(x) for x in fields.q0],
                          qf=[float(x) for x in fields.qf], move_time=float(fields.move_time),
                          objective=str(fields.objective), steps=int(fields.steps),
                          seed=int(fields.seed), time_budget=float(fields.time_budget),
-                         unsupported=unsupported)
+                         unsupported=unsupported, tolerance=float(fields.tolerance),
+                         move_time_max=float(fields.move_time_max))
         kwargs = dict(default_time_budget=c.default_time_budget, max_time_budget=c.max_time_budget,
                       max_steps=c.max_steps, max_move_time=c.max_move_time, coast=c.coast)
         budget = min(float(fields.time_budget) or c.default_time_budget, c.max_time_budget)
@@ -293,11 +296,13 @@ class PlannerNode(Node):
 
     def _log_result(self, what: str, req: Any, result: Any) -> None:
         extra = result.extra or {}
+        # the service's answers carry their latency; a urdf:NAME plan its planning time (s)
+        latency = float(extra.get("latency", getattr(result, "solve_time", 0.0) or 0.0))
         self.get_logger().info(
             f"{what} {req.model or '-'} {list(req.q0)} -> {list(req.qf)} "
             + (f"tf={req.move_time:g}" if not req.tolerance else
                f"tolerance={req.tolerance:g} rad, tf chosen {_tf_of(result)}") + ": "
-            f"{result.error_code} ({extra.get('source', '?')}, {1e3 * extra.get('latency', 0.0):.1f} ms)"
+            f"{result.error_code} ({extra.get('source', '?')}, {1e3 * latency:.1f} ms)"
             + ("" if result.success else f": {result.message}"))
 
     # --- the ~/plan_long action ---------------------------------------------------------------

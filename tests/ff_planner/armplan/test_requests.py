@@ -56,8 +56,8 @@ def test_bad_requests_come_back_as_failed_results():
               "INVALID_REQUEST", "robust-box only"),
              (ArmRequest("urdf:arm3h", [0.0] * 3, [0.5] * 3, 1.5, time_budget=1e4),
               "INVALID_REQUEST", "time_budget"),
-             (ArmRequest("urdf:arm3h", [0.0] * 3, [0.5] * 3, 1.5, unsupported=("tolerance",)),
-              "INVALID_REQUEST", "tolerance: not taken"),
+             (ArmRequest("urdf:arm3h", [0.0] * 3, [0.5] * 3, 1.5, unsupported=("uncertain",)),
+              "INVALID_REQUEST", "uncertain: not taken"),
              (ArmRequest("urdf:nope", [0.0], [0.5], 1.5), "UNKNOWN_MODEL", "no arm named 'nope'")]
     for req, code, text in cases:
         r = plan_registered(req, reg, **LIMITS)

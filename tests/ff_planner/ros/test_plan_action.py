@@ -7,40 +7,29 @@ stand-in reporting progress for ``starts`` x 10 ms (seed 1) or until its budget 
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import pytest
 
 pytestmark = pytest.mark.integration
 
 
-@pytest.fixture(scope="module")
-def planner(ros_env, tmp_path_factory):
-    from ff_msgs_py.launch import start_module, wait_for_line
+# the node in another process: tests/ff_planner/ros/conftest.py (planner_node)
+PLANNER_MODULE = "tests.ff_planner.service.stand_ins"
 
-    folder = tmp_path_factory.mktemp("plan_action")
-    params = folder / "planner.yaml"
-    params.write_text("""ff_planner:
-  ros__parameters:
-    library_path: ""
+
+def planner_parameters(folder: Path) -> str:
+    return """    library_path: ""
     drive_config: ""                 # continuous plans (the shipped default is drive-exact)
     workers: 2
     warmup: false
     max_time_budget: 600.0
     diagnostics_period: 0.0
-""")
-    proc = start_module("ff_planner_node", "tests.ff_planner.service.stand_ins",
-                        ["--ros-args", "--params-file", str(params)], ros_env)
-    try:
-        assert wait_for_line(proc, "ff_planner ready", 240), proc.output()
-        yield proc
-    finally:
-        code = proc.stop()
-        assert "Traceback" not in proc.output(), proc.output()[-3000:]
-        assert code is not None
+"""
 
 
 @pytest.fixture(scope="module")
-def clients(planner):
+def clients(planner_node):
     import rclpy
     from rclpy.action import ActionClient
     from rclpy.node import Node

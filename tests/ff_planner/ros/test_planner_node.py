@@ -11,22 +11,19 @@ from __future__ import annotations
 import json
 import math
 import time
+from pathlib import Path
 
 import pytest
 
 pytestmark = pytest.mark.integration
 
 
-# --- the node in another process --------------------------------------------------------------
-@pytest.fixture(scope="module")
-def planner_node(ros_env, tmp_path_factory):
-    from ff_msgs_py.launch import start_module, wait_for_line
+# --- the node in another process (tests/ff_planner/ros/conftest.py: planner_node, client) ------
+PLANNER_MODULE = "tests.support.stand_in_planners"
 
-    folder = tmp_path_factory.mktemp("planner_node")
-    params = folder / "planner.yaml"
-    params.write_text(f"""ff_planner:
-  ros__parameters:
-    library_path: "{folder / 'motions.sqlite'}"
+
+def planner_parameters(folder: Path) -> str:
+    return f"""    library_path: "{folder / 'motions.sqlite'}"
     motion_dir: "{folder / 'motions'}"
     drive_config: ""                 # continuous plans (the shipped default is drive-exact)
     workers: 2
@@ -35,39 +32,11 @@ def planner_node(ros_env, tmp_path_factory):
     max_steps: 30
     grace: 0.3
     diagnostics_period: 0.5
-""")
-    env = dict(ros_env, FF_TEST_RELEASE=str(folder / "release"))
-    proc = start_module("ff_planner_node", "tests.support.stand_in_planners",
-                        ["--ros-args", "--params-file", str(params)], env)
-    try:
-        assert wait_for_line(proc, "ff_planner ready", 240), proc.output()
-        yield proc, folder
-    finally:
-        code = proc.stop()
-        assert not proc.alive()
-        assert "Traceback" not in proc.output(), proc.output()[-3000:]
-        assert code is not None
+"""
 
 
-@pytest.fixture(scope="module")
-def client(planner_node, ros_env):
-    import rclpy
-    from rclpy.node import Node
-
-    from ff_msgs.srv import PlanTrajectory
-
-    ctx = rclpy.Context()
-    rclpy.init(context=ctx)
-    node = Node("ff_planner_test_client", context=ctx)
-    from rclpy.qos import QoSProfile
-
-    cli = node.create_client(PlanTrajectory, "/ff_planner/plan", qos_profile=QoSProfile(depth=200))
-    assert cli.wait_for_service(timeout_sec=20), "planner service not discovered"
-    try:
-        yield node, cli
-    finally:
-        node.destroy_node()
-        rclpy.shutdown(context=ctx)
+def planner_env(folder: Path) -> dict[str, str]:
+    return {"FF_TEST_RELEASE": str(folder / "release")}
 
 
 def _wait(node, futures, timeout=60.0):
@@ -113,7 +82,7 @@ def test_good_request_then_warm_from_the_library(client, planner_node):
     assert abs(shifted.q_final[0] - 3.0) < 1e-6
     assert list(shifted.profile.qf) == [3.0]
     # optional motion-file output
-    files = list((planner_node[1] / "motions").glob("*.json"))
+    files = list((planner_node.folder / "motions").glob("*.json"))
     assert files and json.loads(files[0].read_text())["format"] == "ff-motion/1"
 
 
@@ -164,7 +133,7 @@ def test_bad_requests_are_answered_and_the_node_keeps_serving(client, planner_no
         assert not res.success, fields
         assert res.error_code == codes[code], (fields, res.error_code, res.message)
         assert text in res.message, (fields, res.message)
-    assert planner_node[0].alive()
+    assert planner_node.alive()
     res = _call(client, **dict(ONE_DOF, qf=[0.7]))
     assert res.success, res.message
 
@@ -194,7 +163,7 @@ def test_long_2dof_plan_does_not_block_1dof_requests(client, planner_node):
         answers.append(_call(client, **dict(ONE_DOF, qf=[0.5 + 0.05 * i])))
         assert not pending.done(), f"the 2-DOF plan ended early: {pending.result()}"
     assert all(a.success and not a.warm_start for a in answers), [a.message for a in answers]
-    (planner_node[1] / "release").touch()
+    (planner_node.folder / "release").touch()
     (long_res,) = _wait(node, [pending], 30)
     assert long_res is not None and long_res.success, long_res and long_res.message
 
