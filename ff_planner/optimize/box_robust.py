@@ -22,6 +22,16 @@ worst |rest − qf| + |q(tf) − qf| + EQ_WEIGHT·Σ|∂q/∂p_i·p_i| + the coa
 stopping bound × the coast; ``BEST_ITERATE``), not its last one. The LM's minimum-norm steps
 then put the plan back onto the robust set exactly.
 
+That epigraph solve never meets its tolerance (0 of 73 solves, seeds 0-39). The refinements after
+the equal-step minimax therefore run a form that converges (``ORTHANT``, ``_FreeBox.keep_sides``
+and ``solve_smooth``): each current stays on its start's side of zero, with the one-sided slope
+at 0 A (the friction level pc + pt·|T| has a kink at T = 0, plans of least worst hold steps at
+exactly 0 A, and the plain Jacobian there is the mean of the two slopes: the solves stalled
+there); the switch times in units of 10 ms; and the worst replaced by its smooth maximum
+(1/β)·log Σ exp(±β·ε_s) in mrad, β = 1 then 10 per mrad, each stage to SLSQP's tolerance of
+10 µrad (63 of 69 solves, seeds 0-39, median 93 iterations; the same plan quality and CPU time
+as the epigraph form's 100 iterations).
+
 Global search: the basin decides, not the local solver.
 
 N in DUR_STEPS (N = 5): a structured stage over the step durations runs first
@@ -149,32 +159,35 @@ FREE_DIRECT_MAX_STEPS = 4   # up to this N the free-time minimax also starts fro
 #                             (measured: at N = 5 it never won once the solves kept their best iterate)
 MIN_STEP = 0.01         # s, shortest current step of a free-time plan
 SMOOTH = True           # with ORTHANT the free-time solves use the smooth maximum
-#                         (``_FreeBox.solve_smooth``), else the epigraph form (``solve``).
-#                         Measured as ORTHANT: box worst median 2.15 / 2.32 mrad (max 5.89 /
-#                         5.80), CPU time median 0.22 / 0.35 s against 0.19 / 0.30 s without
-#                         ORTHANT; none of its solves converged in 2 × 50 iterations
+#                         (``_FreeBox.solve_smooth``), else the epigraph form (``solve``)
 SMOOTH_BETAS = (1.0, 10.0)  # 1/mrad, the smooth maximum's sharpness, stage by stage
+SMOOTH_NEVER_STOPS = 1e6    # mrad, its value where a sample never comes to rest
 SMOOTH_FTOL = 1e-2      # mrad: a stage has converged when SLSQP's step changes the smooth maximum
 #                         by less (10 µrad; plans are judged to 0.01 mrad)
-SMOOTH_STAGE_ITER = 150     # SLSQP iterations per stage at most (measured, 36 starts: 86 % of
+SMOOTH_WARM = False     # True: exchange rounds after the first run the last β only (measured,
+#                         seeds 0-19: p90 CPU 0.55 → 0.42 s, median worst 2.26 → 2.31 mrad)
+SMOOTH_STAGE_ITER = 150     # SLSQP iterations per stage at most (measured on 36 starts: 86 % of
 #                             the solves converge, median 88 iterations over both stages)
-SMOOTH_NEVER_STOPS = 1e6    # mrad, its value where a sample never comes to rest
 TINY_CURRENT = 1e-300   # A, a zero current's stand-in on its side of zero (``_FreeBox._one_sided``)
 CORNERS_ONLY = True     # the minimax starts from the box corners (``_base_samples``)
 TIME_H = 1e-6           # s, central-difference step of the switch-time columns
 T_UNIT = 1.0            # s, unit of the switch times inside SLSQP without ORTHANT (measured: 0.01
 #                         and 0.1 s found worse plans there: stuck at zero-current kinks)
-ORTHANT = False         # True: the free-time solves keep each current on its start's side of
-#                         zero (``_FreeBox.keep_sides``; never in the limits stage). Measured
-#                         (default request, seeds 0-19 / 20-39, judged over 265 box points,
-#                         1-minute load 3-5): box worst median 2.24 / 2.25 mrad (max 6.90 / 6.61)
-#                         against 2.25 / 2.42 (max 5.35 / 7.16) without, CPU time alike, and
-#                         no free-time solve converged either way (benchmarks/bench_box_robust.py
-#                         --convergence): not the default
+ORTHANT = True          # the free-time refinements after the equal-step minimax (and the
+#                         continuation's; not those of the N = 5 duration stage, the random-
+#                         duration stage or the limits stage: measured at N = 5, seeds 0-19,
+#                         5.44 mrad median, 66 max against 5.05, 26 there) keep each
+#                         current on its start's side of zero (``_FreeBox.keep_sides``) and run the
+#                         smooth maximum (SMOOTH). Measured (default request, seeds 0-39, the two
+#                         solvers one after the other per seed, load 2-3, bench_box_robust.py
+#                         --convergence): 63 of 69 solves converged (epigraph form: 0 of 73,
+#                         always at FREE_ITER), box worst median 2.33 mrad, p90 5.23, max 6.03
+#                         (epigraph: 2.34, 5.06, 7.16), CPU median 0.25 s (0.26)
 T_UNIT_ORTHANT = 0.01   # s, unit of the switch times inside SLSQP with ORTHANT (measured on 36
-#                         free-time solves of default plans, 100 iterations: median merit 2.78
+#                         epigraph solves of default plans, 100 iterations: median merit 2.78
 #                         mrad at T_UNIT = 1 without ORTHANT, 2.65 with both; 1 s with ORTHANT
-#                         2.96, 0.01 s without it 4.62: the solves stayed at their starts)
+#                         2.96, 0.01 s without it 4.62: the solves stayed at their starts, held
+#                         by the zero-current kink)
 SOLVE_ITER = 40         # SLSQP iterations of a full equal-step refinement (measured, N = 12, seeds
 #                         0-19, load 3-7: 100 → 40 moved the median box worst 2.34 → 2.25 mrad,
 #                         the largest 6.09 → 5.35, and saved ~15 % of the plan's CPU time; 20: 2.43)
@@ -681,8 +694,8 @@ class _FreeBox:
         return x
 
 
-    def solve_smooth(self, x0: np.ndarray, deadline: float,
-                     maxiter: Optional[int] = None) -> np.ndarray:
+    def solve_smooth(self, x0: np.ndarray, deadline: float, maxiter: Optional[int] = None,
+                     betas: Optional[tuple[float, ...]] = None) -> np.ndarray:
         """The minimax from ``x0`` through a smooth maximum: SLSQP on
 
             LSE_β(x) = (1/β)·log Σ_s [exp(β·ε_s) + exp(−β·ε_s)],  ε_s = ERR_SCALE·e_s (mrad)
@@ -759,10 +772,11 @@ class _FreeBox:
         keep(y)
         cons = [{"type": "eq", "fun": eq, "jac": eq_jac},
                 {"type": "ineq", "fun": ineq, "jac": ineq_jac}]
-        per = SMOOTH_STAGE_ITER if maxiter is None else max(1, int(maxiter) // len(SMOOTH_BETAS))
+        betas = SMOOTH_BETAS if betas is None else betas
+        per = SMOOTH_STAGE_ITER if maxiter is None else max(1, int(maxiter) // len(betas))
         iters = 0
         statuses = []
-        for beta in SMOOTH_BETAS:
+        for beta in betas:
             def lse(y, beta=beta):
                 e = ERR_SCALE * self.values(dec(y))[0]
                 if not np.all(np.isfinite(e)):
@@ -1072,11 +1086,13 @@ def _refine(prob: _Problem, I: np.ndarray, base: np.ndarray, check: np.ndarray,
     x = box.start(I, prob.times)
     sides = np.array(I, dtype=float)
     orthant = ORTHANT if orthant is None else orthant
-    for _ in range(EXCHANGE_ROUNDS if rounds is None else rounds):
+    for k in range(EXCHANGE_ROUNDS if rounds is None else rounds):
         if orthant:
             box.keep_sides(sides)
-        x = (box.solve_smooth(x, deadline, maxiter) if orthant and SMOOTH and equalities
-             and prob.limits is None else box.solve(x, deadline, maxiter))
+        x = (box.solve_smooth(x, deadline, maxiter, SMOOTH_BETAS[-1:] if k and SMOOTH_WARM
+                              else None)
+             if orthant and SMOOTH and equalities and prob.limits is None
+             else box.solve(x, deadline, maxiter))
         if log is not None:
             log.append(dict(box.info))
         e = box_kernels.rest_errors(
@@ -1349,7 +1365,7 @@ def _plan_box(request: PlanRequest, progress: Progress = None,
             refined += 1
             try:
                 I_f, t_f = _refine(prob_r, I0, base_scales, check_scales, deadline, free_range,
-                                   maxiter=DUR_FREE_ITER, log=solves)
+                                   maxiter=DUR_FREE_ITER, orthant=False, log=solves)
             except (ValueError, ArithmeticError):
                 continue
             prob_t = _with_times(prob_r, t_f, grid)
@@ -1457,7 +1473,8 @@ def _plan_box(request: PlanRequest, progress: Progress = None,
                 break
             try:
                 I_s, t_s = _refine(prob_r, I0, base_scales, check_scales, deadline, free_range,
-                                   maxiter=RANDOM_TIMES_SCREEN_ITER, rounds=1, log=solves)
+                                   maxiter=RANDOM_TIMES_SCREEN_ITER, rounds=1, orthant=False,
+                                   log=solves)
             except (ValueError, ArithmeticError):
                 continue
             prob_s = _with_times(prob_r, t_s)
@@ -1469,7 +1486,7 @@ def _plan_box(request: PlanRequest, progress: Progress = None,
             refined += 1
             try:
                 I_f, t_f = _refine(prob_s, I_s, base_scales, check_scales, deadline, free_range,
-                                   log=solves)
+                                   orthant=False, log=solves)
             except (ValueError, ArithmeticError):
                 continue
             prob_t = _with_times(prob_s, t_f, grid)
