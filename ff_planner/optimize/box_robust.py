@@ -22,9 +22,10 @@ worst |rest − qf| + |q(tf) − qf| + EQ_WEIGHT·Σ|∂q/∂p_i·p_i| + the coa
 stopping bound × the coast; ``BEST_ITERATE``), not its last one. The LM's minimum-norm steps
 then put the plan back onto the robust set exactly.
 
-That epigraph solve never meets its tolerance (0 of 73 solves, seeds 0-39). The refinements after
-the equal-step minimax therefore run a form that converges (``ORTHANT``, ``_FreeBox.keep_sides``
-and ``solve_smooth``): each current stays on its start's side of zero, with the one-sided slope
+That epigraph solve never meets its tolerance (0 of 73 solves, seeds 0-39). With ``ORTHANT`` (off
+by default: the same plan quality over seeds 0-39, not on every row of the benchmark's seeds
+0-19) the refinements after the equal-step minimax run a form that converges
+(``_FreeBox.keep_sides`` and ``solve_smooth``): each current stays on its start's side of zero, with the one-sided slope
 at 0 A (the friction level pc + pt·|T| has a kink at T = 0, plans of least worst hold steps at
 exactly 0 A, and the plain Jacobian there is the mean of the two slopes: the solves stalled
 there); the switch times in units of 10 ms; and the worst replaced by its smooth maximum
@@ -173,16 +174,19 @@ CORNERS_ONLY = True     # the minimax starts from the box corners (``_base_sampl
 TIME_H = 1e-6           # s, central-difference step of the switch-time columns
 T_UNIT = 1.0            # s, unit of the switch times inside SLSQP without ORTHANT (measured: 0.01
 #                         and 0.1 s found worse plans there: stuck at zero-current kinks)
-ORTHANT = True          # the free-time refinements after the equal-step minimax (and the
-#                         continuation's; not those of the N = 5 duration stage, the random-
+ORTHANT = False         # True: the free-time refinements after the equal-step minimax (and the
+#                         continuation's; never those of the N = 5 duration stage, the random-
 #                         duration stage or the limits stage: measured at N = 5, seeds 0-19,
-#                         5.44 mrad median, 66 max against 5.05, 26 there) keep each
-#                         current on its start's side of zero (``_FreeBox.keep_sides``) and run the
-#                         smooth maximum (SMOOTH). Measured (default request, seeds 0-39, the two
-#                         solvers one after the other per seed, load 2-3, bench_box_robust.py
-#                         --convergence): 63 of 69 solves converged (epigraph form: 0 of 73,
-#                         always at FREE_ITER), box worst median 2.33 mrad, p90 5.23, max 6.03
-#                         (epigraph: 2.34, 5.06, 7.16), CPU median 0.25 s (0.26)
+#                         5.44 mrad median, 66 max against 5.05, 26 there) keep each current on
+#                         its start's side of zero (``_FreeBox.keep_sides``) and run the smooth
+#                         maximum (SMOOTH), which converges. Measured (default request, seeds
+#                         0-39, the two solvers one after the other per seed, load 2-3,
+#                         bench_box_robust.py --convergence): 63 of 69 solves converged (epigraph
+#                         form: 0 of 73, always at FREE_ITER), box worst median 2.33 mrad, p90
+#                         5.23, max 6.03 (epigraph: 2.34, 5.06, 7.16), CPU median 0.25 s (0.26).
+#                         Not the default: on the benchmark's seeds 0-19 (bench_box_robust.py,
+#                         load 4-5) the default request's max 5.35 → 6.03 mrad (median 2.251 →
+#                         2.258) and N = 10 4.75 → 5.04 mrad median (max 9.08 → 11.36)
 T_UNIT_ORTHANT = 0.01   # s, unit of the switch times inside SLSQP with ORTHANT (measured on 36
 #                         epigraph solves of default plans, 100 iterations: median merit 2.78
 #                         mrad at T_UNIT = 1 without ORTHANT, 2.65 with both; 1 s with ORTHANT
