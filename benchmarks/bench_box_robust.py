@@ -20,8 +20,16 @@ With ``--continuation`` only: N = 8 (the default N) against its continuation in 
 (``box_robust.continue_steps``: split one step in two, refine with free times, repeat), per
 seed: both worsts as judged here and the CPU time of each (s; the machine may be shared).
 
+With ``--convergence`` only: the default request per seed under each free-time solver
+(``box_robust.ORTHANT`` off: the epigraph SLSQP; on: currents kept on their side of zero and the
+smooth maximum, ``_FreeBox.solve_smooth``), the two run one after the other on each seed (the
+same machine load): plan CPU and wall time (s), the free-time SLSQP solves' iterations and
+converged flags (``extra["free_time_solves"]``), the certified worst rest error and the worst
+judged here (rad); medians over the seeds.
+
 Usage: python benchmarks/bench_box_robust.py [--seeds 20] [--auto-seeds 5] [--out FILE]
        python benchmarks/bench_box_robust.py --continuation [--seeds 8]
+       python benchmarks/bench_box_robust.py --convergence [--seeds 20] [--first-seed 0]
 """
 from __future__ import annotations
 
@@ -117,6 +125,54 @@ def continuation(seeds: int, scales: np.ndarray) -> dict:
     return {"rows": rows, "median": med}
 
 
+def convergence(first: int, seeds: int, scales: np.ndarray) -> dict:
+    """The default request per seed under each free-time solver (module docstring)."""
+    from ff_planner.optimize import box_robust
+
+    variants = {"epigraph (ORTHANT off)": False, "smooth maximum, sides kept (ORTHANT on)": True}
+    saved = box_robust.ORTHANT
+    per: dict[str, list] = {k: [] for k in variants}
+    try:
+        for s in range(first, first + seeds):
+            for name, on in variants.items():
+                box_robust.ORTHANT = on
+                t0, c0 = time.perf_counter(), time.process_time()
+                r = plan(PlanRequest(seed=s))
+                wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+                ft = (r.extra or {}).get("free_time_solves", {})
+                its = [int(x) for x in ft.get("iterations", [])]
+                per[name].append({
+                    "seed": s, "plan_cpu_s": cpu, "plan_wall_s": wall,
+                    "free_time_solves": int(ft.get("solves", 0)),
+                    "free_time_iterations": its, "free_time_converged": int(ft.get("converged", 0)),
+                    "all_converged": bool(its) and int(ft.get("converged", 0)) == len(its),
+                    "certified_worst_rad": r.certificate.worst_rest_error
+                    if r.certificate else math.nan,
+                    "judged_worst_rad": worst_rest(r, scales),
+                    "robust": bool(r.success and r.robust)})
+    finally:
+        box_robust.ORTHANT = saved
+    out = {}
+    for name, rows in per.items():
+        def med(key: str, rows: list = rows) -> float:
+            return float(np.median([row[key] for row in rows]))
+        out[name] = {
+            "median": {"plan_cpu_s": med("plan_cpu_s"), "plan_wall_s": med("plan_wall_s"),
+                       "free_time_iterations_total": float(np.median(
+                           [sum(row["free_time_iterations"]) for row in rows])),
+                       "certified_worst_rad": med("certified_worst_rad"),
+                       "judged_worst_rad": med("judged_worst_rad")},
+            "max_judged_worst_rad": float(max(row["judged_worst_rad"] for row in rows)),
+            "p90_plan_cpu_s": float(np.percentile([row["plan_cpu_s"] for row in rows], 90)),
+            "solves_converged": f"{sum(row['free_time_converged'] for row in rows)} of "
+                                f"{sum(row['free_time_solves'] for row in rows)}",
+            "plans_all_solves_converged": f"{sum(row['all_converged'] for row in rows)} of "
+                                          f"{len(rows)}",
+            "robust_rate": float(np.mean([row["robust"] for row in rows])),
+            "rows": rows}
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20)
@@ -125,14 +181,35 @@ def main() -> None:
     ap.add_argument("--out", default=None, help="also write the JSON here")
     ap.add_argument("--continuation", action="store_true",
                     help="only N = 8 against its continuation in N to 12")
+    ap.add_argument("--convergence", action="store_true",
+                    help="only the default request under each free-time solver")
+    ap.add_argument("--first-seed", type=int, default=0, help="first seed of --convergence")
     a = ap.parse_args()
-    load0 = os.getloadavg()[0]
+    load0 = os.getloadavg()
     scales = judge_box()
     plan(PlanRequest(objective="robust-box", starts=20))      # compile / load the kernels,
     plan(PlanRequest(objective="robust-box", steps=5, starts=20))   # N = 5's stage's too
+    if a.convergence:
+        from ff_planner.optimize import box_robust
+        box_robust.ORTHANT = True
+        plan(PlanRequest(seed=0))        # the smooth solver's path, once before timing
+        box_robust.ORTHANT = False
+        res = {"benchmark": "box_robust convergence", "task": "default request: table 2 arm, "
+               "0 -> 1 rad in 1 s, pv pc pt +-20 %, N = 12, robust-box",
+               "judge": "rest position over the +-20 % box: 8 corners + centre + 256 uniform "
+                        "(seed 0)",
+               "seeds": [a.first_seed, a.first_seed + a.seeds - 1],
+               "variants": convergence(a.first_seed, a.seeds, scales),
+               "load_avg_before": list(load0), "load_avg_after": list(os.getloadavg())}
+        text = json.dumps(res, indent=2)
+        print(text)
+        if a.out:
+            with open(a.out, "w", encoding="utf-8") as fh:
+                fh.write(text + "\n")
+        return
     if a.continuation:
         res = {"benchmark": "box_robust continuation", "seeds": a.seeds,
-               **continuation(a.seeds, scales), "load_1min_before": load0,
+               **continuation(a.seeds, scales), "load_1min_before": load0[0],
                "load_1min_after": os.getloadavg()[0]}
         print(json.dumps(res, indent=2))
         return
@@ -170,10 +247,13 @@ def main() -> None:
            "N=5": meets(f, 25e-3, 0.1), "steps=0": meets(g, 5e-3, 0.5),
            "default within 100 ms (quiet machine asked; read time_cpu on a loaded one)":
                meets(d, 5e-3, 0.1)}
+    from ff_planner.optimize import box_robust
     out = {"benchmark": "box_robust", "task": "table 2 arm, 0 -> 1 rad in 1 s, pv pc pt",
+           "free_time_solver": ("smooth maximum, sides kept (box_robust.ORTHANT on)"
+                                if box_robust.ORTHANT else "epigraph (box_robust.ORTHANT off)"),
            "judge": "rest position over the +-20 % box: 8 corners + centre + 256 uniform "
                     "(seed 0)", "seeds": a.seeds, "rows": rows, "targets": targets,
-           "targets_met": met, "load_1min_before": load0, "load_1min_after": None}
+           "targets_met": met, "load_1min_before": load0[0], "load_1min_after": None}
     out["load_1min_after"] = os.getloadavg()[0]
     text = json.dumps(out, indent=2)
     print(text)

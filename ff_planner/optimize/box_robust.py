@@ -22,6 +22,17 @@ worst |rest − qf| + |q(tf) − qf| + EQ_WEIGHT·Σ|∂q/∂p_i·p_i| + the coa
 stopping bound × the coast; ``BEST_ITERATE``), not its last one. The LM's minimum-norm steps
 then put the plan back onto the robust set exactly.
 
+That epigraph solve never meets its tolerance (0 of 73 solves, seeds 0-39). With ``ORTHANT`` (off
+by default: the same plan quality over seeds 0-39, not on every row of the benchmark's seeds
+0-19) the refinements after the equal-step minimax run a form that converges
+(``_FreeBox.keep_sides`` and ``solve_smooth``): each current stays on its start's side of zero, with the one-sided slope
+at 0 A (the friction level pc + pt·|T| has a kink at T = 0, plans of least worst hold steps at
+exactly 0 A, and the plain Jacobian there is the mean of the two slopes: the solves stalled
+there); the switch times in units of 10 ms; and the worst replaced by its smooth maximum
+(1/β)·log Σ exp(±β·ε_s) in mrad, β = 1 then 10 per mrad, each stage to SLSQP's tolerance of
+10 µrad (63 of 69 solves, seeds 0-39, median 93 iterations; the same plan quality and CPU time
+as the epigraph form's 100 iterations).
+
 Global search: the basin decides, not the local solver.
 
 N in DUR_STEPS (N = 5): a structured stage over the step durations runs first
@@ -148,9 +159,39 @@ BOX_EXTRA_REACH = 25e-3     # rad: ... and, where the random-duration stage foll
 FREE_DIRECT_MAX_STEPS = 4   # up to this N the free-time minimax also starts from the LM plan
 #                             (measured: at N = 5 it never won once the solves kept their best iterate)
 MIN_STEP = 0.01         # s, shortest current step of a free-time plan
+SMOOTH = True           # with ORTHANT the free-time solves use the smooth maximum
+#                         (``_FreeBox.solve_smooth``), else the epigraph form (``solve``)
+SMOOTH_BETAS = (1.0, 10.0)  # 1/mrad, the smooth maximum's sharpness, stage by stage
+SMOOTH_NEVER_STOPS = 1e6    # mrad, its value where a sample never comes to rest
+SMOOTH_FTOL = 1e-2      # mrad: a stage has converged when SLSQP's step changes the smooth maximum
+#                         by less (10 µrad; plans are judged to 0.01 mrad)
+SMOOTH_WARM = False     # True: exchange rounds after the first run the last β only (measured,
+#                         seeds 0-19: p90 CPU 0.55 → 0.42 s, median worst 2.26 → 2.31 mrad)
+SMOOTH_STAGE_ITER = 150     # SLSQP iterations per stage at most (measured on 36 starts: 86 % of
+#                             the solves converge, median 88 iterations over both stages)
+TINY_CURRENT = 1e-300   # A, a zero current's stand-in on its side of zero (``_FreeBox._one_sided``)
 CORNERS_ONLY = True     # the minimax starts from the box corners (``_base_samples``)
 TIME_H = 1e-6           # s, central-difference step of the switch-time columns
-T_UNIT = 1.0            # s, unit of the switch times inside SLSQP (measured: 0.01 and 0.1 s found worse plans)
+T_UNIT = 1.0            # s, unit of the switch times inside SLSQP without ORTHANT (measured: 0.01
+#                         and 0.1 s found worse plans there: stuck at zero-current kinks)
+ORTHANT = False         # True: the free-time refinements after the equal-step minimax (and the
+#                         continuation's; never those of the N = 5 duration stage, the random-
+#                         duration stage or the limits stage: measured at N = 5, seeds 0-19,
+#                         5.44 mrad median, 66 max against 5.05, 26 there) keep each current on
+#                         its start's side of zero (``_FreeBox.keep_sides``) and run the smooth
+#                         maximum (SMOOTH), which converges. Measured (default request, seeds
+#                         0-39, the two solvers one after the other per seed, load 2-3,
+#                         bench_box_robust.py --convergence): 63 of 69 solves converged (epigraph
+#                         form: 0 of 73, always at FREE_ITER), box worst median 2.33 mrad, p90
+#                         5.23, max 6.03 (epigraph: 2.34, 5.06, 7.16), CPU median 0.25 s (0.26).
+#                         Not the default: on the benchmark's seeds 0-19 (bench_box_robust.py,
+#                         load 4-5) the default request's max 5.35 → 6.03 mrad (median 2.251 →
+#                         2.258) and N = 10 4.75 → 5.04 mrad median (max 9.08 → 11.36)
+T_UNIT_ORTHANT = 0.01   # s, unit of the switch times inside SLSQP with ORTHANT (measured on 36
+#                         epigraph solves of default plans, 100 iterations: median merit 2.78
+#                         mrad at T_UNIT = 1 without ORTHANT, 2.65 with both; 1 s with ORTHANT
+#                         2.96, 0.01 s without it 4.62: the solves stayed at their starts, held
+#                         by the zero-current kink)
 SOLVE_ITER = 40         # SLSQP iterations of a full equal-step refinement (measured, N = 12, seeds
 #                         0-19, load 3-7: 100 → 40 moved the median box worst 2.34 → 2.25 mrad,
 #                         the largest 6.09 → 5.35, and saved ~15 % of the plan's CPU time; 20: 2.43)
@@ -404,6 +445,33 @@ class _FreeBox:
         self._tlast: tuple = (b"", None)
         self._blast: tuple = (math.nan, (prob.vb, 0.0))
         self._rows = np.array([1 + i for i in range(NP) if prob.umask[i]], dtype=np.int64)
+        self.orthant = False    # True: each current keeps the side of zero of ``side``
+        self.side = np.ones(n)
+        self.info: dict = {}    # the last solve: SLSQP iterations, status, converged
+
+    def keep_sides(self, I: np.ndarray) -> None:
+        """Hold each current on the side of zero of ``I`` (A) in the solves (its sign; a zero
+        current by its sign bit). The friction level pc + pt·|T| has a kink at T = 0, and the
+        minimax drives currents there (plans of least worst often hold a step at exactly 0 A,
+        where the torque-dependent friction is least); the Jacobian at a zero current is
+        the mean of the two one-sided slopes (``sliding_level_series``: sign 0 at 0), a
+        model of neither side. On one side of zero the terms are smooth in the current, a
+        current that reaches zero stays on a bound (an active constraint SLSQP treats
+        exactly), and ``terms`` takes its one-sided slope."""
+        self.orthant = True
+        self.side = np.array([math.copysign(1.0, float(v)) for v in I[:self.prob.n]])
+
+    def _one_sided(self, cur: np.ndarray) -> np.ndarray:
+        """The currents with each exact zero moved to the smallest normal float on its side
+        (the derivative rows then take that side's slope; every value is unchanged)."""
+        if not self.orthant:
+            return cur
+        z = cur == 0.0
+        if not np.any(z):
+            return cur
+        out = cur.copy()
+        out[z] = self.side[z] * TINY_CURRENT
+        return out
 
     def times(self, x: np.ndarray) -> np.ndarray:
         """Step times (N + 1,) s of the decision vector x (clipped into the gaps; the last
@@ -445,7 +513,7 @@ class _FreeBox:
             pr = self.prob
             p = pr.params
             n = pr.n
-            cur = np.ascontiguousarray(x[:n], dtype=float)
+            cur = self._one_sided(np.ascontiguousarray(x[:n], dtype=float))
             t = self.times(x)
             e, Ge, g, Gg = box_kernels.free_terms(
                 p.J, p.n * p.kt, pr.pvals, pr.pscale, self.scales, t, cur, pr.tf,
@@ -527,20 +595,21 @@ class _FreeBox:
         pr = self.prob
         n = pr.n
         nv = self.nv
+        t_unit = T_UNIT_ORTHANT if self.orthant else T_UNIT
         unit = np.ones(nv)
-        unit[n:] = T_UNIT
+        unit[n:] = t_unit
         gaps = np.zeros((n, nv + 1))       # t_j − t_{j−1} ≥ MIN_STEP (j = 1..N), linear
         for j in range(n):
             if j < n - 1 or self.free_end:
-                gaps[j, n + j] = T_UNIT
+                gaps[j, n + j] = t_unit
             if j > 0:
-                gaps[j, n + j - 1] = -T_UNIT
+                gaps[j, n + j - 1] = -t_unit
         gap_rhs = np.zeros(n)
         if not self.free_end:
             gap_rhs[n - 1] = self.end
 
         def dec(y):         # the decision vector x of the SLSQP variables y
-            return y[:nv] if T_UNIT == 1.0 else y[:nv] * unit
+            return y[:nv] if t_unit == 1.0 else y[:nv] * unit
 
         def terms(y):
             return self.terms(dec(y))
@@ -564,7 +633,7 @@ class _FreeBox:
             if self.equalities:
                 A[2 * m, :nv] = -np.sign(g[4]) * Gg[4] * unit
                 if self.free_end:
-                    A[2 * m, nv - 1] += self.stop_bound(x)[1] * T_UNIT
+                    A[2 * m, nv - 1] += self.stop_bound(x)[1] * t_unit
             A[2 * m + 1:] = gaps
             return A
 
@@ -598,8 +667,11 @@ class _FreeBox:
             keep(y0)
         grad_t = np.zeros(nv + 1)
         grad_t[nv] = 1.0
-        bounds = ([(-pr.i_max, pr.i_max)] * n + list(zip(self.lo / T_UNIT, self.hi / T_UNIT))
-                  + ([(self.end_lo / T_UNIT, self.end_hi / T_UNIT)] if self.free_end else [])
+        cur_bounds = [(-pr.i_max, pr.i_max)] * n
+        if self.orthant:
+            cur_bounds = [(0.0, pr.i_max) if s > 0.0 else (-pr.i_max, 0.0) for s in self.side]
+        bounds = (cur_bounds + list(zip(self.lo / t_unit, self.hi / t_unit))
+                  + ([(self.end_lo / t_unit, self.end_hi / t_unit)] if self.free_end else [])
                   + [(0.0, None)])
         cons = [{"type": "eq", "fun": eq, "jac": eq_jac},
                 {"type": "ineq", "fun": ineq, "jac": ineq_jac}][0 if self.equalities else 1:]
@@ -613,6 +685,8 @@ class _FreeBox:
         res = minimize(lambda y: y[nv], y0, jac=lambda y: grad_t, method="SLSQP", bounds=bounds,
                        constraints=cons, options={"maxiter": int(maxiter), "ftol": SOLVE_FTOL},
                        callback=stop_at_deadline)
+        self.info = {"iterations": int(res.nit), "status": int(res.status),
+                     "converged": bool(res.status == 0)}
         y = np.asarray(res.x, float)
         if BEST_ITERATE:
             keep(y)
@@ -623,6 +697,124 @@ class _FreeBox:
         x[n:nv] = t[1:nv - n + 1]
         return x
 
+
+    def solve_smooth(self, x0: np.ndarray, deadline: float, maxiter: Optional[int] = None,
+                     betas: Optional[tuple[float, ...]] = None) -> np.ndarray:
+        """The minimax from ``x0`` through a smooth maximum: SLSQP on
+
+            LSE_β(x) = (1/β)·log Σ_s [exp(β·ε_s) + exp(−β·ε_s)],  ε_s = ERR_SCALE·e_s (mrad)
+
+        (an upper bound of max_s |ε_s| by at most log(2S)/β mrad, smooth where the e_s are),
+        for each β in SMOOTH_BETAS (1/mrad) in turn from the last stage's end, ``maxiter``
+        iterations shared between them; the equalities (in mrad), the stopping bound and the
+        gaps as in ``solve``, each current on its side of zero (``keep_sides``), the switch
+        times in units of T_UNIT_ORTHANT. Measured (36 free-time starts of default plans, best
+        iterate, 100 iterations): merit median 2.22 mrad, against 2.78 for the epigraph form
+        (``solve``) and 2.65 for the epigraph form with sides kept: the epigraph form's
+        16 + constraints switch active sets at every near-tie of the corner errors, the smooth
+        maximum weighs them. Returns the iterate of least ``merit`` over all stages."""
+        pr = self.prob
+        n = pr.n
+        nv = self.nv
+        unit = np.ones(nv)
+        unit[n:] = T_UNIT_ORTHANT
+        gaps = np.zeros((n, nv))       # t_j − t_{j−1} ≥ MIN_STEP (j = 1..N), linear
+        for j in range(n):
+            if j < n - 1 or self.free_end:
+                gaps[j, n + j] = T_UNIT_ORTHANT
+            if j > 0:
+                gaps[j, n + j - 1] = -T_UNIT_ORTHANT
+        gap_rhs = np.zeros(n)
+        if not self.free_end:
+            gap_rhs[n - 1] = self.end
+        rows = np.array([0] + [1 + i for i in range(NP) if pr.umask[i]], dtype=np.int64)
+
+        def dec(y):
+            return y * unit
+
+        def ineq(y):
+            x = dec(y)
+            g = self.values(x)[2]
+            return np.concatenate([[self.stop_bound(x)[0] - abs(g[4])],
+                                   gaps @ y + gap_rhs - MIN_STEP])
+
+        def ineq_jac(y):
+            x = dec(y)
+            _, _, g, Gg = self.terms(x)
+            a = -np.sign(g[4]) * Gg[4] * unit
+            if self.free_end:
+                a[nv - 1] += self.stop_bound(x)[1] * T_UNIT_ORTHANT
+            return np.vstack([a, gaps])
+
+        def eq(y):
+            return ERR_SCALE * self.values(dec(y))[2][rows]
+
+        def eq_jac(y):
+            return ERR_SCALE * self.terms(dec(y))[3][rows] * unit
+
+        best: list = [math.inf, None]
+
+        def keep(y) -> None:
+            m = self.merit(dec(y))
+            if m < best[0]:
+                best[:] = [m, np.array(y, dtype=float)]
+
+        def stop_at_deadline(yk):
+            keep(yk)
+            if time.perf_counter() > deadline:
+                raise StopIteration
+
+        if not math.isfinite(self.worst(x0)):
+            raise ArithmeticError("start does not come to rest in the box")
+        cur_bounds = [(0.0, pr.i_max) if s > 0.0 else (-pr.i_max, 0.0) for s in self.side]
+        bounds = (cur_bounds + list(zip(self.lo / T_UNIT_ORTHANT, self.hi / T_UNIT_ORTHANT))
+                  + ([(self.end_lo / T_UNIT_ORTHANT, self.end_hi / T_UNIT_ORTHANT)]
+                     if self.free_end else []))
+        lo = np.array([b[0] for b in bounds])
+        hi = np.array([b[1] for b in bounds])
+        y = np.clip(x0[:nv] / unit, lo, hi)
+        keep(y)
+        cons = [{"type": "eq", "fun": eq, "jac": eq_jac},
+                {"type": "ineq", "fun": ineq, "jac": ineq_jac}]
+        betas = SMOOTH_BETAS if betas is None else betas
+        per = SMOOTH_STAGE_ITER if maxiter is None else max(1, int(maxiter) // len(betas))
+        iters = 0
+        statuses = []
+        for beta in betas:
+            def lse(y, beta=beta):
+                e = ERR_SCALE * self.values(dec(y))[0]
+                if not np.all(np.isfinite(e)):
+                    return SMOOTH_NEVER_STOPS
+                z = beta * np.concatenate([e, -e])
+                top = float(np.max(z))
+                return (top + math.log(float(np.sum(np.exp(z - top))))) / beta
+
+            def lse_grad(y, beta=beta):
+                e, Ge, _, _ = self.terms(dec(y))
+                if not (np.all(np.isfinite(e)) and np.all(np.isfinite(Ge))):
+                    return np.zeros(nv)
+                z = beta * ERR_SCALE * np.concatenate([e, -e])
+                w = np.exp(z - np.max(z))
+                w /= np.sum(w)
+                m = e.shape[0]
+                return ERR_SCALE * ((w[:m] - w[m:]) @ Ge) * unit
+
+            if time.perf_counter() > deadline:
+                break
+            res = minimize(lse, y, jac=lse_grad, method="SLSQP", bounds=bounds,
+                           constraints=cons, options={"maxiter": per, "ftol": SMOOTH_FTOL},
+                           callback=stop_at_deadline)
+            iters += int(res.nit)
+            statuses.append(int(res.status))
+            y = np.clip(np.asarray(res.x, float), lo, hi)
+            keep(y)
+        self.info = {"iterations": iters, "status": statuses,
+                     "converged": bool(statuses) and all(st == 0 for st in statuses)}
+        x = dec(best[1])
+        x[:n] = np.clip(x[:n], -pr.i_max, pr.i_max)
+        t = self.times(x)
+        x[n:nv] = t[1:nv - n + 1]
+        return x
 
 def _lim_start(prob: _Problem, lim_scales: Optional[np.ndarray]) -> np.ndarray:
     """The box points the limits are held at in a solve: ``lim_scales``, else the corners and
@@ -886,15 +1078,27 @@ def _refine_equal(prob: _Problem, I: np.ndarray, base: np.ndarray, check: np.nda
 def _refine(prob: _Problem, I: np.ndarray, base: np.ndarray, check: np.ndarray,
             deadline: float, coast_range: Optional[tuple[float, float]] = None,
             maxiter: Optional[int] = None, rounds: Optional[int] = None,
-            equalities: bool = True) -> tuple[np.ndarray, np.ndarray]:
+            equalities: bool = True, orthant: Optional[bool] = None,
+            log: Optional[list] = None) -> tuple[np.ndarray, np.ndarray]:
     """Free-time minimax from currents ``I`` at ``prob.times`` on the base samples, with exchange
-    from the check set; the coast a decision too within ``coast_range`` (s). Returns (currents
-    (N,) A, step times (N + 1,) s)."""
+    from the check set; the coast a decision too within ``coast_range`` (s). ``orthant`` (None:
+    ORTHANT): each current keeps the side of zero it starts on (``_FreeBox.keep_sides``). ``log`` (a list)
+    receives one dict per SLSQP solve (``_FreeBox.info``: iterations, status, converged).
+    Returns (currents (N,) A, step times (N + 1,) s)."""
     box = _FreeBox(prob, base, coast_range)
     box.equalities = equalities
     x = box.start(I, prob.times)
-    for _ in range(EXCHANGE_ROUNDS if rounds is None else rounds):
-        x = box.solve(x, deadline, maxiter)
+    sides = np.array(I, dtype=float)
+    orthant = ORTHANT if orthant is None else orthant
+    for k in range(EXCHANGE_ROUNDS if rounds is None else rounds):
+        if orthant:
+            box.keep_sides(sides)
+        x = (box.solve_smooth(x, deadline, maxiter, SMOOTH_BETAS[-1:] if k and SMOOTH_WARM
+                              else None)
+             if orthant and SMOOTH and equalities and prob.limits is None
+             else box.solve(x, deadline, maxiter))
+        if log is not None:
+            log.append(dict(box.info))
         e = box_kernels.rest_errors(
             prob.params.J, prob.params.n * prob.params.kt, prob.pvals, check, box.times(x),
             np.ascontiguousarray(x[:prob.n]), prob.tf, prob.q0, prob.goal)
@@ -1005,7 +1209,7 @@ def _pull_inside(I0: np.ndarray, prob0: _Problem, lim: Limits1D, base: np.ndarra
         last = k == stages
         I, t = _refine(pk, I, base, check, deadline, coast_range,
                        None if last else LIMITS_STAGE_ITER, LIMITS_FINAL_ROUNDS if last else 1,
-                       equalities)
+                       equalities, orthant=False)
         pk = _with_times(pk, t, grid if last else None)
     pk.limits = lim
     return I, pk
@@ -1130,6 +1334,7 @@ def _plan_box(request: PlanRequest, progress: Progress = None,
     free_best = None     # the same, ignoring the limits (the limits stage starts from it)
     refined = 0
     free_range = coast_range if FREE_COAST else None
+    solves: list[dict] = []     # the free-time SLSQP solves: iterations, status, converged
 
     def consider(I: Optional[np.ndarray], prob_t: _Problem) -> None:
         nonlocal best, free_best
@@ -1164,7 +1369,7 @@ def _plan_box(request: PlanRequest, progress: Progress = None,
             refined += 1
             try:
                 I_f, t_f = _refine(prob_r, I0, base_scales, check_scales, deadline, free_range,
-                                   maxiter=DUR_FREE_ITER)
+                                   maxiter=DUR_FREE_ITER, orthant=False, log=solves)
             except (ValueError, ArithmeticError):
                 continue
             prob_t = _with_times(prob_r, t_f, grid)
@@ -1250,7 +1455,7 @@ def _plan_box(request: PlanRequest, progress: Progress = None,
                 break
             try:
                 I_f, t_f = _refine(prob, J_, base_scales, check_scales, deadline,
-                                   coast_range if FREE_COAST else None)
+                                   coast_range if FREE_COAST else None, log=solves)
             except (ValueError, ArithmeticError):
                 continue
             prob_t = _with_times(prob, t_f, grid)
@@ -1272,7 +1477,8 @@ def _plan_box(request: PlanRequest, progress: Progress = None,
                 break
             try:
                 I_s, t_s = _refine(prob_r, I0, base_scales, check_scales, deadline, free_range,
-                                   maxiter=RANDOM_TIMES_SCREEN_ITER, rounds=1)
+                                   maxiter=RANDOM_TIMES_SCREEN_ITER, rounds=1, orthant=False,
+                                   log=solves)
             except (ValueError, ArithmeticError):
                 continue
             prob_s = _with_times(prob_r, t_s)
@@ -1283,7 +1489,8 @@ def _plan_box(request: PlanRequest, progress: Progress = None,
                 break
             refined += 1
             try:
-                I_f, t_f = _refine(prob_s, I_s, base_scales, check_scales, deadline, free_range)
+                I_f, t_f = _refine(prob_s, I_s, base_scales, check_scales, deadline, free_range,
+                                   orthant=False, log=solves)
             except (ValueError, ArithmeticError):
                 continue
             prob_t = _with_times(prob_s, t_f, grid)
@@ -1298,7 +1505,10 @@ def _plan_box(request: PlanRequest, progress: Progress = None,
             consider(spare[0], spare[1])
     stats = {"n_steps": n, "box": fr, "coasts_tried": per_coast, "box_samples": int(
         base_scales.shape[0]), "box_check_samples": int(check_scales.shape[0]),
-        "refined": refined, "search_time_s": time.perf_counter() - t0}
+        "refined": refined, "search_time_s": time.perf_counter() - t0,
+        "free_time_solves": {"solves": len(solves),
+                             "iterations": [int(r["iterations"]) for r in solves],
+                             "converged": sum(bool(r["converged"]) for r in solves)}}
     if dur_stats:
         stats["structured_durations"] = dict(dur_stats, answered=structured)
     if lim is not None:
