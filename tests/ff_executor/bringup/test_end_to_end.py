@@ -53,25 +53,46 @@ def machine_stalls(stack, before):
     return int(after["late_slots"]) - int(before["late_slots"])
 
 
+def log_marks(stack) -> dict[str, int]:
+    """How much each process of the stack has printed so far (for :func:`stall_evidence`)."""
+    return {p.name: len(p.output()) for p in stack.procs}
+
+
+def stall_evidence(stack, sync_before, marks: dict[str, int]) -> str:
+    """What says the MACHINE held the stack off the CPU since ``sync_before`` / ``marks`` (""
+    when nothing does): the hub's SCHED_FIFO SYNC timer sent late, the simulated driver handled
+    frames more than 100 ms after their bus time (its own warning), or SCHED_FIFO was refused (the
+    stack's real-time threads then run at normal priority). Not the bridge's own lateness: a bridge
+    that misses its cycle on a machine that gave the simulation its CPU fails the test."""
+    seen = []
+    n = machine_stalls(stack, sync_before)
+    if n:
+        seen.append(f"the hub's SYNC timer late {n} slot(s)")
+    for p in stack.procs:
+        new = p.output()[marks.get(p.name, 0):]
+        late = [line for line in new.splitlines() if "handled more than" in line]
+        if p.name == "ff_sim_driver" and late:
+            seen.append("the simulated driver stalled: " + late[-1].split("]: ", 1)[-1][:160])
+        if "cannot use SCHED_FIFO" in p.output():
+            seen.append(f"{p.name}: SCHED_FIFO refused, its real-time threads at normal priority")
+    return "; ".join(seen)
+
+
 def test_robust_lands_and_baseline_misses_with_coulomb_20_percent_off(stack_client):
     stack, client = stack_client
-    before = stack.sync_report()
+    before, marks = stack.sync_report(), log_marks(stack)
     s = run_motions(client, 1.0, 1.0, MOTIONS, log=lambda _m: None)
-    stalls = machine_stalls(stack, before)
     rob, base = s["robust"], s["baseline"]
-    # the drive's interpolation supervision stopped a move: a setpoint missed its SYNC cycle
-    timing_stops = [m["message"] for m in (rob, base) if not m["executed"] and "0x8250" in m["message"]]
-    if (stalls or timing_stops) and (rob["missed_cycles"] or base["missed_cycles"]
-                                     or not (rob["executed"] and base["executed"])):
-        # the machine held the stack's real-time threads (SCHED_FIFO where permitted) off the CPU
-        # past a SYNC period: the drive stopped the arm, as a real EPOS4 does. The stack must
-        # stop safely and say so; no landing can be claimed from such a run, and the test says
-        # that it could not check one (an xfail with the reason, never a pass).
+    evidence = stall_evidence(stack, before, marks)
+    if evidence and (rob["missed_cycles"] or base["missed_cycles"] or not (rob["executed"] and base["executed"])):
+        # the machine held the stack off the CPU past a SYNC period and a setpoint missed its
+        # cycle (the drive's interpolation supervision stops the arm, as a real EPOS4 does): the
+        # stack must stop safely and say so; no landing can be claimed from such a run, and the
+        # test says that it could not check one (an xfail with the reason, never a pass).
         for m in (rob, base):
             assert m["executed"] or "missed" in m["message"] or "safe state" in m["message"], m
-        assert any(m["missed_cycles"] for m in (rob, base)) or not (rob["executed"] and base["executed"])
-        pytest.xfail(f"the machine stalled the stack past a SYNC period (hub SYNC timer late "
-                     f"{stalls} slot(s); {'; '.join(timing_stops) or 'missed cycles reported'}): "
+        stops = "; ".join(m["message"][:200] for m in (rob, base) if not m["executed"])
+        pytest.xfail(f"the machine stalled the stack ({evidence}): {stops or 'missed cycles reported'}; "
                      "the safe stop was checked, the landing could not be")
     for m in (rob, base):
         assert m["executed"], m["message"]
@@ -117,11 +138,13 @@ SHIPPED_TOL = 0.002
 
 
 #: what a safe stop says when a watchdog of the shipped config's 10 ms timing tripped (a drive's
-#: interpolation supervision, a heartbeat or SYNC lost, a missed cycle): on a shared 2-core machine
-#: running the simulated hub and drive beside it, the derived 130 ms timeouts trip under load
-#: (at load 8-18, 4 of 5 runs: a simulated drive's heartbeat silent 131 ms, 0x8250). Such a run
-#: checks the safe stop only and says so (xfail with the reason); any other stop fails.
-_TIMING_WORDS = ("0x8250", "0x8130", "heartbeat", "SYNC", "missed")
+#: interpolation supervision, a heartbeat, SYNC or the drive's feedback lost, a missed cycle). On a
+#: shared 2-core machine the simulated driver (a normal-priority ROS process) is the weak part: at
+#: load 5-7 it handled CAN frames up to 2.6 s after their bus time (one frame 530 ms) and the
+#: bridge's 130 ms feedback watchdog tripped 0.5 s into a hold. Such a run, with that evidence
+#: (:func:`stall_evidence`), checks the safe stop only and says so (xfail with the reason); a stop
+#: without it, or any other stop, fails.
+_TIMING_WORDS = ("0x8250", "0x8130", "heartbeat", "SYNC", "missed", "feedback lost")
 
 
 def _timing_stop(text: str) -> bool:
@@ -143,16 +166,20 @@ def test_the_shipped_robot_configuration_runs_a_robust_move_on_the_simulated_epo
     client = StackClient(stack.env, "ff_e2e_shipped")
     try:
         assert stack.hub_syncs and not stack.bridge_data().get("player_process")
+        before, marks = stack.sync_report(), {}
         time.sleep(3.0)
         bridge_log = next(p for p in stack.procs if p.name == "ff_hwbridge").output()
         latched = [line for line in bridge_log.splitlines() if "safe state" in line]
-        if latched and _timing_stop(latched[0]):
-            pytest.xfail(f"the machine stalled the stack while it held: {latched[0][-300:]}")
+        evidence = stall_evidence(stack, before, marks) if latched else ""
+        if latched and _timing_stop(latched[0]) and evidence:
+            pytest.xfail(f"the machine stalled the stack while it held ({evidence}): {latched[0][-200:]}")
         assert not latched, bridge_log[-2000:]
+        before, marks = stack.sync_report(), log_marks(stack)
         s = run_motions(client, 1.0, 1.0, MOTIONS[:1], log=lambda _m: None)
         rob = s["robust"]
-        if not rob["executed"] and _timing_stop(rob["message"]):
-            pytest.xfail(f"the machine stalled the stack during the move: {rob['message'][-300:]}")
+        evidence = stall_evidence(stack, before, marks) if not rob["executed"] else ""
+        if not rob["executed"] and _timing_stop(rob["message"]) and evidence:
+            pytest.xfail(f"the machine stalled the stack during the move ({evidence}): {rob['message'][-200:]}")
         assert rob["executed"], rob["message"]
         assert rob["missed_cycles"] == 0, rob
         assert abs(rob["measured_minus_predicted"]) <= SHIPPED_TOL, rob
