@@ -74,7 +74,9 @@ def main() -> int:
         cert = certify_arm(arm, applied, np.asarray(Q0), np.asarray(QF))
         plan.update(label=res.label, plan_and_certificate_s=time.monotonic() - t0)
     run_dir = Path(tempfile.mkdtemp(prefix="bench-urdf-stack-"))
-    opts = StackOptions(cell=str(CELL), planner=a.source == "service", run_dir=str(run_dir))
+    # the planner's warm-up plans the built-in arms (their JIT caches), not needed for urdf:NAME
+    opts = StackOptions(cell=str(CELL), planner=a.source == "service", run_dir=str(run_dir),
+                        planner_overrides={"warmup": False}, start_timeout=180.0)
     t0 = time.monotonic()
     runs = []
     with Stack(opts, log=log) as stack:
