@@ -156,3 +156,39 @@ def test_a_bad_cell_is_refused_with_one_line_before_anything_starts(tmp_path, ca
     assert len(err) == 1 and "wrist" in err[0] and "motor.gear" in err[0], err
     assert main(["--urdf", str(config_dir() / "arms" / "arm3h.urdf"), "--print-config"]) == 2
     assert "--urdf needs --cell" in capsys.readouterr().err
+
+
+def test_the_urdf_plant_lands_where_the_planners_simulation_says():
+    """The simulated arm (``UrdfSimArm``, currents set per joint at the step instants, a clock of
+    its own) against the planner's simulation of the same profile, and its true friction."""
+    from ff_hwbridge.sim.urdf_plant import UrdfArmParams, UrdfSimArm, load_plant_arm
+    from ff_planner.arm.sim import simulate
+    from ff_planner.model.params import ParameterError
+    from ff_planner.model.profile import CurrentProfile
+
+    arm = load_plant_arm(CELL)
+    prof = CurrentProfile.uniform([[2.0, -2.0, 1.0], [-2.0, 2.0, -1.0], [0.0, 0.0, 0.0]], 0.65, coast=0.05)
+    now = [0]
+    params = UrdfArmParams.of(arm)
+    plant = UrdfSimArm(params, Q0, clock=lambda: now[0])
+    for k, row in enumerate(prof.currents):
+        t_ns = int(round(prof.step_times[k] * 1e9))
+        for j in range(3):
+            plant.set_current(j, float(row[j]), t_ns)
+    end = plant.state(int(3e9))
+    want = simulate(arm, prof, Q0).q_rest
+    assert np.all(np.abs(np.asarray(end.q) - want) < 1e-8), (end.q, want)
+    assert end.qd == (0.0, 0.0, 0.0)
+    # its own friction: 30 % more Coulomb friction on the wrist lands the wrist short
+    stiffer = params.replace(pc3=1.3 * params.to_dict()["pc3"])
+    assert stiffer.to_dict()["pc3"] == pytest.approx(1.3 * 0.04)       # the cell's wrist pc: 0.04 Nm
+    plant2 = UrdfSimArm(stiffer, Q0, clock=lambda: now[0])
+    for k, row in enumerate(prof.currents):
+        for j in range(3):
+            plant2.set_current(j, float(row[j]), int(round(prof.step_times[k] * 1e9)))
+    assert abs(plant2.state(int(3e9)).q[2]) < abs(want[2]) - 1e-3
+    with pytest.raises(ParameterError, match="pt2"):
+        params.replace(pt2=1.0)
+    with pytest.raises(ParameterError, match="unknown parameter 'pc4'"):
+        params.replace(pc4=0.1)
+    assert (params.n1, params.kt3, params.i_max3) == (54.0, 0.0141, 4.0)
