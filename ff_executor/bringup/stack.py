@@ -690,7 +690,9 @@ class Stack:
             "run_dir": str(self.run_dir), "can_hub": self.hub_url, "record": o.record,
             "namespace": self.ns or "/",
             "ff_sim_driver": {"source": ("generated (family, counts_per_rev, nominal_current from "
-                                         f"{o.bridge_config_file or 'config/sim_arm1dof.yaml'})"),
+                                         f"{o.bridge_config_file or 'config/sim_arm1dof.yaml'}"
+                                         + (f"; the arm, node ids and joints from {o.cell}" if o.cell else "")
+                                         + ")"),
                               "parameters": self.sim_parameters()},
             "ff_hwbridge": {"source": (f"{o.bridge_config_file}, its bus re-pointed at the hub"
                                        if o.bridge_config_file else
