@@ -10,6 +10,7 @@ certified as rounded (``certify_arm``): the certificate of the profile the drive
 from __future__ import annotations
 
 import json
+import os
 import time
 
 import numpy as np
@@ -36,15 +37,17 @@ PLAN_BUDGET = 10.0          # s of search (the certificate after it: ~10 s more 
 #: its cycle (asserted apart). 5 mrad is far below one 10 ms cycle's effect (tens of mrad).
 LAND_TOL = 0.005
 #: ms: every CAN frame of the move handled (from its bus time to the end of its handling) within
-#: this: the simulated arm's history (``REWIND_NS``, 2 s), the longest a current change may come
-#: late and still be put on the plant at its SYNC's bus instant. The 10 ms the simulated drives
-#: should keep to is printed, not asserted: on the shared 2-core machine the frames of a move
-#: waited up to 42-58 ms at load average 2.4-3.4 and up to 458 ms at 4.8 (5 runs of
-#: benchmarks/bench_urdf_stack.py: 61-458 ms), the longest handling of one frame 8-64 ms (the
-#: driver process's Python CAN handling of three drives; the plant costs 19 us of CPU per ms).
-#: What the landing needs is asserted apart: every current change put on the plant at its SYNC's
-#: bus instant (none started late).
-FRAME_LAG_MS = REWIND_NS / 1e6
+#: this, with the simulated driver under SCHED_FIFO (``rt_priority``, as the stack's tests run it
+#: where permitted): the 10 ms the simulated drives should keep to, with room for a loaded shared
+#: 2-core machine (measured: up to 5-16 ms at load average 5.2-7.9, 19.5 ms at 17).
+FRAME_LAG_MS = 50.0
+#: ms, the same without SCHED_FIFO (not permitted): the simulated arm's history (``REWIND_NS``,
+#: 2 s), the longest a current change may come late and still be put on the plant at its SYNC's bus
+#: instant. Measured at normal priority (nice -10): frames waited up to 42-58 ms at load average
+#: 2.4-3.4 and 61-458 ms at 4.0-5.4, the driver process's Python CAN handling of three drives
+#: (the plant costs 19 us of CPU per ms of arm time).
+FRAME_LAG_NO_RT_MS = REWIND_NS / 1e6
+RT_PRIORITY = 10
 
 
 def _quantized_plan():
@@ -69,7 +72,7 @@ def arm3h(ros_env, tmp_path_factory):
     """(stack, client, plan figures) of the 3-joint simulated stack and a plan for it."""
     arm, res, prof, cert, rest, planned = _quantized_plan()
     t0 = time.monotonic()
-    gen = running_stack(tmp_path_factory.mktemp("arm3h"), cell=CELL, planner=False,
+    gen = running_stack(tmp_path_factory.mktemp("arm3h"), cell=CELL, planner=False, rt_priority=RT_PRIORITY,
                         domain_id=int(ros_env["ROS_DOMAIN_ID"]), log_dir=ros_env["ROS_LOG_DIR"])
     stack = next(gen)
     started = time.monotonic() - t0
@@ -126,7 +129,7 @@ def test_a_three_joint_plan_lands_every_joint_within_its_certificate(arm3h):
     print(f"3-joint move: {took:.1f} s, {res.message!r}; landing {list(res.final_position)}, model "
           f"{rest.tolist()}, truth {None if out.rest_truth is None else out.rest_truth.tolist()}, goal {QF}, "
           f"certificate per joint {worst.tolist()} ({fig['res'].label}); frames handled within "
-          f"{lag_ms} ms of their bus time; link {link}")
+          f"{lag_ms} ms of their bus time; link {link}; load {os.getloadavg()}")
     assert out.status == GoalStatus.STATUS_SUCCEEDED and res.success, f"{res.message}\n{stack.log_tails()}"
     assert res.missed_cycles == 0, res.message
     assert out.truth is not None and out.truth.q, "no ground truth recorded during the move"
@@ -143,7 +146,9 @@ def test_a_three_joint_plan_lands_every_joint_within_its_certificate(arm3h):
     # every frame of the move handled within FRAME_LAG_MS of its bus time
     assert link["late_switches"] == 0, link
     assert all(d["rx_frames"] > 100 for d in link["drives"].values()), link
-    assert max(lag_ms.values()) < FRAME_LAG_MS, link
+    sim_pid = next(p.pid for p in stack.procs if p.name == "ff_sim_driver")
+    fifo = os.sched_getscheduler(sim_pid) == os.SCHED_FIFO
+    assert max(lag_ms.values()) < (FRAME_LAG_MS if fifo else FRAME_LAG_NO_RT_MS), (fifo, link)
     assert all(p.alive() for p in stack.procs), stack.log_tails()
 
 
