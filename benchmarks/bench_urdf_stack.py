@@ -123,7 +123,8 @@ def main() -> int:
                     "missed_cycles": int(r.missed_cycles), "landing": final.tolist(),
                     "truth": None if truth is None else truth.tolist(),
                     "error_to_model_rad": (final - model_rest).tolist(),
-                    "truth_error_to_model_rad": None if truth is None or len(truth) != 3 else (truth - model_rest).tolist(),
+                    "truth_error_to_model_rad": (None if truth is None or len(truth) != 3
+                                                 else (truth - model_rest).tolist()),
                     "error_to_goal_rad": (final - np.asarray(QF)).tolist(),
                     "within_certificate": bool(r.success and np.all(np.abs(final - np.asarray(QF)) <= worst)),
                     "frame_wait_max_ms": max(d["rx_lag_max_us"] for d in drives) / 1e3,
@@ -140,7 +141,8 @@ def main() -> int:
         finally:
             client.node.destroy_client(stats)
             client.close()
-    report = {"bench": "urdf_stack", "rt_priority": a.rt_priority, "arm": arm.name, "joints": list(arm.joints), "q0": Q0, "qf": QF,
+    report = {"bench": "urdf_stack", "rt_priority": a.rt_priority, "arm": arm.name, "joints": list(arm.joints),
+              "q0": Q0, "qf": QF,
               "tf": TF, "steps": STEPS, "plan": plan, "stack_up_s": up_s, "runs": runs,
               "all_within_certificate": all(r["within_certificate"] and r["succeeded"] for r in runs),
               "frame_wait_max_ms": max(r["frame_wait_max_ms"] for r in runs),
