@@ -7,6 +7,7 @@
     ff-bringup --bridge-config config/bridge_epos4_1dof.yaml   # the shipped robot config, bus on the hub
     ff-bringup --record run_bag             # also record the topics (ff-record, rosbag2/MCAP)
     ff-bringup --namespace arm_a            # every node under /arm_a (a second arm: --namespace arm_b)
+    ff-bringup --cell config/arms/arm3h.cell.yaml   # an arm from a URDF: one simulated EPOS4 per joint
 
 Safe defaults, always: ROS traffic on loopback only (``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST``),
 the CAN hub on 127.0.0.1 in its own process (it also produces SYNC). The domain: ``--domain-id``, else
@@ -60,6 +61,15 @@ heartbeats, the derived 130 ms timeouts. The simulated
 drives take the file's family, nominal current and encoder resolution; a file whose joints
 (node ids 1..n) or motor data (torque constant, gear ratio) are not the simulated arm's is
 refused with the key to change, before anything starts.
+
+``--cell FILE [--urdf FILE]`` (as ``ff-plan --cell``; the URDF defaults to the one the cell names)
+simulates an arm from a URDF instead of ``--model``: one simulated EPOS4 per moving joint on the
+hub, node ids from the cell (``node_id``, else 1..n), the plant the planner's n-joint model
+(``ff_hwbridge.sim.urdf_plant``) with the cell's Eq. 9 friction per joint (``--true-scale
+pc2=1.2`` / ``--true-param pc2=0.15``: keys pv1, pc1, pt1, pv2, ... for joint 1 = the first moving
+joint). The bridge's joints are the URDF's moving joints, named as there, with the cell's motor
+data, current limits and position/velocity limits (outside them: the bridge's safe state); the
+executor takes those joint names; the planner serves the arm as ``urdf:NAME`` (NAME from the cell).
 """
 from __future__ import annotations
 
@@ -75,7 +85,7 @@ import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Mapping, Optional, Sequence
+from typing import Any, Callable, Mapping, Optional, Sequence
 
 import rclpy
 import yaml
@@ -182,9 +192,24 @@ class StackOptions:
                                                # stall_dump and rt_priority above then do not apply
                                                # to the bridge (None: the stack's own bridge config)
 
+    cell: Optional[str] = None                 # an arm from a URDF: its cell file (replaces model)
+    urdf: Optional[str] = None                 # ... and its URDF (None: the one the cell names)
+
+    def base_params(self) -> Any:
+        """The simulated arm's nominal parameters: the model's table, or the cell's friction."""
+        if self.cell:
+            from ff_hwbridge.sim.urdf_plant import UrdfArmParams
+            return UrdfArmParams.of(urdf_arm(self.cell, self.urdf))
+        return default_params(self.model)
+
+    @property
+    def model_id(self) -> str:
+        """The planner's model id of the simulated arm: ``model``, or ``urdf:NAME`` of a cell."""
+        return str(self.base_params().model) if self.cell else self.model
+
     def true_friction(self) -> dict[str, float]:
         """The simulated arm's true parameters that differ from the planner's model."""
-        base = default_params(self.model)
+        base = self.base_params()
         out: dict[str, float] = {}
         unknown = [k for k in self.true_scale if k not in base.keys()]
         if unknown:
@@ -258,6 +283,46 @@ def bridge_config(model: str, hub_url: str) -> dict:
             "sync_period": SYNC_PERIOD, "heartbeat_producer_ms": HEARTBEAT_PRODUCER_MS,
             "heartbeat_timeout": HEARTBEAT_TIMEOUT, "master_heartbeat_timeout_ms": MASTER_HEARTBEAT_TIMEOUT_MS,
             "setpoint_timeout": 0.5, "joints": joints}
+
+
+_ARMS: dict[tuple[str, str], Any] = {}
+
+
+def urdf_arm(cell: str, urdf: Optional[str] = None) -> Any:
+    """The ``ff_planner.arm.model.UrdfArm`` of a cell file (and URDF), loaded once per process;
+    ValueError with the cell's own one-line reason (joint and field) when the suite cannot use it."""
+    key = (str(Path(cell).resolve()), str(Path(urdf).resolve()) if urdf else "")
+    if key not in _ARMS:
+        from ff_hwbridge.sim.drive import SimConfigError
+        from ff_hwbridge.sim.urdf_plant import load_plant_arm
+        try:
+            _ARMS[key] = load_plant_arm(cell, urdf)
+        except SimConfigError as exc:
+            raise ValueError(str(exc)) from None
+    return _ARMS[key]
+
+
+def urdf_bridge_config(arm: Any, hub_url: str) -> dict:
+    """The bridge's config for the simulated drives of an arm from a URDF (``urdf_arm``): one
+    EPOS4 per moving joint, named as in the URDF, node ids from the cell, its motor data, current
+    limit and limits (``position_min``/``max`` rad, ``velocity_max`` rad/s: the bridge's envelope)."""
+    from ff_hwbridge.sim.urdf_plant import cell_node_ids
+
+    base = bridge_config("arm1dof", hub_url)
+    joints = []
+    for jc, nid in zip(arm.cells, cell_node_ids(arm)):
+        joint: dict[str, object] = {
+            "name": jc.name, "node_id": int(nid), "family": "epos4", "current_limit": float(jc.motor.i_max),
+            "units": {"nominal_current": NOMINAL_CURRENT, "torque_constant": float(jc.motor.kt),
+                      "counts_per_rev": COUNTS_PER_REV, "gear_ratio": float(jc.motor.gear)}}
+        lim = jc.limits
+        if "position_min" in lim and "position_max" in lim:
+            joint["position_limits"] = [float(lim["position_min"]), float(lim["position_max"])]
+        if "velocity_max" in lim:
+            joint["velocity_limit"] = float(lim["velocity_max"])
+        joints.append(joint)
+    base["joints"] = joints
+    return base
 
 
 def _joint_suffix(nj: int, j: int) -> str:
@@ -491,13 +556,20 @@ class Stack:
     def sim_parameters(self) -> dict[str, object]:
         """The simulated driver's parameters (written to <run_dir>/sim_driver.yaml)."""
         o = self.options
-        nj = model_spec(o.model).n_joints
+        base = o.base_params()
+        nj = base.n_joints
         sim: dict[str, object] = {
             "model": o.model, "host_hub": not o.separate_hub, "hub_port": self.hub_port,
             "bus.interface": "remote", "bus.channel": self.hub_url, "node_ids": list(range(1, nj + 1)),
             "q0": [float(x) for x in (o.q0 or [0.0] * nj)], "counts_per_rev": COUNTS_PER_REV,
             "nominal_current": NOMINAL_CURRENT, "ground_truth_rate": 100.0,
-            "physics_step": default_params(o.model).plant_step}
+            "physics_step": base.plant_step}
+        if o.cell:      # an arm from a URDF: the cell's node ids and joint names
+            from ff_hwbridge.sim.urdf_plant import cell_node_ids
+            arm = urdf_arm(o.cell, o.urdf)
+            del sim["model"]
+            sim.update({"cell": str(Path(o.cell).resolve()), "urdf": str(Path(o.urdf).resolve()) if o.urdf else "",
+                        "node_ids": cell_node_ids(arm), "joint_names": list(arm.joints)})
         robot = self.robot_config()
         if robot is not None:     # the simulated drives carry the motor data the file asserts
             j0 = robot["joints"][0]
@@ -514,6 +586,9 @@ class Stack:
         ValueError when it cannot run on the simulation (:func:`robot_bridge_config`)."""
         if self.options.bridge_config_file is None:
             return None
+        if self.options.cell:
+            raise ValueError("--bridge-config runs a shipped robot file on the built-in arms; with --cell "
+                             "the bridge's config comes from the cell (leave --bridge-config out)")
         if self._robot is None:
             self._robot = robot_bridge_config(self.options.bridge_config_file, self.options.model,
                                               self.hub_url)
@@ -542,7 +617,8 @@ class Stack:
             bdata = dict(robot)
             self._apply_envelope(bdata)
             return bdata
-        bdata = bridge_config(self.options.model, self.hub_url)
+        bdata = (urdf_bridge_config(urdf_arm(self.options.cell, self.options.urdf), self.hub_url)
+                 if self.options.cell else bridge_config(self.options.model, self.hub_url))
         bdata["setpoint_timing"] = self.options.setpoint_timing
         if self.hub_syncs:
             bdata["sync_producer"] = "external"
@@ -573,6 +649,11 @@ class Stack:
         nominal = (float(robot["joints"][0]["units"]["nominal_current"]) if robot is not None
                    else NOMINAL_CURRENT)
         pp["current_quantum"] = nominal / 1000.0
+        if self.options.cell:      # served as urdf:NAME, whatever config/planner.yaml registers
+            arm = urdf_arm(self.options.cell, self.options.urdf)
+            pp[f"arms.{arm.name}.cell"] = str(Path(self.options.cell).resolve())
+            pp[f"arms.{arm.name}.urdf"] = str(Path(self.options.urdf).resolve() if self.options.urdf
+                                              else arm.cell.urdf)
         pp.update(self.options.planner_overrides)
         return [self.options.planner_params or str(CONFIG_DIR / "planner.yaml")], pp
 
@@ -584,7 +665,9 @@ class Stack:
         ep: dict[str, object] = {"joint_state_timeout": JOINT_STATE_TIMEOUT}
         if o.executor_params is None:   # the default file's joints are the 1-DOF arm's
             files = [str(CONFIG_DIR / f) for f in EXECUTOR_FILES if (CONFIG_DIR / f).is_file()]
-            ep["joint_names"] = [j["name"] for j in bridge_config(o.model, self.hub_url)["joints"]]
+            joints = (urdf_bridge_config(urdf_arm(o.cell, o.urdf), self.hub_url) if o.cell
+                      else bridge_config(o.model, self.hub_url))["joints"]
+            ep["joint_names"] = [j["name"] for j in joints]
         else:
             files = [o.executor_params]
         if self.ns:     # the bridge's topics inside the namespace (bridge_node is relative)
@@ -607,7 +690,9 @@ class Stack:
             "run_dir": str(self.run_dir), "can_hub": self.hub_url, "record": o.record,
             "namespace": self.ns or "/",
             "ff_sim_driver": {"source": ("generated (family, counts_per_rev, nominal_current from "
-                                         f"{o.bridge_config_file or 'config/sim_arm1dof.yaml'})"),
+                                         f"{o.bridge_config_file or 'config/sim_arm1dof.yaml'}"
+                                         + (f"; the arm, node ids and joints from {o.cell}" if o.cell else "")
+                                         + ")"),
                               "parameters": self.sim_parameters()},
             "ff_hwbridge": {"source": (f"{o.bridge_config_file}, its bus re-pointed at the hub"
                                        if o.bridge_config_file else
@@ -625,6 +710,9 @@ class Stack:
         self.robot_config()          # a robot file that cannot run here: refused before anything starts
         self.log(f"ff-bringup: run folder {self.run_dir}, ROS_DOMAIN_ID={self.env['ROS_DOMAIN_ID']} "
                  f"(loopback only), CAN hub {self.hub_url}")
+        if o.cell:
+            arm = urdf_arm(o.cell, o.urdf)
+            model = f"{o.model_id} ({o.cell}: joints {list(arm.joints)})"
         self.log(f"  simulated arm: {model}, true friction differs from the model by {true or 'nothing'}")
         if o.bridge_config_file:
             sync = "from the hub, as a kernel timer sends it" if self.hub_syncs else "from the bridge"
@@ -680,7 +768,7 @@ class Stack:
 
     def set_true_params(self, values: Mapping[str, float], timeout: float = 10.0) -> None:
         """Change the simulated arm's true parameters at runtime (``true_params.<key>``, SI)."""
-        default_params(self.options.model).replace(**values)   # refuse unknown keys early
+        self.options.base_params().replace(**values)   # refuse unknown keys early
         self.set_sim_parameters({f"true_params.{k}": float(v) for k, v in values.items()}, timeout)
 
     def set_sim_friction(self, values: Mapping[str, float], timeout: float = 10.0) -> None:
@@ -824,6 +912,11 @@ def build_parser() -> argparse.ArgumentParser:
                                  formatter_class=argparse.RawDescriptionHelpFormatter,
                                  epilog="\n".join(__doc__.splitlines()[2:6]))
     ap.add_argument("--model", default="arm1dof", choices=MODELS)
+    ap.add_argument("--cell", default=None, metavar="YAML",
+                    help="simulate an arm from a URDF instead of --model: its cell file (motors, friction, "
+                         "node ids, limits; as ff-plan --cell), e.g. config/arms/arm3h.cell.yaml")
+    ap.add_argument("--urdf", default=None, metavar="FILE",
+                    help="with --cell: the arm's URDF (default: the file the cell names)")
     ap.add_argument("--true-scale", action="append", default=[], metavar="KEY=FACTOR",
                     help="scale a true friction parameter of the simulated arm, e.g. pc=1.2")
     ap.add_argument("--true-param", action="append", default=[], metavar="KEY=VALUE",
@@ -858,7 +951,14 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                             hub_port=a.hub_port, start_timeout=a.start_timeout, rt_priority=a.rt_priority,
                             setpoint_timing=a.setpoint_timing,
                             bridge_config_file=a.bridge_config, namespace=a.namespace,
-                            **environment_options(a))
+                            cell=a.cell, urdf=a.urdf, **environment_options(a))
+        if a.urdf and not a.cell:
+            raise ValueError("--urdf needs --cell (the arm's motors, friction and node ids come from it)")
+        if a.cell and a.model != "arm1dof":
+            raise ValueError("give --model or --cell, not both")
+        if a.cell and a.bridge_config:
+            raise ValueError("--bridge-config runs a shipped robot file on the built-in arms; with --cell "
+                             "the bridge's config comes from the cell (leave --bridge-config out)")
         check_namespace(a.namespace)
         if a.namespace.strip("/ ") and a.record:
             raise ValueError("--record records the root namespace's topics; record a namespaced stack "

@@ -10,6 +10,10 @@ Parameters (see ``PARAMETERS``; ``config/sim_*.yaml``):
   bus.bitrate, true_preset + ``true_params.<key>`` (the TRUE model parameters, e.g.
   ``true_params.pc``; changeable at runtime), q0 (rad), physics_step (s), counts_per_rev,
   nominal_current (A), ground_truth_rate (Hz), diagnostics_rate (Hz).
+  An arm from a URDF (``ff_hwbridge.sim.urdf_plant``): ``cell`` (its cell file) and optionally
+  ``urdf`` (default: the file the cell names) replace ``model``: one drive per moving joint, motor
+  data from the cell, the true friction ``true_params.pv1``, ``pc1``, ``pt1``, ``pv2``, ...
+  (joint 1 = the first moving joint) starting at the cell's.
   Friction that is not Eq. 9 (1-DOF arm, changeable at runtime; ``FRICTION_PARAMETERS``):
   ``friction.stribeck`` (extra static friction, fraction of pc), ``friction.stribeck_speed``
   (rad/s), ``friction.coulomb_ripple`` (fraction of pc), ``friction.coulomb_period`` (rad): the
@@ -22,10 +26,16 @@ Parameters (see ``PARAMETERS``; ``config/sim_*.yaml``):
   no fault; 0 clears the warning).
 Publishes ``~/ground_truth`` (sensor_msgs/JointState: rad, rad/s, effort = motor current A) and
 ``/diagnostics``. Service ``~/reset`` (std_srvs/Trigger): arm back to q0 at rest (the drives keep
-applying their present current: 0 A unless enabled with a non-zero setpoint).
+applying their present current: 0 A unless enabled with a non-zero setpoint). Service
+``~/link_stats`` (std_srvs/Trigger): the window of every drive's CAN link since the previous call
+(or the start) as JSON in the message — per node id frames received, the longest wait of a frame
+between its bus time and its handling (``rx_lag_max_us``), the longest handling
+(``handle_max_us``), frames handled more than 0.1 s late — and a new window begins (the maxima in
+``/diagnostics`` then start again too; the counts there stay totals).
 """
 from __future__ import annotations
 
+import json
 import sys
 import time
 from typing import Any, Optional
@@ -45,6 +55,7 @@ from ff_hwbridge.sim.arm import FrictionMismatch
 from ff_hwbridge.sim.can_hub import CanHub, start_hub
 from ff_hwbridge.sim.drive import RX_LATE_S, SimConfigError, SimEpos
 from ff_hwbridge.sim.rig import RigConfig, SimRig
+from ff_hwbridge.sim.urdf_plant import UrdfArmParams, UrdfRigConfig, cell_node_ids, load_plant_arm
 from ff_planner.model.params import ParameterError, check_model, default_params, preset
 from ff_msgs_py.spin import spin
 
@@ -52,9 +63,11 @@ READY_LINE = "ff_sim_driver ready"
 
 PARAMETERS: dict[str, tuple[Any, str]] = {
     "model": ("arm1dof", "'arm1dof' or 'scara2'"),
-    "node_ids": ([1], "CANopen node id per joint"),
+    "cell": ("", "cell file of an arm from a URDF (replaces model; '' = none)"),
+    "urdf": ("", "URDF of that arm ('' = the one the cell names)"),
+    "node_ids": ([1], "CANopen node id per joint (with a cell: the cell's unless given)"),
     "family": ("epos4", "'epos4' (CST, 0x6071 per mille) or 'epos2' (current mode, 0x2030 mA)"),
-    "joint_names": ([""], "names in ~/ground_truth (default joint1, joint2)"),
+    "joint_names": ([""], "names in ~/ground_truth (default joint1, joint2; a cell's: its joints)"),
     "host_hub": (False, "host the CAN hub on 127.0.0.1:hub_port in this process"),
     "hub_port": (54701, "TCP port of the hosted hub"),
     "bus.interface": ("remote", "python-can interface when not hosting the hub"),
@@ -119,8 +132,14 @@ class SimDriverNode(Node):
             self.declare_parameter(name, default, descriptor(name, f"{text} (read at start; restart to change)"))
         if float(self._p("switch_interval")) > 0:
             sys.setswitchinterval(float(self._p("switch_interval")))
-        model = check_model(self._p("model"))
-        base = preset(self._p("true_preset")) if self._p("true_preset") else default_params(model)
+        urdf_arm = None
+        if self._p("cell"):
+            urdf_arm = load_plant_arm(self._p("cell"), self._p("urdf") or None)
+            base: Any = UrdfArmParams.of(urdf_arm)
+            model = base.model
+        else:
+            model = check_model(self._p("model"))
+            base = preset(self._p("true_preset")) if self._p("true_preset") else default_params(model)
         if base.model != model:
             raise ParameterError(f"true_preset {self._p('true_preset')!r} is for model "
                                  f"'{base.model}', not '{model}'")
@@ -128,6 +147,8 @@ class SimDriverNode(Node):
             self.declare_parameter(f"true_params.{key}", value, descriptor(f"true_params.{key}"))
         params = base.replace(**{k: self._p(f"true_params.{k}") for k in base.keys()})
         node_ids = tuple(int(x) for x in self._p("node_ids"))
+        if urdf_arm is not None and list(node_ids) == PARAMETERS["node_ids"][0]:
+            node_ids = tuple(cell_node_ids(urdf_arm))      # not given: the cell's
         q0 = tuple(float(x) for x in self._p("q0"))
         self.hub: Optional[CanHub] = None
         if self._p("host_hub"):
@@ -136,10 +157,11 @@ class SimDriverNode(Node):
         else:
             bus = {"interface": self._p("bus.interface"), "channel": self._p("bus.channel"),
                    "bitrate": int(self._p("bus.bitrate"))}
-        cfg = RigConfig(model=model, node_ids=node_ids, family=self._p("family"), bus=bus,
-                        true_params=params, q0=q0, step=float(self._p("physics_step")),
-                        counts_per_rev=int(self._p("counts_per_rev")),
-                        nominal_current=float(self._p("nominal_current")))
+        rig_args: dict[str, Any] = dict(
+            model=model, node_ids=node_ids, family=self._p("family"), bus=bus, true_params=params,
+            q0=q0, step=float(self._p("physics_step")), counts_per_rev=int(self._p("counts_per_rev")),
+            nominal_current=float(self._p("nominal_current")))
+        cfg = RigConfig(**rig_args) if urdf_arm is None else UrdfRigConfig(urdf_arm=urdf_arm, **rig_args)
         try:
             self.rig = SimRig(cfg)
         except Exception:
@@ -149,7 +171,8 @@ class SimDriverNode(Node):
         for d in self.rig.drives:
             d.set_stall_dump(float(self._p("stall_dump")))
         names = [n for n in self._p("joint_names") if n]
-        self.joint_names = names or [f"joint{j + 1}" for j in range(len(node_ids))]
+        self.joint_names = names or (list(urdf_arm.joints) if urdf_arm is not None
+                                     else [f"joint{j + 1}" for j in range(len(node_ids))])
         if len(self.joint_names) != len(node_ids):
             raise SimConfigError(f"joint_names needs {len(node_ids)} name(s), got {self.joint_names}")
         for nid in node_ids:
@@ -164,6 +187,8 @@ class SimDriverNode(Node):
         self.pub_truth = self.create_publisher(JointState, "~/ground_truth", 10)
         self.pub_diag = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.create_service(Trigger, "~/reset", self._on_reset)
+        self.create_service(Trigger, "~/link_stats", self._on_link_stats)
+        self._window = {d.node_id: (d.link_stats.rx_frames, d.link_stats.rx_late) for d in self.rig.drives}
         self._late_seen = 0
         self._rx_late_seen = 0
         self.create_timer(1.0 / float(self._p("ground_truth_rate")), self._publish_truth)
@@ -315,6 +340,24 @@ class SimDriverNode(Node):
         response.success = True
         response.message = (f"arm at q={list(s.q)} rad, at rest; drives apply {list(s.current)} A")
         self.get_logger().info(f"reset: {response.message}")
+        return response
+
+    def _on_link_stats(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        """The CAN link window since the last call (see the module docstring); a new one begins."""
+        out = {}
+        for d in self.rig.drives:
+            st = d.link_stats
+            frames0, late0 = self._window.get(d.node_id, (0, 0))
+            out[str(d.node_id)] = {"rx_frames": st.rx_frames - frames0, "rx_late": st.rx_late - late0,
+                                   "rx_lag_max_us": round(st.rx_lag_max_us, 1),
+                                   "handle_max_us": round(st.handle_max_us, 1)}
+            st.rx_lag_max_us = 0.0          # the maxima restart (a frame handled meanwhile may
+            st.handle_max_us = 0.0          # land in either window)
+            self._window[d.node_id] = (st.rx_frames, st.rx_late)
+        arm = self.rig.arm
+        response.success = True
+        response.message = json.dumps({"drives": out, "late_switches": arm.late_changes,
+                                       "rewound_switches": arm.rewound_changes})
         return response
 
     def _on_bus_gone(self) -> None:

@@ -75,6 +75,10 @@ class RigConfig:
                                    interpolation_supervision=self.interpolation_supervision))
         return out
 
+    def make_arm(self, q0: Sequence[float], advance: Optional[AdvanceFn] = None) -> SimArm:
+        """The plant the drives push current into (a rig for another kind of arm overrides it)."""
+        return SimArm(self.params(), q0, step=self.step, advance=advance)
+
 
 def joint_inertia(p: Params, joint: int) -> float:
     """kg m² the drive's velocity loop is tuned for (as a regulation tuning on the real arm
@@ -97,7 +101,7 @@ class SimRig:
         self.config = config
         drive_cfgs = config.drive_configs()
         q0 = config.q0 if len(config.q0) == len(drive_cfgs) else tuple(config.q0[:1]) * len(drive_cfgs)
-        self.arm = SimArm(config.params(), q0, step=config.step, advance=advance)
+        self.arm = config.make_arm(q0, advance)
         self.drives = [SimEpos(c, self.arm.port(j)) for j, c in enumerate(drive_cfgs)]
         self._own_network = network is None
         self.network = open_network(config.bus) if network is None else network
