@@ -57,14 +57,7 @@ class RigConfig:
     def drive_configs(self) -> list[DriveConfig]:
         p = self.params()
         nj = n_joints(self.model)
-        if len(self.node_ids) != nj:
-            raise SimConfigError(f"model '{self.model}' has {nj} joint(s) but {len(self.node_ids)} "
-                                 f"node id(s) were given: {list(self.node_ids)}")
-        if len(set(self.node_ids)) != nj:
-            raise SimConfigError(f"node ids must differ, got {list(self.node_ids)}")
-        noms = self.nominal_currents or (self.nominal_current,) * nj
-        if len(noms) != nj:
-            raise SimConfigError(f"nominal_currents needs {nj} value(s), got {list(noms)}")
+        noms = self._per_drive(nj, f"model '{self.model}' has {nj} joint(s)")
         out = []
         for j, nid in enumerate(self.node_ids):
             n, kt, imax = (joint_param(p, k, j) for k in ("n", "kt", "i_max"))
@@ -74,6 +67,18 @@ class RigConfig:
                                    gear_ratio=n, load_inertia=joint_inertia(p, j),
                                    interpolation_supervision=self.interpolation_supervision))
         return out
+
+    def _per_drive(self, nj: int, arm: str) -> tuple[float, ...]:
+        """The nominal current (A) of each of the ``nj`` drives, after checking that there is one
+        distinct node id per joint; SimConfigError (``arm`` describes the arm) otherwise."""
+        if len(self.node_ids) != nj:
+            raise SimConfigError(f"{arm} but {len(self.node_ids)} node id(s) were given: {list(self.node_ids)}")
+        if len(set(self.node_ids)) != nj:
+            raise SimConfigError(f"node ids must differ, got {list(self.node_ids)}")
+        noms = tuple(self.nominal_currents or (self.nominal_current,) * nj)
+        if len(noms) != nj:
+            raise SimConfigError(f"nominal_currents needs {nj} value(s), got {list(noms)}")
+        return noms
 
     def make_arm(self, q0: Sequence[float], advance: Optional[AdvanceFn] = None) -> SimArm:
         """The plant the drives push current into (a rig for another kind of arm overrides it)."""

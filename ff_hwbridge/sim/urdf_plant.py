@@ -193,14 +193,7 @@ class UrdfRigConfig(RigConfig):
     def drive_configs(self) -> list[DriveConfig]:
         p = self.params()
         arm, nj = p.arm, p.n_joints
-        if len(self.node_ids) != nj:
-            raise SimConfigError(f"arm '{arm.name}' has {nj} moving joint(s) {list(arm.joints)} but "
-                                 f"{len(self.node_ids)} node id(s) were given: {list(self.node_ids)}")
-        if len(set(self.node_ids)) != nj:
-            raise SimConfigError(f"node ids must differ, got {list(self.node_ids)}")
-        noms = self.nominal_currents or (self.nominal_current,) * nj
-        if len(noms) != nj:
-            raise SimConfigError(f"nominal_currents needs {nj} value(s), got {list(noms)}")
+        noms = self._per_drive(nj, f"arm '{arm.name}' has {nj} moving joint(s) {list(arm.joints)}")
         out = []
         for j, nid in enumerate(self.node_ids):
             motor = arm.cells[j].motor
